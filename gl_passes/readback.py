@@ -1,0 +1,28 @@
+"""The one place where GL images are read back and flipped to row 0 = top."""
+
+from __future__ import annotations
+
+import moderngl
+import numpy as np
+
+_DTYPES = {"f1": np.uint8, "f2": np.float16, "f4": np.float32, "u1": np.uint8, "u2": np.uint16,
+           "u4": np.uint32, "i1": np.int8, "i2": np.int16, "i4": np.int32}
+
+
+def read_texture(tex: moderngl.Texture, viewport: tuple[int, int, int, int] | None = None) -> np.ndarray:
+    """Texture (or a viewport x, y, w, h of it, GL bottom-left origin) → numpy
+    array (H,W) or (H,W,C), row 0 = top of the image."""
+    w, h = (viewport[2], viewport[3]) if viewport else tex.size
+    dtype = _DTYPES[tex.dtype]
+    data = tex.read(viewport=viewport) if viewport else tex.read()
+    arr = np.frombuffer(data, dtype=dtype).reshape(h, w, tex.components)
+    arr = arr[::-1]
+    return np.ascontiguousarray(arr[..., 0] if tex.components == 1 else arr)
+
+
+def read_texture_layer(arr_tex: moderngl.TextureArray, layer: int) -> np.ndarray:
+    """One layer of a texture array, flipped like `read_texture`."""
+    w, h, _ = arr_tex.size
+    dtype = _DTYPES[arr_tex.dtype]
+    full = np.frombuffer(arr_tex.read(), dtype=dtype).reshape(-1, h, w, arr_tex.components)[layer, ::-1]
+    return np.ascontiguousarray(full[..., 0] if arr_tex.components == 1 else full)

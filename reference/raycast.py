@@ -1,0 +1,187 @@
+"""Embree (embreex) reference ray casting (DESIGN.md "Conventions").
+
+Primary rays give the same buffers as the GL G-buffer (colour with the same
+local shading, linear depth, normal, position, triangle and object ids,
+material); batched point-to-point occlusion queries serve visibility tests and
+shadow ground truth. Back-face culling is emulated by continuing rays past
+back-facing hits, as Embree here is built without it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from embreex import mesh_construction, rtcore_scene
+
+from scenes.camera import Camera
+from scenes.model import Scene
+from scenes.shading import local_shade, sky
+
+_MAX_LAYERS = 64  # back-face skips per ray before giving up (pathological scenes)
+
+
+@dataclass
+class Hits:
+    """Per-ray results (N = number of rays). t (N,) float64 distance along the
+    unit direction (+inf on a miss); tri_id (N,) uint32 (0 = miss); u, v (N,)
+    float64 barycentrics of vertices 1 and 2; front (N,) bool front-facing."""
+
+    t: np.ndarray
+    tri_id: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    front: np.ndarray
+
+    @property
+    def hit(self) -> np.ndarray:
+        return self.tri_id > 0
+
+
+@dataclass
+class RayBuffers:
+    """Reference image buffers, same layout as the GL G-buffer (row 0 = top):
+    color (H,W,3) float32 linear, depth (H,W) float32 eye-space z (+inf
+    background), normal/position (H,W,3) float32, tri_id (H,W) uint32, obj_id
+    (H,W) uint16, specular/glossiness (H,W) float32."""
+
+    color: np.ndarray
+    depth: np.ndarray
+    normal: np.ndarray
+    position: np.ndarray
+    tri_id: np.ndarray
+    obj_id: np.ndarray
+    specular: np.ndarray
+    glossiness: np.ndarray
+
+    @property
+    def mask(self) -> np.ndarray:
+        return self.tri_id > 0
+
+
+class RayCaster:
+    """Embree scene over a Scene's concatenated triangles (primID = id − 1)."""
+
+    def __init__(self, scene: Scene) -> None:
+        self.scene = scene
+        self._v = scene.vertices.astype(np.float64)
+        self._f = scene.faces.astype(np.int64)
+        self._embree = rtcore_scene.EmbreeScene()
+        mesh_construction.TriangleMesh(self._embree, scene.vertices.astype(np.float32),
+                                       scene.faces.astype(np.int32))
+        e1 = self._v[self._f[:, 1]] - self._v[self._f[:, 0]]
+        e2 = self._v[self._f[:, 2]] - self._v[self._f[:, 0]]
+        self.face_normals = np.cross(e1, e2)  # (F,3) unnormalised, CCW front
+        # Offset for restarting rays past a surface: tiny against the scene size.
+        self.eps = 1e-6 * max(scene.diagonal, 1e-6)
+
+    def _run(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray) -> dict:
+        return self._embree.run(o.astype(np.float32), d.astype(np.float32), dists=tmax.astype(np.float32),
+                                output=1)
+
+    def intersect(self, origins: np.ndarray, directions: np.ndarray, tmax: np.ndarray | float | None = None,
+                  cull_back_faces: bool = True) -> Hits:
+        """Closest hit of each ray. origins, directions (N,3) (directions unit);
+        tmax scalar or (N,) maximum distance. With culling, back-facing hits are
+        skipped (the ray continues past them)."""
+        o = np.asarray(origins, np.float64).reshape(-1, 3)
+        d = np.asarray(directions, np.float64).reshape(-1, 3)
+        n = len(o)
+        limit = np.full(n, np.inf if tmax is None else 0.0) if tmax is None else np.broadcast_to(
+            np.asarray(tmax, np.float64), (n,)).copy()
+        limit = np.minimum(limit, 1e30)
+        t = np.full(n, np.inf)
+        tri = np.zeros(n, np.uint32)
+        u = np.zeros(n)
+        v = np.zeros(n)
+        front = np.zeros(n, bool)
+        travelled = np.zeros(n)
+        active = np.arange(n)
+        for _ in range(_MAX_LAYERS):
+            if len(active) == 0:
+                break
+            start = o[active] + d[active] * travelled[active, None]
+            r = self._run(start, d[active], limit[active] - travelled[active])
+            prim = r["primID"]
+            hit = prim >= 0
+            idx, p = active[hit], prim[hit]
+            th = travelled[idx] + r["tfar"][hit].astype(np.float64)
+            is_front = np.einsum("ij,ij->i", self.face_normals[p], d[idx]) < 0
+            keep = is_front | (not cull_back_faces)
+            k = idx[keep]
+            t[k], tri[k] = th[keep], p[keep].astype(np.uint32) + 1
+            u[k], v[k] = r["u"][hit][keep], r["v"][hit][keep]
+            front[k] = is_front[keep]
+            # Back faces under culling: restart just past them.
+            again = idx[~keep]
+            travelled[again] = th[~keep] + self.eps
+            active = again
+        return Hits(t=t, tri_id=tri, u=u, v=v, front=front)
+
+    def occluded(self, a: np.ndarray, b: np.ndarray, cull_back_faces: bool = False,
+                 rel_eps: float = 1e-4) -> np.ndarray:
+        """(N,) bool: is the open segment a→b blocked? a, b (N,3). The segment is
+        shortened by rel_eps·|b−a| + eps at the b end (b usually lies on a surface)
+        and started eps after a."""
+        a = np.asarray(a, np.float64).reshape(-1, 3)
+        b = np.asarray(b, np.float64).reshape(-1, 3)
+        seg = b - a
+        length = np.linalg.norm(seg, axis=1)
+        d = seg / np.maximum(length, 1e-30)[:, None]
+        start = a + d * self.eps
+        tmax = np.maximum(length * (1 - rel_eps) - 2 * self.eps, 0.0)
+        if not cull_back_faces:
+            res = self._embree.run(start.astype(np.float32), d.astype(np.float32),
+                                   dists=tmax.astype(np.float32), query="OCCLUDED")
+            return np.asarray(res) >= 0
+        return self.intersect(start, d, tmax, cull_back_faces=True).hit
+
+    def interpolate_normals(self, tri_id: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Unit shading normals (N,3) float64 at hits (barycentric interpolation of
+        vertex normals); zeros where tri_id == 0."""
+        n = np.zeros((len(tri_id), 3))
+        hit = tri_id > 0
+        f = self._f[tri_id[hit].astype(np.int64) - 1]
+        vn = self.scene.normals.astype(np.float64)
+        w0 = (1 - u[hit] - v[hit])[:, None]
+        nn = w0 * vn[f[:, 0]] + u[hit, None] * vn[f[:, 1]] + v[hit, None] * vn[f[:, 2]]
+        n[hit] = nn / np.maximum(np.linalg.norm(nn, axis=1, keepdims=True), 1e-30)
+        return n
+
+    def shade_hits(self, hits: Hits, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(colour (N,3) float32 with the local shading formula, shading normal
+        (N,3) facing the ray for back-face hits); sky colour on misses."""
+        d = np.asarray(directions, np.float64).reshape(-1, 3)
+        n = self.interpolate_normals(hits.tri_id, hits.u, hits.v)
+        n[hits.hit & ~hits.front] *= -1
+        sun = np.asarray(self.scene.sun_direction)
+        col = sky(d, sun)
+        h = hits.hit
+        obj = self.scene.face_object[hits.tri_id[h].astype(np.int64) - 1]
+        col[h] = local_shade(self.scene.materials[obj, :3], n[h].astype(np.float32), sun)
+        return col, n
+
+    def gbuffer(self, camera: Camera, cull_back_faces: bool = True) -> RayBuffers:
+        """Primary-ray buffers through every pixel centre of `camera`."""
+        h, w = camera.height, camera.width
+        d = camera.pixel_directions().reshape(-1, 3)
+        o = np.broadcast_to(np.asarray(camera.eye, np.float64), d.shape)
+        hits = self.intersect(o, d, cull_back_faces=cull_back_faces)
+        col, n = self.shade_hits(hits, d)
+        _, _, fwd = camera.basis()
+        hit = hits.hit
+        depth = np.where(hit, hits.t * (d @ fwd), np.inf)
+        pos = np.where(hit[:, None], o + d * np.where(hit, hits.t, 0)[:, None], 0.0)
+        obj = np.zeros(len(d), np.uint16)
+        obj[hit] = self.scene.face_object[hits.tri_id[hit].astype(np.int64) - 1]
+        mat = self.scene.materials[obj]
+        return RayBuffers(
+            color=col.reshape(h, w, 3).astype(np.float32),
+            depth=depth.reshape(h, w).astype(np.float32),
+            normal=n.reshape(h, w, 3).astype(np.float32),
+            position=pos.reshape(h, w, 3).astype(np.float32),
+            tri_id=hits.tri_id.reshape(h, w),
+            obj_id=obj.reshape(h, w),
+            specular=mat[:, 3].reshape(h, w).astype(np.float32),
+            glossiness=mat[:, 4].reshape(h, w).astype(np.float32),
+        )

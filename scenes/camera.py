@@ -1,0 +1,199 @@
+"""Pinhole cameras and camera paths (DESIGN.md, "Conventions").
+
+OpenGL conventions: right-handed world, the camera looks down -Z in eye space,
+image row 0 is the top, pixel (x, y) has its centre at (x + 0.5, y + 0.5).
+Matrices are float64 (4,4) in row-major numpy layout acting on column vectors.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+
+class CameraError(ValueError):
+    """An invalid camera (the message names the problem)."""
+
+
+@dataclass(frozen=True)
+class Camera:
+    """eye, target, up in world units; fov = vertical field of view in degrees;
+    width, height in pixels; near/far in world units (None = derive from the
+    scene bounds with `fit_clip`)."""
+
+    eye: tuple[float, float, float]
+    target: tuple[float, float, float]
+    up: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    fov: float = 45.0
+    width: int = 512
+    height: int = 512
+    near: float | None = None
+    far: float | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("eye", "target", "up"):
+            v = np.asarray(getattr(self, name), dtype=np.float64)
+            if v.shape != (3,):
+                raise CameraError(f"camera {name} must have 3 components")
+            if not np.all(np.isfinite(v)):
+                raise CameraError(f"camera {name} has a NaN or infinite component")
+            object.__setattr__(self, name, tuple(float(x) for x in v))
+        fwd = np.subtract(self.target, self.eye)
+        if np.linalg.norm(fwd) <= 1e-12 * max(1.0, np.linalg.norm(self.eye)):
+            raise CameraError("camera eye and target coincide")
+        up = np.asarray(self.up)
+        if np.linalg.norm(up) == 0:
+            raise CameraError("camera up vector is zero")
+        if np.linalg.norm(np.cross(fwd / np.linalg.norm(fwd), up / np.linalg.norm(up))) < 1e-6:
+            raise CameraError("camera up vector is parallel to the view direction")
+        if not (np.isfinite(self.fov) and 0.0 < self.fov < 180.0):
+            raise CameraError(f"camera fov must be in (0, 180) degrees, got {self.fov}")
+        if int(self.width) != self.width or int(self.height) != self.height or self.width < 1 or self.height < 1:
+            raise CameraError("camera width and height must be positive integers")
+        object.__setattr__(self, "width", int(self.width))
+        object.__setattr__(self, "height", int(self.height))
+        if self.near is not None or self.far is not None:
+            if self.near is None or self.far is None or not (0 < self.near < self.far < np.inf):
+                raise CameraError("camera needs 0 < near < far (both finite)")
+
+    # --- frame -----------------------------------------------------------------
+    def basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Unit (right, up, forward) vectors in world space."""
+        f = np.subtract(self.target, self.eye)
+        f = f / np.linalg.norm(f)
+        r = np.cross(f, self.up)
+        r = r / np.linalg.norm(r)
+        u = np.cross(r, f)
+        return r, u, f
+
+    @property
+    def aspect(self) -> float:
+        return self.width / self.height
+
+    def view_matrix(self) -> np.ndarray:
+        """(4,4) world → eye (gluLookAt)."""
+        r, u, f = self.basis()
+        e = np.asarray(self.eye)
+        m = np.eye(4)
+        m[0, :3], m[1, :3], m[2, :3] = r, u, -f
+        m[:3, 3] = -m[:3, :3] @ e
+        return m
+
+    def projection_matrix(self) -> np.ndarray:
+        """(4,4) eye → clip (gluPerspective); needs near/far (see fit_clip)."""
+        if self.near is None or self.far is None:
+            raise CameraError("camera has no near/far planes; call fit_clip first")
+        return perspective(self.fov, self.aspect, self.near, self.far)
+
+    def view_projection(self) -> np.ndarray:
+        return self.projection_matrix() @ self.view_matrix()
+
+    def with_size(self, width: int, height: int) -> Camera:
+        return replace(self, width=width, height=height)
+
+    def fit_clip(self, bounds: tuple[np.ndarray, np.ndarray]) -> Camera:
+        """Copy with near/far enclosing the box `bounds` (min, max): far just past
+        the farthest corner, near = far·1e-4 or the box distance if larger."""
+        lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        _, _, f = self.basis()
+        depth = (corners - np.asarray(self.eye)) @ f
+        far = max(float(depth.max()), 1e-3) * 1.01 + 1e-6
+        # Closest point of the box to the eye bounds the near plane from below.
+        closest = np.clip(self.eye, lo, hi)
+        dist = float(np.linalg.norm(closest - np.asarray(self.eye)))
+        near = max(far * 1e-4, 0.9 * dist * np.cos(np.radians(self.fov) / 2) / np.sqrt(1 + self.aspect**2))
+        near = min(near, far * 0.5)
+        return replace(self, near=near, far=far)
+
+    # --- rays --------------------------------------------------------------------
+    def pixel_directions(self) -> np.ndarray:
+        """(H,W,3) float64 unit world-space ray directions through pixel centres."""
+        r, u, f = self.basis()
+        t = np.tan(np.radians(self.fov) / 2)
+        xs = ((np.arange(self.width) + 0.5) / self.width * 2 - 1) * t * self.aspect
+        ys = (1 - (np.arange(self.height) + 0.5) / self.height * 2) * t
+        d = f + xs[None, :, None] * r + ys[:, None, None] * u
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World points (...,3) → (pixel xy (...,2) float64 with row 0 at the top,
+        eye-space depth (...,) positive in front of the camera)."""
+        p = np.asarray(points, dtype=np.float64)
+        r, u, f = self.basis()
+        d = p - np.asarray(self.eye)
+        z = d @ f
+        t = np.tan(np.radians(self.fov) / 2)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x = (d @ r) / (z * t * self.aspect)
+            y = (d @ u) / (z * t)
+        px = (x + 1) / 2 * self.width
+        py = (1 - y) / 2 * self.height
+        return np.stack([px, py], axis=-1), z
+
+
+def perspective(fov_deg: float, aspect: float, near: float, far: float) -> np.ndarray:
+    """(4,4) OpenGL perspective projection."""
+    t = 1.0 / np.tan(np.radians(fov_deg) / 2)
+    m = np.zeros((4, 4))
+    m[0, 0] = t / aspect
+    m[1, 1] = t
+    m[2, 2] = (far + near) / (near - far)
+    m[2, 3] = 2 * far * near / (near - far)
+    m[3, 2] = -1.0
+    return m
+
+
+def look_at_scene(bounds: tuple[np.ndarray, np.ndarray], azimuth: float = 35.0, elevation: float = 25.0,
+                  distance: float = 1.6, fov: float = 45.0, width: int = 512, height: int = 512) -> Camera:
+    """A camera looking at the box centre from (azimuth, elevation) degrees at
+    `distance` × the box diagonal; clip planes fitted to the box."""
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
+    c = (lo + hi) / 2
+    diag = float(np.linalg.norm(hi - lo)) or 1.0
+    a, e = np.radians(azimuth), np.radians(elevation)
+    eye = c + distance * diag * np.array([np.cos(e) * np.sin(a), np.sin(e), np.cos(e) * np.cos(a)])
+    return Camera(tuple(eye), tuple(c), (0.0, 1.0, 0.0), fov, width, height).fit_clip((lo, hi))
+
+
+def orbit_path(bounds: tuple[np.ndarray, np.ndarray], frames: int, elevation: float = 25.0,
+               distance: float = 1.4, turns: float = 1.0, seed: int = 0, jitter: float = 0.0,
+               fov: float = 45.0, width: int = 512, height: int = 512) -> list[Camera]:
+    """`frames` cameras orbiting the box centre; a seeded jitter (degrees) on
+    elevation makes paths differ reproducibly."""
+    rng = np.random.default_rng(seed)
+    start = rng.uniform(0, 360)
+    cams = []
+    for i in range(frames):
+        az = start + 360.0 * turns * i / max(frames, 1)
+        el = elevation + (rng.uniform(-jitter, jitter) if jitter else 0.0)
+        cams.append(look_at_scene(bounds, az, el, distance, fov, width, height))
+    return cams
+
+
+def flythrough_path(bounds: tuple[np.ndarray, np.ndarray], frames: int, seed: int = 0, n_keys: int = 5,
+                    fov: float = 55.0, width: int = 512, height: int = 512) -> list[Camera]:
+    """A smooth seeded path through the box: Catmull-Rom through `n_keys` random
+    key positions inside the box's upper half, always looking at the box centre
+    region ahead of the camera."""
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
+    rng = np.random.default_rng(seed)
+    ext = hi - lo
+    keys = lo + ext * rng.uniform([0.1, 0.45, 0.1], [0.9, 0.9, 0.9], size=(n_keys, 3))
+    look = lo + ext * rng.uniform([0.3, 0.1, 0.3], [0.7, 0.4, 0.7], size=(n_keys, 3))
+
+    def spline(p: np.ndarray, t: float) -> np.ndarray:
+        n = len(p)
+        s = t * (n - 1)
+        i = min(int(s), n - 2)
+        u = s - i
+        p0, p1, p2, p3 = p[max(i - 1, 0)], p[i], p[i + 1], p[min(i + 2, n - 1)]
+        return 0.5 * ((2 * p1) + (-p0 + p2) * u + (2 * p0 - 5 * p1 + 4 * p2 - p3) * u**2 + (-p0 + 3 * p1 - 3 * p2 + p3) * u**3)
+
+    cams = []
+    for k in range(frames):
+        t = k / max(frames - 1, 1)
+        eye, tgt = spline(keys, t), spline(look, t)
+        cams.append(Camera(tuple(eye), tuple(tgt), (0.0, 1.0, 0.0), fov, width, height).fit_clip((lo, hi)))
+    return cams
