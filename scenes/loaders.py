@@ -1,0 +1,600 @@
+"""Scene loaders: glTF/GLB, OBJ(+MTL) and PLY files -> :class:`scenes.model.Scene`, through trimesh.
+
+Units are whatever the file uses (glTF: metres; OBJ/PLY: arbitrary); nothing is rescaled.
+Every loaded object is a triangle mesh in world space:
+
+* vertices (V,3) float32, faces (F,3) uint32 counter-clockwise front faces,
+  normals (V,3) float32 unit vertex normals (never NaN);
+* glTF/GLB: one object per mesh-node instance (each primitive of a glTF mesh is its own
+  object, as trimesh splits them), node world transform applied; normals transformed by the
+  inverse transpose; winding flipped where the transform mirrors (det < 0). Primitives
+  without NORMAL get flat normals, as the glTF spec requires.
+* OBJ: one object per (object, material) split; MTL ``Kd`` -> albedo, ``Pm``/``Pr`` (PBR
+  extension) -> specular / glossiness (else s = 0, g = 1). Missing normals are computed
+  area-weighted over position-welded vertices (no shading seams at UV seams).
+* PLY: a single object; mean vertex (or face) colour, taken as 8-bit sRGB -> linear albedo.
+
+Materials follow DESIGN.md: albedo is linear RGB; from glTF PBR baseColorFactor -> albedo
+(times the mean linear colour of a baseColorTexture), metallicFactor -> specular s,
+roughnessFactor -> glossiness g, glTF spec defaults (1.0) when a factor is absent. A mesh with
+no material at all gets albedo 0.8 grey, s = 0, g = 1.
+
+Malformed input of any kind raises :class:`SceneLoadError` (a ``ValueError``). trimesh is
+never given a URL nor ``allow_remote``; bytes uploads get no resolver at all, so references
+to external files (buffers, textures, MTL) fail or are skipped instead of being fetched.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import re
+import struct
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+
+from scenes.model import Material, Scene, SceneObject
+
+__all__ = ["SUPPORTED_FORMATS", "SceneLoadError", "TriangleLimitError", "load_scene", "load_scene_bytes"]
+
+SUPPORTED_FORMATS = ("glb", "gltf", "obj", "ply")
+
+#: Largest object count a scene may have (object ids are uint16, 0 = none).
+_MAX_OBJECTS = 65534
+#: glTF extensions that carry compressed geometry trimesh cannot decode.
+_UNSUPPORTED_GLTF_EXTENSIONS = ("KHR_draco_mesh_compression", "EXT_meshopt_compression")
+#: Material for meshes the file gives no material (s = 0: not reflective).
+_DEFAULT_MATERIAL = Material(albedo=(0.8, 0.8, 0.8), specular=0.0, glossiness=1.0)
+#: Textures are shrunk to at most this many pixels per side before averaging.
+_TEXTURE_AVERAGE_SIZE = 256
+
+
+class SceneLoadError(ValueError):
+    """The data cannot be turned into a Scene; the message says what is wrong."""
+
+
+class TriangleLimitError(SceneLoadError):
+    """The scene has more triangles than max_triangles (n_triangles is exact, or a lower
+    bound when counted from a header). A SceneLoadError, so callers may ignore the difference."""
+
+    def __init__(self, message: str, n_triangles: int, limit: int) -> None:
+        super().__init__(message)
+        self.n_triangles = n_triangles
+        self.limit = limit
+
+
+# --------------------------------------------------------------------------------------
+# public API
+# --------------------------------------------------------------------------------------
+def load_scene_bytes(data: bytes, fmt: str, name: str = "upload", max_triangles: int | None = None) -> Scene:
+    """Load a scene from in-memory file contents.
+
+    data: the whole file (GLB, glTF JSON with embedded ``data:`` buffers, OBJ or PLY).
+    fmt: one of SUPPORTED_FORMATS (case-insensitive, a leading dot is ignored).
+    max_triangles: reject scenes with more triangles (checked from headers before decoding
+    where the format allows, and again exactly after loading).
+    External references (an OBJ's MTL, a glTF's external buffers/images) are not resolved.
+    """
+    return _load(data, fmt, name=name, max_triangles=max_triangles, resolver=None)
+
+
+def load_scene(path: str | Path, max_triangles: int | None = None) -> Scene:
+    """Load a scene file; the format comes from the suffix. Files next to it (an OBJ's
+    MTL and textures, a glTF's buffers and images) are read from the local file system only.
+    The scene is named after the file stem. An unreadable file raises SceneLoadError."""
+    path = Path(path)
+    fmt = path.suffix.lower().lstrip(".")
+    if fmt not in SUPPORTED_FORMATS:
+        raise SceneLoadError(
+            f"unsupported format {path.suffix or '(no suffix)'!r} for {path.name}; "
+            f"supported: {', '.join(SUPPORTED_FORMATS)}"
+        )
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise SceneLoadError(f"cannot read {path}: {exc}") from exc
+    from trimesh.resolvers import FilePathResolver
+
+    return _load(data, fmt, name=path.stem, max_triangles=max_triangles, resolver=FilePathResolver(str(path)))
+
+
+# --------------------------------------------------------------------------------------
+# driver
+# --------------------------------------------------------------------------------------
+def _load(data: bytes, fmt: str, name: str, max_triangles: int | None, resolver: object | None) -> Scene:
+    fmt = str(fmt).lower().lstrip(".")
+    if fmt not in SUPPORTED_FORMATS:
+        raise SceneLoadError(f"unsupported format {fmt!r}; supported: {', '.join(SUPPORTED_FORMATS)}")
+    if max_triangles is not None and max_triangles < 1:
+        raise SceneLoadError(f"max_triangles must be positive, got {max_triangles}")
+    label = fmt.upper() if fmt != "gltf" else "glTF"
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise SceneLoadError(f"{label} data must be bytes, got {type(data).__name__}")
+    data = bytes(data)
+    if not data.strip():
+        raise SceneLoadError(f"empty {label} data")
+
+    # cheap header checks before trimesh decodes anything
+    gltf_header = None
+    if fmt in ("glb", "gltf"):
+        gltf_header = _gltf_json(data, fmt)
+        _check_gltf_header(gltf_header, label, max_triangles)
+    elif fmt == "obj":
+        data = _obj_text(data)
+        _check_limit(_obj_triangle_count(data), max_triangles, estimate=False)
+    else:
+        _check_limit(_ply_face_count(data), max_triangles, estimate=True)
+
+    tm_scene = _trimesh_load(data, fmt, label, resolver)
+    try:
+        objects = _convert(tm_scene, fmt, gltf_header, max_triangles)
+    except SceneLoadError:
+        raise
+    except Exception as exc:  # trimesh visuals/graph on malformed data, numpy errors
+        raise SceneLoadError(f"malformed {label}: {type(exc).__name__}: {exc}") from exc
+
+    if not objects:
+        raise SceneLoadError(f"{label} has no faces (no non-degenerate triangles)")
+    total = sum(o.n_triangles for o in objects)
+    _check_limit(total, max_triangles, estimate=False)
+    if len(objects) > _MAX_OBJECTS:
+        objects = _merge_by_material(objects)
+    if len(objects) > _MAX_OBJECTS:
+        raise SceneLoadError(f"scene has {len(objects):,} distinct materials, limit is {_MAX_OBJECTS:,}")
+    try:
+        return Scene(objects=objects, name=name)
+    except ValueError as exc:
+        raise SceneLoadError(f"invalid scene: {exc}") from exc
+
+
+def _check_limit(n_triangles: int | None, max_triangles: int | None, estimate: bool) -> None:
+    if n_triangles is None or max_triangles is None or n_triangles <= max_triangles:
+        return
+    what = "at least " if estimate else ""
+    raise TriangleLimitError(
+        f"scene has {what}{n_triangles:,} triangles, limit is {max_triangles:,}", n_triangles, max_triangles
+    )
+
+
+def _trimesh_load(data: bytes, fmt: str, label: str, resolver: object | None):
+    """trimesh.Scene from bytes; every failure becomes SceneLoadError."""
+    import trimesh
+
+    kwargs: dict = {"process": False}
+    if fmt == "obj":
+        # one mesh per (object, material); keep faces as written
+        kwargs.update(group_material=True, split_objects=True, split_groups=False)
+    try:
+        scene = trimesh.load_scene(
+            io.BytesIO(data), file_type=fmt, resolver=resolver, allow_remote=False, **kwargs
+        )
+    except SceneLoadError:
+        raise
+    except Exception as exc:  # trimesh raises anything from KeyError to struct.error
+        msg = f"{type(exc).__name__}: {exc}"
+        if isinstance(exc, TypeError) and "NoneType" in msg and resolver is None:
+            msg = "references an external file (not allowed for in-memory data)"
+        raise SceneLoadError(f"malformed {label}: {msg}") from exc
+    if not isinstance(scene, trimesh.Scene):
+        raise SceneLoadError(f"malformed {label}: trimesh returned {type(scene).__name__}")
+    return scene
+
+
+# --------------------------------------------------------------------------------------
+# header checks (before decoding)
+# --------------------------------------------------------------------------------------
+def _gltf_json(data: bytes, fmt: str) -> dict:
+    """The glTF JSON document of a GLB container or a .gltf file."""
+    if fmt == "glb" or data[:4] == b"glTF":
+        if len(data) < 20:
+            raise SceneLoadError(f"malformed GLB: {len(data)} bytes is shorter than the 20-byte header")
+        magic, version, length = struct.unpack_from("<4sII", data, 0)
+        if magic != b"glTF":
+            raise SceneLoadError(f"malformed GLB: bad magic {magic!r} (expected b'glTF')")
+        if version != 2:
+            raise SceneLoadError(f"malformed GLB: container version {version}, only glTF 2 is supported")
+        if length > len(data):
+            raise SceneLoadError(f"malformed GLB: header says {length:,} bytes, got {len(data):,} (truncated?)")
+        chunk_len, chunk_type = struct.unpack_from("<II", data, 12)
+        if chunk_type != 0x4E4F534A:  # 'JSON'
+            raise SceneLoadError("malformed GLB: first chunk is not JSON")
+        if 20 + chunk_len > len(data):
+            raise SceneLoadError("malformed GLB: JSON chunk runs past the end of the data")
+        raw = data[20 : 20 + chunk_len]
+        label = "GLB"
+    else:
+        raw = data
+        label = "glTF"
+    try:
+        header = json.loads(raw.decode("utf-8-sig"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise SceneLoadError(f"malformed {label}: JSON header does not parse: {exc}") from exc
+    if not isinstance(header, dict):
+        raise SceneLoadError(f"malformed {label}: JSON header is not an object")
+    version = str(header.get("asset", {}).get("version", "")) if isinstance(header.get("asset"), dict) else ""
+    if not version.startswith("2"):
+        raise SceneLoadError(f"malformed {label}: asset.version is {version or 'missing'!r}, only glTF 2 is supported")
+    return header
+
+
+def _check_gltf_header(header: dict, label: str, max_triangles: int | None) -> None:
+    required = header.get("extensionsRequired") or []
+    bad = [e for e in required if e in _UNSUPPORTED_GLTF_EXTENSIONS]
+    if bad:
+        raise SceneLoadError(f"{label} needs unsupported extension(s) {', '.join(bad)}; decompress it first")
+    if max_triangles is not None:
+        try:
+            count, complete = _gltf_triangle_count(header, stop_above=max_triangles)
+        except Exception:  # malformed structure: trimesh will report it
+            count, complete = None, True
+        _check_limit(count, max_triangles, estimate=not complete)
+
+
+def _gltf_triangle_count(header: dict, stop_above: int) -> tuple[int, bool]:
+    """(triangles, complete): triangles of all mesh instances reachable from the default
+    scene, from accessor counts only (no buffer is read). Counting stops (complete = False)
+    once the running total passes 100 * stop_above, so deep instancing cannot stall it."""
+    accessors = header.get("accessors", [])
+    per_mesh = []
+    for mesh in header.get("meshes", []):
+        n = 0
+        for prim in mesh.get("primitives", []):
+            mode = prim.get("mode", 4)
+            if "indices" in prim:
+                count = int(accessors[prim["indices"]]["count"])
+            else:
+                count = int(accessors[prim["attributes"]["POSITION"]]["count"])
+            n += count // 3 if mode == 4 else max(count - 2, 0) if mode in (5, 6) else 0
+        per_mesh.append(n)
+    nodes = header.get("nodes", [])
+    scenes = header.get("scenes")
+    if scenes:
+        roots = list(scenes[int(header.get("scene", 0))].get("nodes", []))
+    else:
+        children = {c for n in nodes for c in n.get("children", [])}
+        roots = [i for i in range(len(nodes)) if i not in children]
+    total = 0
+    stack = [(r, 0) for r in roots]
+    while stack:
+        idx, depth = stack.pop()
+        if depth > 256:  # a cycle; trimesh will complain
+            break
+        node = nodes[idx]
+        if "mesh" in node:
+            total += per_mesh[node["mesh"]]
+            if total > 100 * stop_above:
+                return total, False
+        stack.extend((c, depth + 1) for c in node.get("children", []))
+    return total, True
+
+
+def _obj_text(data: bytes) -> bytes:
+    """OBJ data as UTF-8 bytes; binary data is rejected, other 8-bit text read as Latin-1."""
+    sample = data[:65536]
+    if b"\x00" in sample or sum(b < 9 or 13 < b < 32 for b in sample) > len(sample) // 100:
+        raise SceneLoadError("malformed OBJ: binary data, not an OBJ text file")
+    try:
+        data.decode("utf-8")
+        return data
+    except UnicodeDecodeError:
+        return data.decode("latin-1").encode("utf-8")
+
+
+_OBJ_FACE_LINE = re.compile(rb"^[ \t]*f[ \t]+([^\r\n#]*)", re.MULTILINE)
+
+
+def _obj_triangle_count(data: bytes) -> int:
+    """Triangles an OBJ's face lines fan-triangulate into (polygon with k corners -> k-2)."""
+    total = 0
+    for match in _OBJ_FACE_LINE.finditer(data):
+        total += max(len(match.group(1).split()) - 2, 0)
+    return total
+
+
+def _ply_face_count(data: bytes) -> int | None:
+    """'element face N' from a PLY header: a lower bound on the triangle count."""
+    end = data.find(b"end_header", 0, 1 << 16)
+    if not data.startswith(b"ply") or end < 0:
+        raise SceneLoadError("malformed PLY: missing 'ply' magic or 'end_header'")
+    match = re.search(rb"^element[ \t]+face[ \t]+(\d+)", data[:end], re.MULTILINE)
+    return int(match.group(1)) if match else None
+
+
+# --------------------------------------------------------------------------------------
+# trimesh.Scene -> SceneObjects
+# --------------------------------------------------------------------------------------
+def _convert(tm_scene, fmt: str, gltf_header: dict | None, max_triangles: int | None) -> list[SceneObject]:
+    import trimesh
+
+    header_materials: dict[str, dict] = {}
+    header_node_names: set[str] = set()
+    if gltf_header is not None:
+        mats = [m for m in gltf_header.get("materials", []) if isinstance(m, dict)]
+        names = [m.get("name") for m in mats]
+        header_materials = {m["name"]: m for m in mats if m.get("name") and names.count(m["name"]) == 1}
+        header_node_names = {n.get("name") for n in gltf_header.get("nodes", []) if isinstance(n, dict)}
+
+    geometry = tm_scene.geometry
+    instances = tm_scene.graph.nodes_geometry
+    uses: dict[str, int] = {}
+    for node in instances:
+        uses[tm_scene.graph[node][1]] = uses.get(tm_scene.graph[node][1], 0) + 1
+
+    # the limit again, instance by instance, before any per-object work
+    _check_limit(sum(len(getattr(geometry.get(tm_scene.graph[n][1]), "faces", ())) for n in instances),
+                 max_triangles, estimate=False)
+
+    objects: list[SceneObject] = []
+    used_names: set[str] = set()
+    material_cache: dict[int, Material] = {}
+    for node in instances:
+        transform, geom_name = tm_scene.graph[node]
+        mesh = geometry.get(geom_name)
+        if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+            continue  # points, lines, empty meshes
+        if node in header_node_names and node != geom_name:
+            obj_name = str(node)
+        elif uses[geom_name] > 1:
+            obj_name = f"{geom_name}@{node}"
+        else:
+            obj_name = str(geom_name)
+        obj_name = _unique(obj_name, used_names)
+
+        key = id(mesh.visual)
+        if key not in material_cache:
+            material_cache[key] = _material(mesh, fmt, header_materials)
+        obj = _mesh_object(mesh, np.asarray(transform, dtype=np.float64), fmt, obj_name, material_cache[key])
+        if obj is not None:
+            objects.append(obj)
+    return objects
+
+
+def _unique(name: str, used: set[str]) -> str:
+    out, k = name, 1
+    while out in used:
+        out, k = f"{name}_{k}", k + 1
+    used.add(out)
+    return out
+
+
+def _provided_normals(mesh) -> np.ndarray | None:
+    """Vertex normals the file gave (trimesh keeps them in its cache), else None."""
+    cache = getattr(mesh, "_cache", None)
+    store = getattr(cache, "cache", None)
+    if isinstance(store, dict) and "vertex_normals" in store:
+        normals = np.asarray(store["vertex_normals"], dtype=np.float64)
+        if normals.shape == np.shape(mesh.vertices):
+            return normals
+    return None
+
+
+def _mesh_object(mesh, transform: np.ndarray, fmt: str, name: str, material: Material) -> SceneObject | None:
+    """One world-space SceneObject from a trimesh mesh instance; None if nothing is left
+    after dropping degenerate faces."""
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
+    if len(vertices) == 0 or faces.min() < 0 or faces.max() >= len(vertices):
+        raise SceneLoadError(f"malformed {fmt.upper()}: object {name!r} has face indices out of range")
+    normals = _provided_normals(mesh)
+
+    if transform.shape != (4, 4) or not np.all(np.isfinite(transform)):
+        raise SceneLoadError(f"object {name!r}: non-finite node transform")
+    linear = transform[:3, :3]
+    if not np.allclose(transform, np.eye(4)):
+        vertices = vertices @ linear.T + transform[:3, 3]
+        if normals is not None:
+            try:
+                normals = normals @ np.linalg.inv(linear)  # (M^-T n)^T = n^T M^-1
+            except np.linalg.LinAlgError:
+                normals = None  # singular transform: recompute below
+        if np.linalg.det(linear) < 0:
+            faces = faces[:, [0, 2, 1]]  # a mirroring transform turns CCW into CW
+
+    # referenced vertices only, finite as float32
+    used = np.unique(faces)
+    remap = np.full(len(vertices), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    vertices = vertices[used].astype(np.float32)
+    faces = remap[faces]
+    if normals is not None:
+        normals = normals[used]
+    if not np.all(np.isfinite(vertices)):
+        raise SceneLoadError(f"object {name!r} has non-finite vertex coordinates")
+
+    # drop degenerate faces (repeated index or zero area in float32)
+    v64 = vertices.astype(np.float64)
+    cross = np.cross(v64[faces[:, 1]] - v64[faces[:, 0]], v64[faces[:, 2]] - v64[faces[:, 0]])
+    area2 = np.linalg.norm(cross, axis=1)
+    keep = (
+        (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
+        & np.isfinite(area2) & (area2 > 0)
+    )
+    if not keep.any():
+        return None
+    if not keep.all():
+        faces, cross = faces[keep], cross[keep]
+        used = np.unique(faces)
+        remap = np.full(len(vertices), -1, dtype=np.int64)
+        remap[used] = np.arange(len(used))
+        vertices, faces = vertices[used], remap[faces]
+        if normals is not None:
+            normals = normals[used]
+
+    if normals is None and fmt in ("glb", "gltf"):
+        # glTF spec: no NORMAL attribute -> flat shading
+        vertices = vertices[faces.reshape(-1)]
+        faces = np.arange(len(faces) * 3, dtype=np.int64).reshape(-1, 3)
+        unit = cross / np.linalg.norm(cross, axis=1, keepdims=True)
+        normals = np.repeat(unit, 3, axis=0)
+    elif normals is None:
+        normals = _smooth_normals(vertices, faces, cross)
+    else:
+        length = np.linalg.norm(normals, axis=1, keepdims=True)
+        ok = np.isfinite(length[:, 0]) & (length[:, 0] > 1e-12)
+        normals = normals / np.where(ok[:, None], length, 1.0)
+        if not ok.all():  # zero / NaN normals in the file: replace by computed ones
+            normals[~ok] = _smooth_normals(vertices, faces, cross)[~ok]
+
+    try:
+        return SceneObject(
+            name=name,
+            vertices=vertices,
+            faces=faces.astype(np.uint32),
+            normals=normals.astype(np.float32),
+            material=material,
+        )
+    except ValueError as exc:
+        raise SceneLoadError(f"object {name!r}: {exc}") from exc
+
+
+def _smooth_normals(vertices: np.ndarray, faces: np.ndarray, cross: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals (V,3) float64, accumulated over vertices welded by
+    exact position (so split UV/normal seams shade smoothly). A vertex whose incident face
+    normals cancel (e.g. back-to-back double-sided faces) gets one incident face's normal."""
+    _, weld = np.unique(vertices, axis=0, return_inverse=True)
+    weld = weld.reshape(-1)
+    n_welded = int(weld.max()) + 1
+    acc = np.zeros((n_welded, 3))
+    welded_faces = weld[faces]
+    for k in range(3):
+        np.add.at(acc, welded_faces[:, k], cross)
+    normals = acc[weld]
+    length = np.linalg.norm(normals, axis=1)
+    bad = ~(length > 1e-12 * max(1.0, float(np.abs(cross).max(initial=0.0))))
+    normals = normals / np.where(bad, 1.0, length)[:, None]
+    if bad.any():
+        face_unit = cross / np.linalg.norm(cross, axis=1, keepdims=True)
+        fallback = np.zeros_like(normals)
+        for k in range(3):
+            fallback[faces[:, k]] = face_unit
+        normals[bad] = fallback[bad]
+    return normals
+
+
+# --------------------------------------------------------------------------------------
+# materials
+# --------------------------------------------------------------------------------------
+def _srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    c = np.clip(np.asarray(c, dtype=np.float64), 0.0, 1.0)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def _texture_mean_linear(image) -> np.ndarray | None:
+    """Mean linear RGB (3,) of an sRGB texture (PIL image): texels are decoded to linear
+    first, then averaged. None if the image cannot be read."""
+    try:
+        img = image.convert("RGB")
+        img.thumbnail((_TEXTURE_AVERAGE_SIZE, _TEXTURE_AVERAGE_SIZE))
+        texels = np.asarray(img, dtype=np.float64).reshape(-1, 3) / 255.0
+    except Exception:
+        return None
+    if texels.size == 0:
+        return None
+    return _srgb_to_linear(texels).mean(axis=0)
+
+
+def _unit(x: object, default: float) -> float:
+    try:
+        v = float(x[0] if isinstance(x, (list, tuple)) else x)  # MTL values arrive as ['0.5']
+    except (TypeError, ValueError, IndexError):
+        return default
+    return float(np.clip(v, 0.0, 1.0)) if np.isfinite(v) else default
+
+
+def _rgb(x: Iterable | None, scale: float = 1.0) -> np.ndarray | None:
+    if x is None:
+        return None
+    try:
+        arr = np.asarray(x, dtype=np.float64).reshape(-1)[:3] / scale
+    except (TypeError, ValueError):
+        return None
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        return None
+    return arr
+
+
+def _make_material(albedo: np.ndarray, specular: float, glossiness: float) -> Material:
+    albedo = np.clip(np.nan_to_num(albedo, nan=0.8), 0.0, 1.0)
+    return Material(albedo=tuple(float(a) for a in albedo), specular=specular, glossiness=glossiness)
+
+
+def _material(mesh, fmt: str, header_materials: dict[str, dict]) -> Material:
+    """Material for a trimesh mesh (see the module docstring for the mapping)."""
+    from trimesh.visual.color import ColorVisuals
+    from trimesh.visual.material import PBRMaterial, SimpleMaterial
+
+    visual = mesh.visual
+    if isinstance(visual, ColorVisuals):
+        kind = visual.kind
+        if kind not in ("vertex", "face"):
+            return _DEFAULT_MATERIAL
+        colors = visual.vertex_colors if kind == "vertex" else visual.face_colors
+        rgb = np.asarray(colors, dtype=np.float64)[:, :3] / 255.0
+        # 8-bit PLY/OBJ colours are sRGB-encoded; glTF COLOR_0 is linear already
+        linear = rgb if fmt in ("glb", "gltf") else _srgb_to_linear(rgb)
+        return _make_material(linear.mean(axis=0), 0.0, 1.0)
+
+    mat = getattr(visual, "material", None)
+    if isinstance(mat, PBRMaterial):
+        pbr = header_materials.get(mat.name or "", {}).get("pbrMetallicRoughness")
+        if isinstance(pbr, dict):  # exact floats from the file (trimesh rounds colours to 8 bit)
+            base = _rgb(pbr.get("baseColorFactor", [1.0, 1.0, 1.0, 1.0]))
+            metallic = _unit(pbr.get("metallicFactor", 1.0), 1.0)
+            roughness = _unit(pbr.get("roughnessFactor", 1.0), 1.0)
+        else:
+            base = _rgb(mat.baseColorFactor, 255.0) if mat.baseColorFactor is not None else np.ones(3)
+            metallic = _unit(mat.metallicFactor if mat.metallicFactor is not None else 1.0, 1.0)
+            roughness = _unit(mat.roughnessFactor if mat.roughnessFactor is not None else 1.0, 1.0)
+        if base is None:
+            base = np.ones(3)
+        if mat.baseColorTexture is not None:
+            tex = _texture_mean_linear(mat.baseColorTexture)
+            if tex is not None:
+                base = base * tex
+        return _make_material(base, metallic, roughness)
+
+    if isinstance(mat, SimpleMaterial):
+        extra = getattr(mat, "kwargs", {}) or {}
+        kd = _rgb(extra.get("kd"))
+        image = getattr(mat, "image", None)
+        if not extra and (image is None or max(image.size) <= 2):
+            return _DEFAULT_MATERIAL  # trimesh's placeholder (e.g. an OBJ with UVs but no MTL)
+        if kd is None:
+            kd = _rgb(mat.diffuse, 255.0)
+            if kd is None:
+                kd = np.asarray(_DEFAULT_MATERIAL.albedo)
+        if image is not None:
+            tex = _texture_mean_linear(image)
+            if tex is not None:
+                kd = kd * tex
+        return _make_material(kd, _unit(extra.get("pm", 0.0), 0.0), _unit(extra.get("pr", 1.0), 1.0))
+
+    if mat is not None:  # some other trimesh material: its main colour
+        main = getattr(mat, "main_color", None)
+        rgb = _rgb(main, 255.0) if main is not None else None
+        if rgb is not None:
+            return _make_material(rgb, 0.0, 1.0)
+    return _DEFAULT_MATERIAL
+
+
+def _merge_by_material(objects: list[SceneObject]) -> list[SceneObject]:
+    """Concatenate objects that share a material (used when there are too many for uint16
+    object ids). Order of first appearance is kept."""
+    groups: dict[Material, list[SceneObject]] = {}
+    for obj in objects:
+        groups.setdefault(obj.material, []).append(obj)
+    merged = []
+    for material, objs in groups.items():
+        offsets = np.cumsum([0] + [len(o.vertices) for o in objs[:-1]])
+        merged.append(
+            SceneObject(
+                name=objs[0].name if len(objs) == 1 else f"{objs[0].name}+{len(objs) - 1}",
+                vertices=np.concatenate([o.vertices for o in objs]),
+                faces=np.concatenate([o.faces.astype(np.int64) + off for o, off in zip(objs, offsets, strict=True)]),
+                normals=np.concatenate([o.normals for o in objs]),
+                material=material,
+            )
+        )
+    return merged

@@ -1,0 +1,393 @@
+"""scenes.loaders on the real models in ../shared/scenes and on small synthetic files."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from scenes.loaders import SUPPORTED_FORMATS, SceneLoadError, TriangleLimitError, load_scene, load_scene_bytes
+from scenes.model import Scene
+
+SCENES = Path(os.environ.get("DEPTHVIEW_SHARED_SCENES", Path(__file__).resolve().parents[2] / "shared" / "scenes"))
+
+
+def shared(relpath: str) -> Path:
+    p = SCENES / relpath
+    if not p.exists():
+        pytest.skip(f"{p} not present")
+    return p
+
+
+def srgb_to_linear(c):
+    c = np.asarray(c, dtype=np.float64)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def check_geometry(scene: Scene) -> None:
+    """Invariants every loaded scene must satisfy."""
+    assert isinstance(scene, Scene) and scene.objects
+    for o in scene.objects:
+        assert o.vertices.dtype == np.float32 and o.faces.dtype == np.uint32 and o.normals.dtype == np.float32
+        assert o.normals.shape == o.vertices.shape
+        assert np.isfinite(o.vertices).all() and np.isfinite(o.normals).all()
+        np.testing.assert_allclose(np.linalg.norm(o.normals, axis=1), 1.0, atol=1e-5)
+        assert o.n_triangles > 0 and int(o.faces.max()) < len(o.vertices)
+        assert all(0.0 <= a <= 1.0 for a in o.material.albedo)
+        # no degenerate triangles survive
+        v = o.vertices.astype(np.float64)
+        f = o.faces.astype(np.int64)
+        area2 = np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
+        assert (area2 > 0).all()
+
+
+def outward_fraction(o) -> tuple[float, float]:
+    """Fraction of faces whose CCW normal, and of vertices whose normal, points away from
+    the object's centroid (for closed, roughly convex shapes)."""
+    v = o.vertices.astype(np.float64)
+    f = o.faces.astype(np.int64)
+    c = v.mean(axis=0)
+    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    faces_out = np.mean(np.einsum("ij,ij->i", fn, v[f].mean(axis=1) - c) > 0)
+    verts_out = np.mean(np.einsum("ij,ij->i", o.normals, v - c) > 0)
+    return float(faces_out), float(verts_out)
+
+
+# --------------------------------------------------------------------------------------
+# real models
+# --------------------------------------------------------------------------------------
+def test_diorama_glb_objects_and_materials():
+    scene = load_scene(shared("macross_diorama/scene.glb"))
+    check_geometry(scene)
+    assert scene.name == "scene"
+    assert len(scene.objects) >= 5  # one mesh with 24 primitives -> 24 objects
+    assert scene.n_triangles == 102_822
+    albedos = {o.material.albedo for o in scene.objects}
+    assert len(albedos) >= 10  # many distinct coloured materials
+    # exact glTF floats (not trimesh's 8-bit rounding): material "mat1" baseColorFactor
+    mat1 = (0.610000014, 0.150000006, 0.689999998)
+    assert any(np.allclose(o.material.albedo, mat1, atol=1e-7) for o in scene.objects)
+    assert all(o.material.specular == 0.0 for o in scene.objects)  # metallicFactor 0 everywhere
+    assert any(abs(o.material.glossiness - 0.583820879) < 1e-6 for o in scene.objects)  # roughnessFactor of mat24
+    lo, hi = scene.bounds
+    assert np.all(hi > lo)
+
+
+def test_glb_bytes_equals_path_load():
+    path = shared("macross_diorama/scene.glb")
+    a = load_scene(path)
+    b = load_scene_bytes(path.read_bytes(), "glb", name="diorama")
+    assert b.name == "diorama"
+    assert [o.name for o in a.objects] == [o.name for o in b.objects]
+    np.testing.assert_array_equal(a.faces, b.faces)
+    np.testing.assert_array_equal(a.vertices, b.vertices)
+    assert [o.material for o in a.objects] == [o.material for o in b.objects]
+
+
+def test_quaternius_trees_materials_split():
+    for stem in ("Birch_8", "Pine_1", "Tree_3"):
+        scene = load_scene(shared(f"quaternius_trees/{stem}.obj"))
+        check_geometry(scene)
+        assert len(scene.objects) == 2, stem  # bark + leaves, one usemtl each
+        names = " ".join(o.name for o in scene.objects)
+        assert "Bark" in names and "Leaves" in names, names
+        for o in scene.objects:
+            # the MTL's Kd (both materials are 0.64 grey in these files); no Pm/Pr -> s=0, g=1
+            assert o.material.albedo == (0.64, 0.64, 0.64)
+            assert (o.material.specular, o.material.glossiness) == (0.0, 1.0)
+    # the Pine's 329 OBJ faces (quads and a 10-gon) fan-triangulate to 664 triangles
+    assert load_scene(shared("quaternius_trees/Pine_1.obj")).n_triangles == 664
+
+
+@pytest.mark.parametrize(
+    "relpath,n_tri",
+    [("teapot/teapot.obj", 6320), ("spot/spot.obj", 5856), ("stanford_bunny/stanford-bunny.obj", 69451)],
+)
+def test_obj_without_normals_gets_computed_normals(relpath, n_tri):
+    scene = load_scene(shared(relpath))
+    check_geometry(scene)
+    assert len(scene.objects) == 1
+    assert scene.n_triangles <= n_tri and scene.n_triangles >= n_tri - 50  # a few degenerate faces may go
+    o = scene.objects[0]
+    # computed normals agree with the faces around them: mean cosine to adjacent face normals
+    v = o.vertices.astype(np.float64)
+    f = o.faces.astype(np.int64)
+    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    fn /= np.linalg.norm(fn, axis=1, keepdims=True)
+    cos = np.einsum("ij,ij->i", o.normals[f[:, 0]].astype(np.float64), fn)
+    assert np.median(cos) > 0.9
+    # positions that trimesh split (UV seams on spot) share one normal
+    _, inv = np.unique(o.vertices, axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    first = np.full(inv.max() + 1, -1)
+    first[inv[::-1]] = np.arange(len(inv))[::-1]
+    np.testing.assert_allclose(o.normals, o.normals[first[inv]], atol=1e-6)
+
+
+def test_too_many_objects_merge_by_material(monkeypatch):
+    import scenes.loaders as loaders
+
+    path = shared("quaternius_trees/Birch_8.obj")
+    full = load_scene(path)
+    monkeypatch.setattr(loaders, "_MAX_OBJECTS", 1)
+    merged = load_scene(path)  # both objects share Kd 0.64 -> one object
+    assert len(merged.objects) == 1 and merged.n_triangles == full.n_triangles
+    check_geometry(merged)
+    np.testing.assert_array_equal(np.sort(merged.vertices, axis=0), np.sort(full.vertices, axis=0))
+    np.testing.assert_array_equal(merged.vertices[merged.faces], full.vertices[full.faces])
+    with pytest.raises(SceneLoadError, match="distinct materials"):
+        load_scene(shared("macross_diorama/scene.glb"))
+
+
+def test_obj_mtl_kd_and_pbr_keys(tmp_path):
+    (tmp_path / "two.mtl").write_text(
+        "newmtl red\nKd 0.8 0.1 0.05\n\nnewmtl chrome\nKd 0.5 0.5 0.6\nPm 0.9\nPr 0.25\n"
+    )
+    (tmp_path / "two.obj").write_text(
+        "mtllib two.mtl\n"
+        "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\nv 2 1 0\nv 3 3 3\n"
+        "o quad\nusemtl red\nf 1 2 3 4\n"
+        "o strip\nusemtl chrome\nf 2 5 6\nf 2 6 3\nf 2 2 5\n"  # last face is degenerate
+    )
+    scene = load_scene(tmp_path / "two.obj")
+    check_geometry(scene)
+    mats = {o.material.albedo: o.material for o in scene.objects}
+    assert len(scene.objects) == 2 and len(mats) == 2
+    red, chrome = mats[(0.8, 0.1, 0.05)], mats[(0.5, 0.5, 0.6)]
+    assert (red.specular, red.glossiness) == (0.0, 1.0)
+    assert (chrome.specular, chrome.glossiness) == (0.9, 0.25)
+    assert scene.n_triangles == 4  # 2 from the quad + 2 (degenerate one dropped)
+    for o in scene.objects:
+        assert len(o.vertices) == int(o.faces.max()) + 1  # unreferenced vertex (3,3,3) gone
+        np.testing.assert_allclose(o.normals, np.tile([0, 0, 1], (len(o.vertices), 1)), atol=1e-6)
+    # the same OBJ as bytes: the MTL is not resolved -> default material, still loads
+    plain = load_scene_bytes((tmp_path / "two.obj").read_bytes(), "obj")
+    assert all(o.material.albedo == (0.8, 0.8, 0.8) for o in plain.objects)
+
+
+# --------------------------------------------------------------------------------------
+# synthetic GLB / PLY
+# --------------------------------------------------------------------------------------
+def _box_glb(include_normals: bool = True) -> bytes:
+    import trimesh
+    from trimesh.visual.material import PBRMaterial
+
+    box = trimesh.creation.box(extents=(1.0, 2.0, 3.0))
+    box.visual = trimesh.visual.TextureVisuals(
+        material=PBRMaterial(name="paint", baseColorFactor=[0.25, 0.5, 0.75, 1.0], metallicFactor=0.3,
+                             roughnessFactor=1.7)  # out of range on purpose: clamped to 1
+    )
+    sc = trimesh.Scene()
+    sc.add_geometry(box, node_name="plain", geom_name="box")
+    mirror = np.diag([-1.0, 1.0, 1.0, 1.0])
+    mirror[:3, 3] = [5.0, 0.0, 0.0]
+    sc.add_geometry(box, node_name="mirrored", geom_name="box", transform=mirror)
+    return sc.export(file_type="glb", include_normals=include_normals)
+
+
+@pytest.mark.parametrize("include_normals", [True, False])
+def test_glb_node_transforms_and_mirroring(include_normals):
+    scene = load_scene_bytes(_box_glb(include_normals), "glb")
+    check_geometry(scene)
+    assert len(scene.objects) == 2
+    by_name = {o.name: o for o in scene.objects}
+    assert set(by_name) == {"plain", "mirrored"}
+    np.testing.assert_allclose(by_name["mirrored"].vertices.mean(axis=0), [5.0, 0.0, 0.0], atol=1e-6)
+    for o in scene.objects:
+        faces_out, verts_out = outward_fraction(o)
+        assert faces_out == 1.0 and verts_out == 1.0, o.name  # winding and normals survive the mirror
+        # trimesh writes its 8-bit copy of the colour; exact floats are checked on the diorama
+        assert o.material.albedo == pytest.approx((0.25, 0.5, 0.75), abs=1 / 255)
+        assert (o.material.specular, o.material.glossiness) == pytest.approx((0.3, 1.0))
+    if not include_normals:  # glTF without NORMAL -> flat normals, 3 vertices per triangle
+        o = scene.objects[0]
+        assert len(o.vertices) == 3 * o.n_triangles
+
+
+def test_gltf_json_with_external_and_embedded_buffers(tmp_path):
+    import trimesh
+
+    tm = trimesh.load_scene(io.BytesIO(_box_glb()), file_type="glb")
+    for name, blob in tm.export(file_type="gltf").items():  # model.gltf + external .bin buffers
+        (tmp_path / name).write_bytes(blob)
+    scene = load_scene(tmp_path / "model.gltf")
+    check_geometry(scene)
+    assert sorted(o.name for o in scene.objects) == ["mirrored", "plain"] and scene.n_triangles == 24
+    # in-memory glTF may not reference files: rejected, nothing fetched
+    with pytest.raises(SceneLoadError, match="external file"):
+        load_scene_bytes((tmp_path / "model.gltf").read_bytes(), "gltf")
+    embedded = tm.export(file_type="gltf", embed_buffers=True)["model.gltf"]
+    assert load_scene_bytes(embedded, "gltf").n_triangles == 24
+
+
+def test_glb_base_color_texture_mean():
+    import trimesh
+    from PIL import Image
+    from trimesh.visual.material import PBRMaterial
+
+    tex = np.zeros((8, 8, 3), dtype=np.uint8)
+    tex[:, :4] = (255, 128, 0)
+    tex[:, 4:] = (0, 128, 255)
+    mesh = trimesh.creation.box()
+    uv = np.random.default_rng(1).random((len(mesh.vertices), 2))
+    mesh.visual = trimesh.visual.TextureVisuals(
+        uv=uv, material=PBRMaterial(baseColorFactor=[0.5, 1.0, 1.0, 1.0], baseColorTexture=Image.fromarray(tex))
+    )
+    scene = load_scene_bytes(trimesh.Scene(mesh).export(file_type="glb"), "glb")
+    expected = np.array([0.5, 1.0, 1.0]) * srgb_to_linear(tex.reshape(-1, 3) / 255.0).mean(axis=0)
+    # the factor goes through trimesh's 8-bit copy when trimesh writes the GLB
+    np.testing.assert_allclose(scene.objects[0].material.albedo, expected, atol=1 / 255)
+    assert scene.objects[0].material.specular == 1.0  # metallicFactor absent -> glTF default 1
+
+
+def test_ply_round_trip_with_vertex_colours():
+    import trimesh
+
+    mesh = trimesh.creation.icosphere(subdivisions=2, radius=2.0)
+    colours = np.zeros((len(mesh.vertices), 4), dtype=np.uint8)
+    colours[:] = (200, 100, 50, 255)
+    colours[::2, :3] = (20, 40, 250)
+    mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=colours)
+    for encoding in ("binary", "ascii"):
+        data = mesh.export(file_type="ply", encoding=encoding)
+        scene = load_scene_bytes(data, "ply", name="ico")
+        check_geometry(scene)
+        assert len(scene.objects) == 1
+        o = scene.objects[0]
+        assert o.n_triangles == len(mesh.faces) == 320
+        np.testing.assert_allclose(np.sort(o.vertices, axis=0), np.sort(mesh.vertices, axis=0), atol=1e-6)
+        np.testing.assert_allclose(np.linalg.norm(o.vertices, axis=1), 2.0, atol=1e-5)
+        expected = srgb_to_linear(colours[:, :3] / 255.0).mean(axis=0)
+        np.testing.assert_allclose(o.material.albedo, expected, atol=1e-9)
+        assert outward_fraction(o) == (1.0, 1.0)
+
+
+def test_load_scene_ply_file(tmp_path):
+    import trimesh
+
+    p = tmp_path / "tet.ply"
+    p.write_bytes(trimesh.creation.box().export(file_type="ply"))
+    scene = load_scene(p)
+    assert scene.name == "tet" and scene.n_triangles == 12
+    assert scene.objects[0].material.albedo == (0.8, 0.8, 0.8)  # no colours -> default
+
+
+# --------------------------------------------------------------------------------------
+# malformed input
+# --------------------------------------------------------------------------------------
+def test_supported_formats():
+    assert SUPPORTED_FORMATS == ("glb", "gltf", "obj", "ply")
+
+
+@pytest.mark.parametrize("fmt", SUPPORTED_FORMATS)
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_random_bytes_rejected(fmt, seed):
+    data = np.random.default_rng(seed).bytes(4096)
+    with pytest.raises(SceneLoadError, match=r"(?i)malformed|no faces"):
+        load_scene_bytes(data, fmt)
+
+
+@pytest.mark.parametrize("fmt", SUPPORTED_FORMATS)
+def test_empty_rejected(fmt):
+    with pytest.raises(SceneLoadError, match="empty"):
+        load_scene_bytes(b"", fmt)
+
+
+def test_structurally_broken_inputs():
+    cases = [
+        ("obj", "no faces", b"v 0 0 0\nv 1 0 0\nv 0 1 0\n"),
+        ("obj", "no faces", b"v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n"),  # collinear: only a degenerate face
+        ("obj", "non-finite", b"v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n"),
+        ("obj", "binary", b"\x00\x01\x02" * 100),
+        ("ply", "malformed PLY", b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n1\n2\n3\n"),
+        ("glb", "truncated", _box_glb()[:200]),
+        ("glb", "magic", b"GLTF" + bytes(40)),
+        ("gltf", "malformed glTF", b'{"asset": {"version": "2.0"}, "meshes": [{"primitives": [{"attributes":'
+         b' {"POSITION": 7}}]}], "nodes": [{"mesh": 0}], "scenes": [{"nodes": [0]}]}'),
+        ("gltf", "does not parse", b"{not json"),
+        ("gltf", "version", b'{"asset": {"version": "1.0"}}'),
+    ]
+    for fmt, needle, data in cases:
+        with pytest.raises(SceneLoadError, match=needle):
+            load_scene_bytes(data, fmt)
+
+
+def test_gltf_external_buffer_not_fetched():
+    doc = {
+        "asset": {"version": "2.0"},
+        "buffers": [{"uri": "https://example.invalid/geometry.bin", "byteLength": 36}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                       "min": [0, 0, 0], "max": [1, 1, 0]}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "nodes": [{"mesh": 0}],
+        "scenes": [{"nodes": [0]}],
+    }
+    with pytest.raises(SceneLoadError, match="external file"):
+        load_scene_bytes(json.dumps(doc).encode(), "gltf")
+
+
+def test_compressed_glb_rejected():
+    doc = json.dumps({"asset": {"version": "2.0"}, "extensionsRequired": ["KHR_draco_mesh_compression"]}).encode()
+    doc += b" " * (-len(doc) % 4)
+    glb = struct.pack("<4sII", b"glTF", 2, 20 + len(doc)) + struct.pack("<II", len(doc), 0x4E4F534A) + doc
+    with pytest.raises(SceneLoadError, match="KHR_draco_mesh_compression"):
+        load_scene_bytes(glb, "glb")
+
+
+def test_unsupported_format():
+    with pytest.raises(SceneLoadError, match="unsupported format 'fbx'"):
+        load_scene_bytes(b"abc", "fbx")
+    with pytest.raises(SceneLoadError, match="unsupported format"):
+        load_scene("model.stl")
+    with pytest.raises(SceneLoadError, match="cannot read"):
+        load_scene("/nonexistent/model.obj")
+
+
+def test_max_triangles():
+    glb = shared("macross_diorama/scene.glb")
+    with pytest.raises(SceneLoadError, match=r"102,822 triangles, limit is 100,000") as info:
+        load_scene(glb, max_triangles=100_000)
+    assert isinstance(info.value, TriangleLimitError)
+    assert (info.value.n_triangles, info.value.limit) == (102_822, 100_000)
+    assert load_scene(glb, max_triangles=102_822).n_triangles == 102_822
+    bunny = shared("stanford_bunny/stanford-bunny.obj")
+    with pytest.raises(SceneLoadError, match=r"69,451 triangles, limit is 1,000"):
+        load_scene(bunny, max_triangles=1_000)
+
+
+def test_max_triangles_checked_before_decoding(monkeypatch):
+    """Over-limit files are rejected from their headers, before trimesh parses them."""
+    import trimesh
+
+    def boom(*args, **kwargs):
+        raise AssertionError("trimesh should not be called")
+
+    monkeypatch.setattr(trimesh, "load_scene", boom)
+    big_obj = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\n" + b"f 1 2 4 3\n" * 600
+    with pytest.raises(SceneLoadError, match=r"1,200 triangles, limit is 1,000"):
+        load_scene_bytes(big_obj, "obj", max_triangles=1_000)
+    ply = b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nelement face 5000\nend_header\n"
+    with pytest.raises(SceneLoadError, match=r"at least 5,000 triangles"):
+        load_scene_bytes(ply, "ply", max_triangles=1_000)
+    with pytest.raises(SceneLoadError, match=r"24 triangles, limit is 10"):
+        load_scene_bytes(_box_glb(), "glb", max_triangles=10)
+
+
+def test_only_scene_load_error_escapes_fuzzed_glb():
+    """Bit flips in a valid GLB give a Scene or a SceneLoadError, nothing else."""
+    good = bytearray(_box_glb())
+    rng = np.random.default_rng(7)
+    for _ in range(40):
+        data = bytearray(good)
+        for pos in rng.integers(0, len(data), size=4):
+            data[pos] = int(rng.integers(0, 256))
+        try:
+            load_scene_bytes(bytes(data), "glb")
+        except SceneLoadError:
+            pass
