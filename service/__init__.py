@@ -1,0 +1,1 @@
+"""depthview HTTP service: FastAPI app, content-addressed scene store, GL render worker, CLI."""

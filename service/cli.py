@@ -1,0 +1,152 @@
+"""The ``depthview`` command line (also ``python -m service``).
+
+    depthview serve  [--host H] [--port P] [--data-dir DIR] [--gl-backend egl|osmesa]
+    depthview render --scene NAME|FILE [--eye X Y Z] [--target X Y Z] [--up X Y Z] [--fov DEG]
+                     [--width W] [--height H] [--detail D] [--seed S] OUTPUT.png|OUTPUT.exr
+    depthview scenes [--detail D]
+
+``render`` renders in-process on its own GL context (no server needed). Without
+``--eye`` the camera orbits the scene bounds (``--azimuth``, ``--elevation``,
+``--distance``); without ``--target`` it looks at the bounds' centre.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from service.config import Settings
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="depthview", description="Headless depth-image rendering service.")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("serve", help="run the HTTP service (uvicorn)")
+    s.add_argument("--host", default=None, help="bind address (default 127.0.0.1 or DEPTHVIEW_HOST)")
+    s.add_argument("--port", type=int, default=None, help="port (default 8000 or DEPTHVIEW_PORT)")
+    s.add_argument("--data-dir", type=Path, default=None, help="scene store directory (default ./data)")
+    s.add_argument("--gl-backend", choices=("egl", "osmesa"), default=None, help="GL backend (default: EGL)")
+    s.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))
+
+    r = sub.add_parser("render", help="render one frame to a PNG or EXR file (in-process)")
+    r.add_argument("--scene", required=True, help="built-in scene name or a .glb/.gltf/.obj/.ply file")
+    r.add_argument("--eye", type=float, nargs=3, metavar=("X", "Y", "Z"), help="camera position")
+    r.add_argument("--target", type=float, nargs=3, metavar=("X", "Y", "Z"), help="look-at point (default: centre)")
+    r.add_argument("--up", type=float, nargs=3, metavar=("X", "Y", "Z"), default=(0.0, 1.0, 0.0))
+    r.add_argument("--fov", type=float, default=45.0, help="vertical field of view in degrees")
+    r.add_argument("--width", type=int, default=512)
+    r.add_argument("--height", type=int, default=512)
+    r.add_argument("--azimuth", type=float, default=35.0, help="orbit azimuth (deg) when --eye is not given")
+    r.add_argument("--elevation", type=float, default=25.0, help="orbit elevation (deg) when --eye is not given")
+    r.add_argument("--distance", type=float, default=1.6, help="orbit distance (× bounds diagonal)")
+    r.add_argument("--detail", type=float, default=1.0, help="built-in scene detail")
+    r.add_argument("--seed", type=int, default=0, help="built-in scene seed")
+    r.add_argument("--no-cull", action="store_true", help="disable back-face culling")
+    r.add_argument("--gl-backend", choices=("egl", "osmesa"), default=None)
+    r.add_argument("output", type=Path, help="output file: .png (sRGB) or .exr (RGB, Z, N, id, object)")
+
+    c = sub.add_parser("scenes", help="list the built-in scenes with their triangle counts")
+    c.add_argument("--detail", type=float, default=None, help="show the triangle estimate at this detail")
+    return p
+
+
+def _load_scene(spec: str, detail: float, seed: int):  # -> Scene
+    from scenes import builtin
+
+    if spec in builtin.BUILTIN_NAMES:
+        return builtin.make_builtin(spec, detail=detail, seed=seed)
+    path = Path(spec)
+    if not path.is_file():
+        raise ValueError(f"--scene {spec!r} is neither a built-in ({', '.join(builtin.BUILTIN_NAMES)}) nor a file")
+    from scenes.loaders import load_scene
+
+    return load_scene(path)
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    from gl_passes.context import create_gl_context
+    from gl_passes.gbuffer import GBufferPass
+    from gl_passes.upload import SceneGPU
+    from scenes.camera import Camera, look_at_scene
+    from service.worker import encode_frame
+
+    fmt = args.output.suffix.lower().lstrip(".")
+    if fmt not in ("png", "exr"):
+        raise ValueError(f"output must end in .png or .exr, got {args.output.name!r}")
+    scene = _load_scene(args.scene, args.detail, args.seed)
+    if args.eye is None:
+        camera = look_at_scene(scene.bounds, args.azimuth, args.elevation, args.distance, args.fov,
+                               args.width, args.height)
+    else:
+        target = tuple(args.target) if args.target is not None else tuple(float(x) for x in scene.center)
+        camera = Camera(tuple(args.eye), target, tuple(args.up), args.fov, args.width, args.height)
+        camera = camera.fit_clip(scene.bounds)
+    gl = create_gl_context(args.gl_backend)
+    gpu = gp = None
+    try:
+        gpu = SceneGPU(gl, scene)
+        gp = GBufferPass(gl)
+        gbuf = gp.render(gpu, camera, cull_back_faces=not args.no_cull)
+    finally:
+        for obj in (gp, gpu):
+            if obj is not None:
+                obj.release()
+        gl.release()
+    data = encode_frame(gbuf, fmt)
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    args.output.write_bytes(data)
+    covered = int(np.count_nonzero(gbuf.tri_id))
+    print(f"{args.output}: {camera.width}x{camera.height} {fmt}, {scene.n_triangles} triangles, "
+          f"{covered} pixels covered ({gl.renderer}, {gl.backend})")
+    return 0
+
+
+def cmd_scenes(args: argparse.Namespace) -> int:
+    from scenes import builtin
+    from service.store import builtin_description
+
+    if args.detail is None:  # exact counts at detail 1 (builds each scene once)
+        rows = [(i["name"], int(i["default_triangles"]), i.get("description") or "") for i in builtin.builtin_info()]
+    else:  # closed-form estimates, nothing is built
+        rows = [(n, int(builtin.estimate_triangles(n, args.detail)), builtin_description(n) or "")
+                for n in builtin.BUILTIN_NAMES]
+    width = max(len(r[0]) for r in rows) if rows else 4
+    head = "triangles" if args.detail is None else f"tris@{args.detail:g}"
+    print(f"{'name':<{width}}  {head:>11}  description")
+    for name, tris, desc in rows:
+        print(f"{name:<{width}}  {tris:>11,}  {desc}")
+    return 0
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    from service.app import create_app
+
+    settings = Settings.from_env(host=args.host, port=args.port, data_dir=args.data_dir, gl_backend=args.gl_backend)
+    # One process: the GL context lives on the app's render worker thread.
+    uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level=args.log_level, workers=1)
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``depthview`` console script."""
+    args = _parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.command == "serve" else logging.WARNING,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    handlers = {"serve": cmd_serve, "render": cmd_render, "scenes": cmd_scenes}
+    try:
+        return handlers[args.command](args)
+    except (ValueError, OSError) as exc:  # CameraError, SceneLoadError, bad paths
+        print(f"depthview {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

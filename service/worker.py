@@ -1,0 +1,382 @@
+"""The render worker: one thread that owns a GL context and every GL object.
+
+DESIGN.md ("Service shape"): one GL context per render worker thread; request
+handlers never touch GL. Handlers ``submit()`` a job — a callable taking the
+worker's ``GLState`` — to a bounded queue and get a ``concurrent.futures.Future``
+back (an asyncio handler awaits it with ``asyncio.wrap_future``):
+
+* a full queue raises ``QueueFull`` (HTTP 503 + Retry-After);
+* each job has a deadline (``job_timeout_s``); the awaiting handler stops waiting at
+  the deadline (HTTP 504) and the worker skips jobs whose deadline passed (or whose
+  future was cancelled) before they start (``JobExpired``);
+* an exception raised by a job is delivered to its future and never ends the thread;
+* if the GL context cannot be created, ``ready`` stays False, ``startup_error``
+  says why and jobs fail with ``WorkerUnavailable`` (HTTP 503).
+
+The worker keeps a ``GBufferPass`` and an LRU of ``SceneGPU`` uploads keyed by
+scene id (content address), released on eviction and at shutdown, all on the
+worker thread.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from collections import OrderedDict
+from collections.abc import Callable
+from concurrent.futures import Future
+from dataclasses import dataclass, field
+from typing import Any
+
+from gl_passes.context import GLContext, create_gl_context
+from gl_passes.gbuffer import GBuffer, GBufferPass
+from gl_passes.upload import SceneGPU
+from scenes.camera import Camera
+from scenes.model import Scene
+from service import image_io
+
+log = logging.getLogger("depthview.worker")
+
+
+class WorkerError(RuntimeError):
+    """Base class of render worker errors."""
+
+
+class QueueFull(WorkerError):
+    """The job queue is full (HTTP 503 with Retry-After)."""
+
+
+class WorkerUnavailable(WorkerError):
+    """The worker has no GL context (start-up failed) or is shutting down (HTTP 503)."""
+
+
+class JobExpired(WorkerError, TimeoutError):
+    """The job's deadline passed before the worker got to it (HTTP 504)."""
+
+
+Job = Callable[["GLState"], Any]
+
+
+@dataclass
+class _Job:
+    fn: Job
+    future: Future
+    deadline: float
+    submitted: float
+    label: str = ""
+
+
+_STOP = object()
+
+
+@dataclass
+class GLState:
+    """Everything a job may use. Only valid on the worker thread."""
+
+    gl: GLContext
+    gbuffer: GBufferPass
+    gpu_cache_size: int = 4
+    _gpu: OrderedDict[str, SceneGPU] = field(default_factory=OrderedDict)
+    _resources: dict[str, Any] = field(default_factory=dict)
+
+    def scene_gpu(self, key: str, scene: Scene) -> SceneGPU:
+        """The GPU upload of `scene`, cached under `key` (a content address: the same
+        key must always mean the same geometry). Evicted uploads are released."""
+        self.gl.check_thread()
+        if key in self._gpu:
+            self._gpu.move_to_end(key)
+            return self._gpu[key]
+        gpu = SceneGPU(self.gl, scene)
+        self._gpu[key] = gpu
+        while len(self._gpu) > self.gpu_cache_size:
+            old_key, old = self._gpu.popitem(last=False)
+            log.debug("releasing GPU upload of scene %s", old_key)
+            old.release()
+        return gpu
+
+    def forget(self, key: str) -> None:
+        """Release the GPU upload cached under `key`, if any."""
+        self.gl.check_thread()
+        gpu = self._gpu.pop(key, None)
+        if gpu is not None:
+            gpu.release()
+
+    def resource(self, name: str, factory: Callable[[GLContext], Any]) -> Any:
+        """A long-lived GL object (e.g. another pass) created on first use with
+        `factory(gl)` and released (``.release()``) at shutdown."""
+        self.gl.check_thread()
+        if name not in self._resources:
+            self._resources[name] = factory(self.gl)
+        return self._resources[name]
+
+    @property
+    def gpu_cached(self) -> int:
+        return len(self._gpu)
+
+    def release(self) -> None:
+        """Release every GL object, then the context (worker thread only)."""
+        self.gl.check_thread()
+        for key, gpu in list(self._gpu.items()):
+            try:
+                gpu.release()
+            except Exception:  # noqa: BLE001 - release the rest anyway
+                log.exception("releasing GPU upload of %s failed", key)
+        self._gpu.clear()
+        for name, obj in list(self._resources.items()):
+            try:
+                obj.release()
+            except Exception:  # noqa: BLE001
+                log.exception("releasing GL resource %s failed", name)
+        self._resources.clear()
+        try:
+            self.gbuffer.release()
+        except Exception:  # noqa: BLE001
+            log.exception("releasing the G-buffer pass failed")
+        self.gl.release()
+
+
+class RenderWorker:
+    """A daemon thread owning one GL context; jobs arrive through a bounded queue."""
+
+    def __init__(self, queue_size: int = 32, job_timeout_s: float = 120.0, gpu_cache_size: int = 4,
+                 backend: str | None = None, device: int | None = None,
+                 context_factory: Callable[[], GLContext] | None = None,
+                 gbuffer_factory: Callable[[GLContext], GBufferPass] | None = None, name: str = "depthview-gl") -> None:
+        self.queue_size = int(queue_size)
+        self.job_timeout_s = float(job_timeout_s)
+        self.gpu_cache_size = int(gpu_cache_size)
+        self._context_factory = context_factory or (lambda: create_gl_context(backend, device))
+        self._gbuffer_factory = gbuffer_factory or GBufferPass
+        self._q: queue.Queue[Any] = queue.Queue(maxsize=self.queue_size)
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._ready = threading.Event()
+        self._started = threading.Event()  # start-up finished, successfully or not
+        self._submit_lock = threading.Lock()
+        self._stats_lock = threading.Lock()
+        self._evict_lock = threading.Lock()
+        self._evictions: set[str] = set()
+        self._stopping = False
+        self._state: GLState | None = None
+        #: Why the GL context could not be created (None when fine).
+        self.startup_error: str | None = None
+        self.renderer: str | None = None
+        self.backend: str | None = None
+        self.gl_version: str | None = None
+        self.is_software: bool | None = None
+        #: Thread id of the worker thread (set when it starts).
+        self.thread_id: int | None = None
+        #: Every thread id a job ran on (instrumentation: must be {thread_id}).
+        self.job_thread_ids: set[int] = set()
+        # counters
+        self.jobs_submitted = 0
+        self.jobs_done = 0
+        self.jobs_failed = 0
+        self.jobs_expired = 0
+        self.jobs_rejected = 0
+        self.job_seconds_sum = 0.0
+        self.job_seconds_count = 0
+        self.last_job_seconds = 0.0
+        self.busy = False
+
+    # --- lifecycle -----------------------------------------------------------------
+    def start(self) -> RenderWorker:
+        self._thread.start()
+        return self
+
+    def wait_ready(self, timeout: float | None = None) -> bool:
+        """Block until start-up finished; True when the GL context is alive."""
+        self._started.wait(timeout)
+        return self._ready.is_set()
+
+    @property
+    def ready(self) -> bool:
+        """True while the GL context is alive and the worker accepts jobs."""
+        return self._ready.is_set() and not self._stopping and self._thread.is_alive()
+
+    @property
+    def alive(self) -> bool:
+        return self._thread.is_alive()
+
+    def stop(self, timeout: float = 30.0) -> None:
+        """Refuse new jobs, fail the queued ones, finish the running one, release
+        every GL object and the context, and join the thread."""
+        with self._submit_lock:
+            if self._stopping:
+                return
+            self._stopping = True
+        while True:
+            try:
+                job = self._q.get_nowait()
+            except queue.Empty:
+                break
+            if isinstance(job, _Job) and job.future.set_running_or_notify_cancel():
+                job.future.set_exception(WorkerUnavailable("render worker is shutting down"))
+        if self._thread.is_alive():
+            self._q.put(_STOP, timeout=timeout)
+            self._thread.join(timeout)
+            if self._thread.is_alive():
+                log.warning("render worker did not stop within %.1f s", timeout)
+
+    # --- submitting ------------------------------------------------------------------
+    def submit(self, fn: Job, timeout: float | None = None, label: str = "") -> Future:
+        """Queue `fn(state)` for the GL thread; returns its Future. Raises QueueFull
+        when `queue_size` jobs are already waiting, WorkerUnavailable when the worker
+        failed to start or is stopping. `timeout` (default job_timeout_s) sets the
+        deadline after which the job is skipped if it has not started."""
+        if self.startup_error is not None:
+            raise WorkerUnavailable(f"no GL context: {self.startup_error}")
+        now = time.monotonic()
+        job = _Job(fn=fn, future=Future(), deadline=now + (self.job_timeout_s if timeout is None else timeout),
+                   submitted=now, label=label)
+        with self._submit_lock:
+            if self._stopping or not self._thread.is_alive():
+                raise WorkerUnavailable("render worker is not running")
+            try:
+                self._q.put_nowait(job)
+            except queue.Full:
+                with self._stats_lock:
+                    self.jobs_rejected += 1
+                raise QueueFull(f"render queue is full ({self.queue_size} jobs waiting)") from None
+            with self._stats_lock:
+                self.jobs_submitted += 1
+        return job.future
+
+    def forget(self, key: str) -> None:
+        """Ask the worker to release the GPU upload cached under `key` (done on the
+        worker thread before its next job). Safe from any thread."""
+        with self._evict_lock:
+            self._evictions.add(key)
+
+    # --- introspection -------------------------------------------------------------------
+    @property
+    def queue_depth(self) -> int:
+        return self._q.qsize()
+
+    def stats(self) -> dict[str, Any]:
+        """Counters for /metrics."""
+        with self._stats_lock:
+            return {
+                "ready": self.ready,
+                "jobs_submitted": self.jobs_submitted,
+                "jobs_done": self.jobs_done,
+                "jobs_failed": self.jobs_failed,
+                "jobs_expired": self.jobs_expired,
+                "jobs_rejected": self.jobs_rejected,
+                "job_seconds_sum": self.job_seconds_sum,
+                "job_seconds_count": self.job_seconds_count,
+                "last_job_seconds": self.last_job_seconds,
+                "queue_depth": self.queue_depth,
+                "queue_capacity": self.queue_size,
+                "busy": self.busy,
+                "gpu_scenes_cached": self._state.gpu_cached if self._state is not None else 0,
+            }
+
+    # --- the thread ------------------------------------------------------------------------
+    def _startup(self) -> None:
+        gl = self._context_factory()
+        try:
+            gbuffer = self._gbuffer_factory(gl)
+        except BaseException:
+            gl.release()
+            raise
+        self._state = GLState(gl=gl, gbuffer=gbuffer, gpu_cache_size=self.gpu_cache_size)
+        self.renderer, self.backend = gl.renderer, gl.backend
+        self.gl_version = getattr(gl, "version", None)
+        self.is_software = bool(gl.is_software)
+
+    def _run(self) -> None:
+        self.thread_id = threading.get_ident()
+        try:
+            self._startup()
+            self._ready.set()
+        except BaseException as exc:  # noqa: BLE001 - report, keep draining jobs with an error
+            self.startup_error = f"{type(exc).__name__}: {exc}"
+            log.error("render worker could not create its GL context: %s", self.startup_error)
+        finally:
+            self._started.set()
+        try:
+            while True:
+                item = self._q.get()
+                if item is _STOP:
+                    break
+                self._process_evictions()
+                self._execute(item)
+        finally:
+            self._ready.clear()
+            if self._state is not None:
+                try:
+                    self._state.release()
+                except Exception:  # noqa: BLE001
+                    log.exception("releasing the GL state failed")
+                self._state = None
+
+    def _process_evictions(self) -> None:
+        with self._evict_lock:
+            keys, self._evictions = self._evictions, set()
+        if self._state is not None:
+            for key in keys:
+                self._state.forget(key)
+
+    def _execute(self, job: _Job) -> None:
+        fut = job.future
+        if not fut.set_running_or_notify_cancel():  # the handler gave up already
+            with self._stats_lock:
+                self.jobs_expired += 1
+            return
+        if time.monotonic() > job.deadline:
+            fut.set_exception(JobExpired("render job expired in the queue before it started"))
+            with self._stats_lock:
+                self.jobs_expired += 1
+            return
+        if self._state is None:
+            fut.set_exception(WorkerUnavailable(f"no GL context: {self.startup_error}"))
+            with self._stats_lock:
+                self.jobs_failed += 1
+            return
+        self.job_thread_ids.add(threading.get_ident())
+        self.busy = True
+        t0 = time.perf_counter()
+        try:
+            result = job.fn(self._state)
+        except BaseException as exc:  # noqa: BLE001 - delivered to the future, the thread lives on
+            ok = False
+            fut.set_exception(exc)
+        else:
+            ok = True
+            fut.set_result(result)
+        finally:
+            self.busy = False
+        dt = time.perf_counter() - t0
+        with self._stats_lock:
+            if ok:
+                self.jobs_done += 1
+            else:
+                self.jobs_failed += 1
+            self.job_seconds_sum += dt
+            self.job_seconds_count += 1
+            self.last_job_seconds = dt
+
+
+def frame_job(scene_key: str, scene: Scene, camera: Camera, cull_back_faces: bool = True) -> Job:
+    """A job rendering the G-buffer of `scene` (GPU upload cached under `scene_key`)
+    seen by `camera` (near/far already fitted). The job returns the GBuffer (numpy
+    arrays), so encoding happens off the GL thread."""
+
+    def run(state: GLState) -> GBuffer:
+        gpu = state.scene_gpu(scene_key, scene)
+        return state.gbuffer.render(gpu, camera, cull_back_faces=cull_back_faces)
+
+    return run
+
+
+def encode_frame(gbuf: GBuffer, fmt: str) -> bytes:
+    """Encode a G-buffer as PNG (sRGB colour) or EXR (linear RGB, Z, N, id, object).
+    Pure numpy/CPU: call it off the GL thread."""
+    if fmt == "png":
+        return image_io.encode_png(gbuf.color)
+    if fmt == "exr":
+        return image_io.encode_exr({"RGB": gbuf.color, "Z": gbuf.depth, "N": gbuf.normal,
+                                    "id": gbuf.tri_id, "object": gbuf.obj_id})
+    raise ValueError(f"unknown frame format {fmt!r}")

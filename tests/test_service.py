@@ -1,0 +1,600 @@
+"""HTTP service (service/app.py + worker + store) through FastAPI's TestClient.
+
+Images are tiny (≤ 64×64) to keep the file fast on a software rasteriser."""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from gl_passes.upload import SceneGPU
+from scenes.builtin import BUILTIN_NAMES, make_builtin
+from scenes.camera import Camera, look_at_scene
+from service import image_io
+from service.app import create_app
+from service.config import Settings
+from service.store import builtin_id
+from service.worker import JobExpired, RenderWorker, WorkerUnavailable
+
+ROOT = Path(__file__).resolve().parents[1]
+FRAME_SCENE = "cornell"  # small built-in used for frames
+W, H = 48, 32
+
+
+# --- helpers ---------------------------------------------------------------------------
+def obj_text(n_quads: int = 1, z: float = 0.0) -> bytes:
+    """A strip of n unit quads (2 triangles each) in the plane z, front faces toward +z."""
+    lines = []
+    for i in range(n_quads):
+        lines += [f"v {i} 0 {z}", f"v {i + 1} 0 {z}", f"v {i + 1} 1 {z}", f"v {i} 1 {z}"]
+    for i in range(n_quads):
+        b = 4 * i + 1
+        lines += [f"f {b} {b + 1} {b + 2}", f"f {b} {b + 2} {b + 3}"]
+    return ("\n".join(lines) + "\n").encode()
+
+
+def wait_ready(client: TestClient, timeout: float = 20.0) -> dict:
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        r = client.get("/readyz")
+        if r.status_code == 200:
+            return r.json()
+        time.sleep(0.02)
+    raise AssertionError(f"service not ready: {r.json()}")
+
+
+@contextlib.contextmanager
+def service(data_dir: Path, ready: bool = True, **overrides) -> Iterator[TestClient]:
+    app = create_app(Settings(data_dir=data_dir, **overrides))
+    with TestClient(app) as client:
+        if ready:
+            wait_ready(client)
+        yield client
+
+
+def frame_camera(scene_name: str = FRAME_SCENE) -> dict:
+    """A camera (JSON) looking at a built-in scene from outside its bounds."""
+    scene = make_builtin(scene_name)
+    cam = look_at_scene(scene.bounds, azimuth=20.0, elevation=15.0, distance=1.0, fov=50.0)
+    return {"eye": list(cam.eye), "target": list(cam.target), "up": [0.0, 1.0, 0.0], "fov": 50.0}
+
+
+def frame(client: TestClient, sid: str, camera: dict | None = None, **body) -> object:
+    payload = {"camera": camera or frame_camera(), "width": W, "height": H, **body}
+    return client.post(f"/scenes/{sid}/frames", json=payload)
+
+
+def post_raw_json(client: TestClient, url: str, text: str) -> object:
+    return client.post(url, content=text.encode(), headers={"content-type": "application/json"})
+
+
+def details(r) -> str:
+    return json.dumps(r.json())
+
+
+@pytest.fixture(scope="module")
+def client(tmp_path_factory) -> Iterator[TestClient]:
+    with service(tmp_path_factory.mktemp("data")) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def cornell_id(client) -> str:
+    return builtin_id(FRAME_SCENE)
+
+
+# --- health, docs, listing ---------------------------------------------------------------
+def test_healthz_and_readyz(client):
+    assert client.get("/healthz").json() == {"status": "ok"}
+    r = client.get("/readyz")
+    assert r.status_code == 200
+    body = r.json()
+    assert body["ready"] is True and body["renderer"] and body["backend"] in ("egl", "osmesa")
+    assert isinstance(body["software"], bool) and body["error"] is None
+
+
+def test_readyz_is_503_until_the_gl_context_exists(tmp_path, monkeypatch):
+    import service.worker as worker_mod
+
+    gate = threading.Event()
+    real = worker_mod.create_gl_context
+
+    def slow_context(backend=None, device=None):
+        assert gate.wait(10)
+        return real(backend, device)
+
+    monkeypatch.setattr(worker_mod, "create_gl_context", slow_context)
+    with service(tmp_path, ready=False) as c:
+        assert c.get("/healthz").status_code == 200
+        r = c.get("/readyz")
+        assert r.status_code == 503 and r.json()["ready"] is False
+        gate.set()
+        assert wait_ready(c)["ready"] is True
+
+
+def test_gl_failure_makes_readyz_and_frames_503(tmp_path, monkeypatch):
+    import service.worker as worker_mod
+
+    def broken(backend=None, device=None):
+        raise RuntimeError("no GPU here")
+
+    monkeypatch.setattr(worker_mod, "create_gl_context", broken)
+    with service(tmp_path, ready=False) as c:
+        assert c.app.state.worker.wait_ready(5) is False
+        r = c.get("/readyz")
+        assert r.status_code == 503 and "no GPU here" in r.json()["error"]
+        r = frame(c, builtin_id(FRAME_SCENE))
+        assert r.status_code == 503 and "Retry-After" in r.headers
+
+
+def test_openapi_docs(client):
+    spec = client.get("/openapi.json").json()
+    for path in ("/scenes", "/scenes/{scene_id}", "/scenes/{scene_id}/frames", "/healthz", "/readyz", "/metrics"):
+        assert path in spec["paths"]
+    assert "BuiltinSceneRequest" in spec["components"]["schemas"]
+    assert "FrameRequest" in spec["components"]["schemas"]
+    assert client.get("/docs").status_code == 200
+
+
+def test_list_includes_every_builtin(client):
+    r = client.get("/scenes")
+    assert r.status_code == 200
+    scenes = r.json()["scenes"]
+    defaults = {s["name"]: s for s in scenes if s["default"]}
+    assert set(defaults) == set(BUILTIN_NAMES)
+    for name, s in defaults.items():
+        assert s["id"] == builtin_id(name) and s["kind"] == "builtin" and s["triangles"] > 0
+        assert client.get(f"/scenes/{s['id']}").json()["name"] == name
+
+
+def test_builtin_ids_are_stable(client):
+    r = client.post("/scenes", json={"builtin": FRAME_SCENE})
+    assert r.status_code == 200 and r.json()["id"] == builtin_id(FRAME_SCENE) and r.json()["default"]
+    r2 = client.post("/scenes", json={"builtin": FRAME_SCENE, "params": {"detail": 1, "seed": 0}})
+    assert r2.json()["id"] == r.json()["id"]
+    r3 = client.post("/scenes", json={"builtin": "nest", "params": {"detail": 0.05, "seed": 7}})
+    assert r3.status_code == 201 and r3.json()["id"] not in (r.json()["id"], builtin_id("nest"))
+    assert r3.headers["location"] == f"/scenes/{r3.json()['id']}"
+    r4 = client.post("/scenes", json={"params": {"seed": 7, "detail": 0.05}, "builtin": "nest"})
+    assert r4.status_code == 200 and r4.json()["id"] == r3.json()["id"]
+    r5 = client.post("/scenes", json={"builtin": "nest", "params": {"detail": 0.05, "seed": 8}})
+    assert r5.json()["id"] != r3.json()["id"]
+    assert r3.json()["id"] in {s["id"] for s in client.get("/scenes").json()["scenes"]}
+
+
+@pytest.mark.parametrize("body, needle", [
+    ({"builtin": "no_such_scene"}, "unknown built-in"),
+    ({"builtin": "nest", "params": {"detail": 0}}, "detail"),
+    ({"builtin": "nest", "params": {"detail": 1000}}, "detail"),
+    ({"builtin": "nest", "params": {"seed": -1}}, "seed"),
+    ({"builtin": "nest", "params": {"colour": 1}}, "colour"),
+    ({"name": "nest"}, "builtin"),
+])
+def test_bad_builtin_requests(client, body, needle):
+    r = client.post("/scenes", json=body)
+    assert r.status_code == 422 and needle in details(r)
+
+
+def test_bad_json_body_is_400(client):
+    r = post_raw_json(client, "/scenes", "{not json")
+    assert r.status_code == 400
+
+
+# --- frames --------------------------------------------------------------------------------
+def test_png_frame_matches_a_direct_gbuffer_render(client, cornell_id, gl, gbuffer_pass):
+    cam = frame_camera()
+    r = frame(client, cornell_id, cam)
+    assert r.status_code == 200, r.text
+    assert r.headers["content-type"] == "image/png"
+    img = image_io.decode_png(r.content)
+    assert img.shape == (H, W, 3)
+    assert img.std() > 5 and len(np.unique(img.reshape(-1, 3), axis=0)) > 20  # geometry, not a flat image
+    # The same camera rendered directly with the G-buffer pass on the test's own context.
+    scene = make_builtin(FRAME_SCENE)
+    camera = Camera(tuple(cam["eye"]), tuple(cam["target"]), tuple(cam["up"]), cam["fov"], W, H)
+    camera = camera.fit_clip(scene.bounds)
+    gpu = SceneGPU(gl, scene)
+    try:
+        gb = gbuffer_pass.render(gpu, camera)
+    finally:
+        gpu.release()
+    assert (gb.tri_id > 0).mean() > 0.2
+    assert image_io.encode_png(gb.color) == r.content
+
+
+def test_mirror_frame_has_geometry(client):
+    r = frame(client, builtin_id("mirror"), frame_camera("mirror"))
+    assert r.status_code == 200, r.text
+    img = image_io.decode_png(r.content)
+    assert img.shape == (H, W, 3) and img.std() > 5
+
+
+def test_exr_frame_has_all_channels(client, cornell_id):
+    r = frame(client, cornell_id, format="exr")
+    assert r.status_code == 200 and r.headers["content-type"] == "image/x-exr"
+    ch = image_io.decode_exr(r.content)
+    assert set(ch) >= {"RGB", "Z", "N", "id", "object"}
+    assert ch["RGB"].shape == (H, W, 3) and ch["N"].shape == (H, W, 3)
+    assert ch["Z"].shape == ch["id"].shape == ch["object"].shape == (H, W)
+    hit = ch["id"] > 0
+    assert hit.any() and np.all(np.isfinite(ch["Z"][hit])) and np.all(ch["Z"][hit] > 0)
+    assert np.all(np.isinf(ch["Z"][~hit])) and np.all(ch["object"][~hit] == 0)
+    n = np.linalg.norm(ch["N"][hit], axis=-1)
+    assert np.allclose(n, 1.0, atol=1e-3)
+    n_tris = make_builtin(FRAME_SCENE).n_triangles
+    assert int(ch["id"].max()) <= n_tris
+    # PNG and EXR describe the same frame.
+    png = image_io.decode_png(frame(client, cornell_id).content)
+    assert np.array_equal(png, image_io.decode_png(image_io.encode_png(ch["RGB"])))
+
+
+# --- uploads ----------------------------------------------------------------------------------
+def test_upload_obj_is_content_addressed(client):
+    data = obj_text(1)
+    expected = hashlib.sha256(b"obj\n" + data).hexdigest()
+    r = client.post("/scenes", files={"file": ("quad.obj", data, "text/plain")})
+    assert r.status_code == 201, r.text
+    info = r.json()
+    assert info["id"] == expected and info["kind"] == "upload" and info["format"] == "obj"
+    assert info["triangles"] == 2 and info["name"] == "quad" and info["size_bytes"] == len(data)
+    again = client.post("/scenes", files={"file": ("other-name.obj", data)})
+    assert again.status_code == 200 and again.json()["id"] == expected
+    raw = client.post("/scenes?format=obj", content=data, headers={"content-type": "application/octet-stream"})
+    assert raw.status_code == 200 and raw.json()["id"] == expected
+    by_field = client.post("/scenes", files={"file": ("noext", data)}, data={"format": "obj"})
+    assert by_field.status_code == 200 and by_field.json()["id"] == expected
+    assert client.get(f"/scenes/{expected}").json()["triangles"] == 2
+    assert expected in {s["id"] for s in client.get("/scenes").json()["scenes"]}
+    # Render it: the quad spans x, y in [0, 1] at z = 0, facing +z.
+    cam = {"eye": [0.5, 0.5, 2.0], "target": [0.5, 0.5, 0.0]}
+    ch = image_io.decode_exr(frame(client, expected, cam, format="exr").content)
+    assert ch["id"][H // 2, W // 2] in (1, 2) and ch["id"][0, 0] == 0
+    assert np.isclose(ch["Z"][H // 2, W // 2], 2.0, rtol=1e-3)
+
+
+def test_delete_then_get_is_404(client):
+    data = obj_text(2)
+    sid = client.post("/scenes", files={"file": ("two.obj", data)}).json()["id"]
+    assert frame(client, sid, {"eye": [1, 0.5, 3], "target": [1, 0.5, 0]}).status_code == 200
+    assert client.delete(f"/scenes/{sid}").status_code == 204
+    assert client.get(f"/scenes/{sid}").status_code == 404
+    assert frame(client, sid, {"eye": [1, 0.5, 3], "target": [1, 0.5, 0]}).status_code == 404
+    assert client.delete(f"/scenes/{sid}").status_code == 404
+    assert sid not in {s["id"] for s in client.get("/scenes").json()["scenes"]}
+    r = client.delete(f"/scenes/{builtin_id(FRAME_SCENE)}")
+    assert r.status_code == 409 and "cannot be deleted" in r.json()["detail"]
+    # The same content can come back under the same id.
+    assert client.post("/scenes", files={"file": ("two.obj", data)}).json()["id"] == sid
+
+
+@pytest.mark.parametrize("filename, content, fields, status, needle", [
+    ("broken.obj", b"v 0 0 0\nf 1 2 3\n", {}, 422, "OBJ"),
+    ("broken.glb", b"glTF\x02\x00\x00\x00garbage", {}, 422, "malformed GLB"),
+    ("empty.ply", b"", {}, 422, "empty"),
+    ("model.stl", b"solid x\nendsolid x\n", {}, 415, "unsupported scene format 'stl'"),
+    ("model", b"v 0 0 0\n", {}, 415, "cannot tell the scene format"),
+    ("model.obj", b"v 0 0 0\n", {"format": "fbx"}, 415, "fbx"),
+])
+def test_bad_uploads(client, filename, content, fields, status, needle):
+    r = client.post("/scenes", files={"file": (filename, content)}, data=fields)
+    assert r.status_code == status, r.text
+    assert needle in r.json()["detail"]
+
+
+def test_upload_without_file_field_or_with_bad_content_type(client):
+    r = client.post("/scenes", files={"other": ("a.obj", obj_text())})
+    assert r.status_code == 422 and "'file'" in r.json()["detail"]
+    r = client.post("/scenes", content=b"hello", headers={"content-type": "text/plain"})
+    assert r.status_code == 415
+    r = client.post("/scenes", content=b"garbage", headers={"content-type": "multipart/form-data; boundary=x"})
+    assert r.status_code == 400 and "malformed multipart" in r.json()["detail"]
+    r = client.post("/scenes", content=obj_text(), headers={"content-type": "application/octet-stream"})
+    assert r.status_code == 415 and "format" in r.json()["detail"]
+
+
+# --- bad frame requests ------------------------------------------------------------------------
+def test_unknown_and_malformed_scene_ids(client):
+    unknown = "0" * 64
+    assert client.get(f"/scenes/{unknown}").status_code == 404
+    assert frame(client, unknown).status_code == 404
+    for bad in ("abc", "A" * 64, "g" * 64, "..%2F..%2Fetc", "0" * 65):
+        assert client.get(f"/scenes/{bad}").status_code == 404
+        assert frame(client, bad).status_code == 404
+        assert client.delete(f"/scenes/{bad}").status_code == 404
+
+
+@pytest.mark.parametrize("camera_text, loc, needle", [
+    ('{"eye": [NaN, 1, 3], "target": [0, 1, 0]}', ["body", "camera", "eye"], "finite"),
+    ('{"eye": [0, 1, 3], "target": [0, Infinity, 0]}', ["body", "camera", "target"], "finite"),
+    ('{"eye": [0, 1, 3], "target": [0, 1, 0], "up": [0, -Infinity, 0]}', ["body", "camera", "up"], "finite"),
+    ('{"eye": [0, 1, 3], "target": [0, 1, 0], "fov": NaN}', ["body", "camera", "fov"], "finite"),
+    ('{"eye": [0, 1, 3], "target": [0, 1, 3]}', ["body", "camera"], "eye and target coincide"),
+    ('{"eye": [0, 1, 3], "target": [0, 1, 0], "up": [0, 0, 0]}', ["body", "camera"], "up vector is zero"),
+    ('{"eye": [0, 1, 3], "target": [0, 1, 0], "up": [0, 0, 2]}', ["body", "camera"], "parallel"),
+    ('{"eye": [0, 1, 3], "target": [0, 1, 0], "fov": 180}', ["body", "camera", "fov"], "180"),
+    ('{"eye": [0, 1], "target": [0, 1, 0]}', ["body", "camera", "eye"], ""),
+])
+def test_bad_cameras_are_422_naming_the_problem(client, cornell_id, camera_text, loc, needle):
+    body = '{"camera": ' + camera_text + ', "width": 32, "height": 32}'
+    r = post_raw_json(client, f"/scenes/{cornell_id}/frames", body)
+    assert r.status_code == 422, r.text
+    errs = r.json()["detail"]
+    assert any(e["loc"][:len(loc)] == loc and needle in e["msg"] for e in errs), errs
+
+
+@pytest.mark.parametrize("extra, needle", [
+    ({"width": 0}, "width"),
+    ({"height": -3}, "height"),
+    ({"width": 5000}, "width 5000 exceeds the limit 4096"),
+    ({"height": 4097}, "height 4097 exceeds the limit 4096"),
+    ({"width": 1.5}, "width"),
+    ({"format": "jpg"}, "format"),
+    ({"effects": {"shadows": "pcss"}}, "shadows method 'pcss' is not available"),
+    ({"effects": {"reflections": "cluster"}}, "reflections method 'cluster' is not available"),
+    ({"effects": {"fog": "none"}}, "fog"),
+    ({"colour": "red"}, "colour"),
+])
+def test_bad_frame_parameters(client, cornell_id, extra, needle):
+    r = frame(client, cornell_id, **extra)
+    assert r.status_code == 422, r.text
+    assert needle in details(r)
+
+
+def test_effects_none_is_accepted(client, cornell_id):
+    r = frame(client, cornell_id, effects={"shadows": "none", "reflections": "none"})
+    assert r.status_code == 200
+
+
+# --- limits ----------------------------------------------------------------------------------------
+def test_upload_and_triangle_and_size_limits(tmp_path):
+    with service(tmp_path, max_upload_bytes=4096, max_triangles=50, max_width=64, max_height=64,
+                 max_pixels=2048) as c:
+        big = obj_text(200)  # ~12 KB
+        assert len(big) > 4096
+        r = c.post("/scenes", files={"file": ("big.obj", big)})
+        assert r.status_code == 413 and "4096" in r.json()["detail"]
+        r = c.post("/scenes?format=obj", content=big, headers={"content-type": "application/octet-stream"})
+        assert r.status_code == 413
+        # Streamed without Content-Length: cut off while reading.
+        r = c.post("/scenes?format=obj", content=iter([big[:3000], big[3000:]]),
+                   headers={"content-type": "application/octet-stream"})
+        assert r.status_code == 413
+        huge = b"v 0 0 0\n" * 20000  # past the multipart allowance: refused from Content-Length
+        r = c.post("/scenes", files={"file": ("huge.obj", huge)})
+        assert r.status_code == 413
+        # The same multipart body streamed without Content-Length: cut off while parsing.
+        body = (b'--bnd\r\nContent-Disposition: form-data; name="file"; filename="huge.obj"\r\n\r\n'
+                + huge + b"\r\n--bnd--\r\n")
+        r = c.post("/scenes", content=(body[i:i + 8192] for i in range(0, len(body), 8192)),
+                   headers={"content-type": "multipart/form-data; boundary=bnd"})
+        assert r.status_code == 413 and "4096" in r.json()["detail"]
+        # 26 quads = 52 triangles > 50, under 4096 bytes.
+        tri = obj_text(26)
+        assert len(tri) < 4096
+        r = c.post("/scenes", files={"file": ("tri.obj", tri)})
+        assert r.status_code == 422 and "52 triangles" in r.json()["detail"] and "50" in r.json()["detail"]
+        r = c.post("/scenes", json={"builtin": "nest", "params": {"detail": 0.05}})
+        assert r.status_code == 422 and "triangles" in r.json()["detail"] and "limit is 50" in r.json()["detail"]
+        ok = c.post("/scenes", files={"file": ("ok.obj", obj_text(2))})
+        assert ok.status_code == 201
+        sid = ok.json()["id"]
+        cam = {"eye": [1, 0.5, 3], "target": [1, 0.5, 0]}
+        r = c.post(f"/scenes/{sid}/frames", json={"camera": cam, "width": 65, "height": 16})
+        assert r.status_code == 422 and "width 65 exceeds the limit 64" in r.json()["detail"]
+        r = c.post(f"/scenes/{sid}/frames", json={"camera": cam, "width": 64, "height": 64})
+        assert r.status_code == 422 and "width × height 4096 exceeds the limit 2048" in r.json()["detail"]
+        r = c.post(f"/scenes/{sid}/frames", json={"camera": cam, "width": 64, "height": 32})
+        assert r.status_code == 200
+
+
+def test_queue_full_is_503_and_timeout_is_504(tmp_path, cornell_id):
+    with service(tmp_path, queue_size=1, job_timeout_s=1.0, retry_after_s=2) as c:
+        worker: RenderWorker = c.app.state.worker
+        started, release = threading.Event(), threading.Event()
+
+        def blocking(state):
+            started.set()
+            assert release.wait(20)
+            return "released"
+
+        blocker = worker.submit(blocking, timeout=30)
+        assert started.wait(10)
+        try:
+            t0 = time.monotonic()
+            r = frame(c, cornell_id)  # queued behind the blocker, never started
+            assert r.status_code == 504 and "1 s" in r.json()["detail"]
+            assert 0.9 < time.monotonic() - t0 < 10
+            # The abandoned job still holds the only queue slot: the queue is full.
+            r = frame(c, cornell_id)
+            assert r.status_code == 503 and r.headers["retry-after"] == "2"
+            assert "queue is full" in r.json()["detail"]
+        finally:
+            release.set()
+        assert blocker.result(10) == "released"
+        t0 = time.monotonic()
+        while (worker.queue_depth or worker.busy) and time.monotonic() - t0 < 10:
+            time.sleep(0.01)
+        r = frame(c, cornell_id)  # the worker skipped the abandoned job and carries on
+        assert r.status_code == 200
+        text = c.get("/metrics").text
+        assert 'depthview_jobs_total{outcome="rejected"} 1' in text
+        assert 'depthview_jobs_total{outcome="expired"} 1' in text
+        assert 'depthview_frame_errors_total{status="503"} 1' in text
+        assert 'depthview_frame_errors_total{status="504"} 1' in text
+
+
+def test_concurrent_frames_all_run_on_the_gl_thread(client, cornell_id):
+    worker: RenderWorker = client.app.state.worker
+    base = frame_camera()
+    done_before = worker.jobs_done
+    results: list[tuple[int, int, bytes]] = []
+    errors: list[BaseException] = []
+
+    def one(k: int) -> None:
+        try:
+            cam = dict(base, eye=[base["eye"][0] + 0.01 * k, base["eye"][1], base["eye"][2]])
+            r = frame(client, cornell_id, cam, width=32, height=32)
+            results.append((k, r.status_code, r.content))
+        except BaseException as exc:  # pragma: no cover - reported below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=one, args=(k,)) for k in range(16)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    assert not errors and len(results) == 16
+    assert all(status == 200 for _, status, _ in results)
+    assert all(image_io.decode_png(body).shape == (32, 32, 3) for _, _, body in results)
+    assert worker.jobs_done - done_before >= 16
+    assert worker.job_thread_ids == {worker.thread_id}
+    assert worker.thread_id != threading.get_ident()
+
+
+def test_metrics_are_prometheus_text(client, cornell_id):
+    assert frame(client, cornell_id).status_code == 200
+    r = client.get("/metrics")
+    assert r.status_code == 200 and r.headers["content-type"].startswith("text/plain")
+    values = {}
+    for line in r.text.splitlines():
+        if line and not line.startswith("#"):
+            name, value = line.rsplit(" ", 1)
+            values[name] = float(value)
+    assert values['depthview_jobs_total{outcome="done"}'] >= 1
+    assert values['depthview_frames_total{format="png"}'] >= 1
+    assert values["depthview_job_seconds_count"] >= 1 and values["depthview_job_seconds_sum"] > 0
+    assert values["depthview_queue_capacity"] == 32 and values["depthview_ready"] == 1
+    assert "# TYPE depthview_jobs_total counter" in r.text
+
+
+# --- persistence ---------------------------------------------------------------------------------
+def test_store_survives_restart_and_skips_corrupt_meta(tmp_path):
+    data = obj_text(3)
+    with service(tmp_path) as c:
+        up = c.post("/scenes", files={"file": ("strip.obj", data)}).json()["id"]
+        bi = c.post("/scenes", json={"builtin": "nest", "params": {"detail": 0.02, "seed": 3}}).json()["id"]
+        doomed = c.post("/scenes", files={"file": ("doomed.obj", obj_text(4))}).json()["id"]
+    (tmp_path / "scenes" / doomed / "meta.json").write_text("{corrupt")
+    with service(tmp_path) as c:
+        r = c.get("/scenes")
+        assert r.status_code == 200
+        ids = {s["id"] for s in r.json()["scenes"]}
+        assert {up, bi} <= ids and doomed not in ids
+        assert c.get(f"/scenes/{doomed}").status_code == 404
+        assert c.get(f"/scenes/{up}").json()["name"] == "strip"
+        r = frame(c, up, {"eye": [1.5, 0.5, 3], "target": [1.5, 0.5, 0]})
+        assert r.status_code == 200
+        assert frame(c, bi, {"eye": [0, 1.5, 2.5], "target": [0, 0.1, 0]}).status_code == 200
+
+
+# --- the worker on its own ------------------------------------------------------------------------
+def test_worker_delivers_exceptions_skips_expired_jobs_and_releases_gl(monkeypatch):
+    import service.worker as worker_mod
+
+    released = []
+
+    class SpyGPU(SceneGPU):
+        def release(self) -> None:
+            released.append(self.scene.name)
+            super().release()
+
+    monkeypatch.setattr(worker_mod, "SceneGPU", SpyGPU)
+    w = RenderWorker(queue_size=4, job_timeout_s=5.0, gpu_cache_size=1)
+    try:
+        w.start()
+        assert w.wait_ready(10) and w.ready
+        with pytest.raises(ZeroDivisionError):
+            w.submit(lambda st: 1 / 0).result(10)
+        assert w.submit(lambda st: threading.get_ident()).result(10) == w.thread_id
+        state = w.submit(lambda st: st).result(10)
+        with pytest.raises(RuntimeError):
+            state.gl.check_thread()  # not the GL thread
+        # Deadline passed while queued → skipped, never run.
+        gate, ran = threading.Event(), []
+        blocker = w.submit(lambda st: gate.wait(10))
+        late = w.submit(lambda st: ran.append(1), timeout=0.05)
+        time.sleep(0.2)
+        gate.set()
+        blocker.result(10)
+        with pytest.raises(JobExpired):
+            late.result(10)
+        assert ran == []
+        # GPU uploads: LRU of one, the evicted upload is released on the GL thread.
+        a, b = make_builtin("nest", 0.01), make_builtin("grass", 0.01)
+        w.submit(lambda st: st.scene_gpu("a", a)).result(10)
+        w.submit(lambda st: st.scene_gpu("b", b)).result(10)
+        assert released == ["nest"]
+        assert w.stats()["jobs_failed"] == 1 and w.stats()["jobs_expired"] == 1
+    finally:
+        w.stop()
+    assert released == ["nest", "grass"]  # shutdown released the rest
+    assert not w.alive and not w.ready
+    with pytest.raises(WorkerUnavailable):
+        w.submit(lambda st: None)
+
+
+# --- CLI -------------------------------------------------------------------------------------------
+def test_cli_scenes_lists_builtins(capsys):
+    from service.cli import main
+
+    assert main(["scenes", "--detail", "0.5"]) == 0
+    out = capsys.readouterr().out
+    for name in BUILTIN_NAMES:
+        assert name in out
+
+
+def test_cli_render_writes_png_and_rejects_bad_camera(tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    out = tmp_path / "frame.png"
+    cmd = [sys.executable, "-m", "service", "render", "--scene", FRAME_SCENE, "--width", "40", "--height", "24"]
+    p = subprocess.run([*cmd, str(out)], cwd=ROOT, env=env, capture_output=True, text=True, timeout=60)
+    assert p.returncode == 0, p.stderr
+    img = image_io.decode_png(out.read_bytes())
+    assert img.shape == (24, 40, 3) and img.std() > 5
+    p = subprocess.run([*cmd, "--eye", "1", "1", "1", "--target", "1", "1", "1", str(tmp_path / "x.png")],
+                       cwd=ROOT, env=env, capture_output=True, text=True, timeout=60)
+    assert p.returncode == 2 and "coincide" in p.stderr
+
+
+def test_upload_a_real_model(client):
+    from conftest import shared_scene
+
+    path = shared_scene("teapot/teapot.obj")
+    data = path.read_bytes()
+    r = client.post("/scenes", files={"file": (path.name, data)})
+    assert r.status_code in (200, 201), r.text
+    info = r.json()
+    assert info["id"] == hashlib.sha256(b"obj\n" + data).hexdigest() and info["triangles"] > 1000
+    lo, hi = np.array(info["bounds"])
+    c = (lo + hi) / 2
+    eye = c + np.array([0.0, 0.3, 1.0]) * np.linalg.norm(hi - lo) * 1.2
+    r = frame(client, info["id"], {"eye": eye.tolist(), "target": c.tolist()}, format="exr", width=32, height=32)
+    assert r.status_code == 200
+    assert (image_io.decode_exr(r.content)["id"] > 0).mean() > 0.1
+
+
+def test_settings_from_env():
+    env = {"DEPTHVIEW_DATA_DIR": "/tmp/dv", "DEPTHVIEW_MAX_UPLOAD_BYTES": "1_048_576", "DEPTHVIEW_PORT": "9000",
+           "DEPTHVIEW_JOB_TIMEOUT_S": "2.5", "DEPTHVIEW_QUEUE_SIZE": "3", "DEPTHVIEW_GL_BACKEND": "osmesa"}
+    s = Settings.from_env(env, port=9100)
+    assert s.data_dir == Path("/tmp/dv") and s.max_upload_bytes == 1 << 20 and s.port == 9100
+    assert s.job_timeout_s == 2.5 and s.queue_size == 3 and s.gl_backend == "osmesa"
+    d = Settings.from_env({})
+    assert (d.max_upload_bytes, d.max_triangles, d.max_width, d.max_height, d.queue_size, d.job_timeout_s) == (
+        64 << 20, 5_000_000, 4096, 4096, 32, 120.0)
+    with pytest.raises(ValueError, match="DEPTHVIEW_QUEUE_SIZE"):
+        Settings.from_env({"DEPTHVIEW_QUEUE_SIZE": "many"})
+    with pytest.raises(ValueError, match="queue_size"):
+        Settings(queue_size=0)
