@@ -9,6 +9,7 @@ back-facing hits, as Embree here is built without it.
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,6 +60,38 @@ class RayBuffers:
         return self.tri_id > 0
 
 
+def _embree_scene(vertices: np.ndarray, faces: np.ndarray) -> object:
+    emb = rtcore_scene.EmbreeScene()
+    mesh_construction.TriangleMesh(emb, np.ascontiguousarray(vertices, np.float32),
+                                   np.ascontiguousarray(faces, np.int32))
+    return emb
+
+
+def _reversed_twins(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(F,) int64: for each face the index of a coincident face with the opposite
+    winding (same three positions), else −1. Two-sided thin geometry is often
+    modelled this way; ray casting must then pick the copy that faces the ray."""
+    _, pos_id = np.unique(vertices, axis=0, return_inverse=True)
+    tri = pos_id.reshape(-1)[faces]  # (F,3) canonical position ids
+    key = np.sort(tri, axis=1)
+    _, group, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    group = group.reshape(-1)
+    twin = np.full(len(faces), -1, np.int64)
+    pairs = np.flatnonzero(counts[group] == 2)
+    if len(pairs) == 0:
+        return twin
+    order = pairs[np.argsort(group[pairs], kind="stable")]
+    a, b = order[0::2], order[1::2]
+    # Opposite winding: b is an odd permutation of a's positions.
+    ta, tb = tri[a], tri[b]
+    same_cycle = np.zeros(len(a), bool)
+    for shift in range(3):
+        same_cycle |= (np.roll(tb, shift, axis=1) == ta).all(axis=1)
+    a, b = a[~same_cycle], b[~same_cycle]
+    twin[a], twin[b] = b, a
+    return twin
+
+
 class RayCaster:
     """Embree scene over a Scene's concatenated triangles (primID = id − 1)."""
 
@@ -66,14 +99,47 @@ class RayCaster:
         self.scene = scene
         self._v = scene.vertices.astype(np.float64)
         self._f = scene.faces.astype(np.int64)
-        self._embree = rtcore_scene.EmbreeScene()
-        mesh_construction.TriangleMesh(self._embree, scene.vertices.astype(np.float32),
-                                       scene.faces.astype(np.int32))
+        self._embree = _embree_scene(scene.vertices, self._f)
+        self._viewpoint_cache: OrderedDict[tuple[float, ...], tuple[object | None, np.ndarray]] = OrderedDict()
         e1 = self._v[self._f[:, 1]] - self._v[self._f[:, 0]]
         e2 = self._v[self._f[:, 2]] - self._v[self._f[:, 0]]
         self.face_normals = np.cross(e1, e2)  # (F,3) unnormalised, CCW front
+        self.twin = _reversed_twins(scene.vertices, self._f)
         # Offset for restarting rays past a surface: tiny against the scene size.
         self.eps = 1e-6 * max(scene.diagonal, 1e-6)
+
+    def _viewpoint_scene(self, eye: np.ndarray) -> tuple[object | None, np.ndarray]:
+        """Embree scene of the faces front-facing as seen from `eye`, and the map
+        from its primIDs to global face indices. Rays from one point meet a
+        triangle's front exactly when the point is on its positive side, so this is
+        exact back-face culling (coplanar back faces cannot hide front faces)."""
+        key = tuple(float(x) for x in eye)
+        if key in self._viewpoint_cache:
+            self._viewpoint_cache.move_to_end(key)
+            return self._viewpoint_cache[key]
+        a = self._v[self._f[:, 0]]
+        front = np.flatnonzero(np.einsum("ij,ij->i", self.face_normals, np.asarray(eye) - a) > 0)
+        entry = (_embree_scene(self.scene.vertices, self._f[front]) if len(front) else None, front)
+        self._viewpoint_cache[key] = entry
+        if len(self._viewpoint_cache) > 4:
+            self._viewpoint_cache.popitem(last=False)
+        return entry
+
+    def _intersect_from_point(self, eye: np.ndarray, d: np.ndarray, limit: np.ndarray) -> Hits:
+        emb, faces = self._viewpoint_scene(eye)
+        n = len(d)
+        t = np.full(n, np.inf)
+        tri = np.zeros(n, np.uint32)
+        u = np.zeros(n)
+        v = np.zeros(n)
+        if emb is not None:
+            r = emb.run(np.broadcast_to(eye, d.shape).astype(np.float32), d.astype(np.float32),
+                        dists=limit.astype(np.float32), output=1)
+            hit = r["primID"] >= 0
+            t[hit] = r["tfar"][hit]
+            tri[hit] = faces[r["primID"][hit]].astype(np.uint32) + 1
+            u[hit], v[hit] = r["u"][hit], r["v"][hit]
+        return Hits(t=t, tri_id=tri, u=u, v=v, front=tri > 0)
 
     def _run(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray) -> dict:
         return self._embree.run(o.astype(np.float32), d.astype(np.float32), dists=tmax.astype(np.float32),
@@ -90,6 +156,8 @@ class RayCaster:
         limit = np.full(n, np.inf if tmax is None else 0.0) if tmax is None else np.broadcast_to(
             np.asarray(tmax, np.float64), (n,)).copy()
         limit = np.minimum(limit, 1e30)
+        if cull_back_faces and n and (o == o[0]).all():
+            return self._intersect_from_point(o[0], d, limit)
         t = np.full(n, np.inf)
         tri = np.zeros(n, np.uint32)
         u = np.zeros(n)
@@ -107,16 +175,36 @@ class RayCaster:
             idx, p = active[hit], prim[hit]
             th = travelled[idx] + r["tfar"][hit].astype(np.float64)
             is_front = np.einsum("ij,ij->i", self.face_normals[p], d[idx]) < 0
+            hu, hv = r["u"][hit].astype(np.float64), r["v"][hit].astype(np.float64)
+            if cull_back_faces:
+                # A back face with a coincident reversed twin (two-sided thin geometry):
+                # Embree returned either copy; the front-facing one is the real hit.
+                swap = ~is_front & (self.twin[p] >= 0)
+                if swap.any():
+                    p = p.copy()
+                    p[swap] = self.twin[p[swap]]
+                    hu[swap], hv[swap] = self._barycentrics(p[swap], o[idx[swap]] + d[idx[swap]] * th[swap, None])
+                    is_front = is_front | swap
             keep = is_front | (not cull_back_faces)
             k = idx[keep]
             t[k], tri[k] = th[keep], p[keep].astype(np.uint32) + 1
-            u[k], v[k] = r["u"][hit][keep], r["v"][hit][keep]
+            u[k], v[k] = hu[keep], hv[keep]
             front[k] = is_front[keep]
             # Back faces under culling: restart just past them.
             again = idx[~keep]
             travelled[again] = th[~keep] + self.eps
             active = again
         return Hits(t=t, tri_id=tri, u=u, v=v, front=front)
+
+    def _barycentrics(self, faces: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Barycentrics (u, v) of vertices 1 and 2 for points (N,3) on faces (N,)."""
+        f = self._f[faces]
+        a, b, c = self._v[f[:, 0]], self._v[f[:, 1]], self._v[f[:, 2]]
+        e1, e2, w = b - a, c - a, points - a
+        d11, d12, d22 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
+        w1, w2 = (w * e1).sum(1), (w * e2).sum(1)
+        den = np.maximum(d11 * d22 - d12 * d12, 1e-300)
+        return (d22 * w1 - d12 * w2) / den, (d11 * w2 - d12 * w1) / den
 
     def occluded(self, a: np.ndarray, b: np.ndarray, cull_back_faces: bool = False,
                  rel_eps: float = 1e-4) -> np.ndarray:
