@@ -1,0 +1,85 @@
+#version 430 core
+// Depth images (thesis Ch. 2): conventional, non-redundant with the pixel
+// redundancy test (Alg. 1 + Alg. 3), or one depth-peeling layer (§2.3.1).
+// Mode by #define: (none) = conventional; NON_REDUNDANT with N_PREV = i for
+// image i (a constant, so the test loop unrolls and sampler indices are
+// constant); PEEL. The triangle id comes from gl_PrimitiveID (no geometry
+// shader) unless TRI_FROM_GEOM (depth_image.geom). A discarded fragment writes
+// no depth, so the depth test keeps the nearest fragment that passed the test
+// (Alg. 1: "if s is not redundant write s").
+#include "common.glsl"
+
+uniform vec3 u_albedo;
+uniform uint u_base;
+in Frag {
+    vec3 position;
+    vec3 normal;
+    float depth;
+#if defined(NON_REDUNDANT) && defined(VS_PROJECT)
+    vec4 prev[N_PREV];  // this fragment in I_j's texel-space clip coordinates
+#endif
+} f;
+#ifdef TRI_FROM_GEOM
+flat in uint g_tri;
+#define TRIANGLE_ID g_tri
+#else
+#define TRIANGLE_ID (u_base + uint(gl_PrimitiveID) + 1u)
+#endif
+
+#ifdef NON_REDUNDANT
+// Previous images I_j, j < N_PREV: triangle-id textures (unit j) and the
+// world → texel-space clip matrices T_j = S_j·VP_j (S_j maps NDC xy to [0, size]).
+uniform usampler2D u_prev_id[N_PREV];
+uniform vec2 u_prev_size[N_PREV];
+#ifndef VS_PROJECT
+uniform mat4 u_prev_texel[N_PREV];
+#endif
+#endif
+
+#ifdef PEEL
+// The previous layer (same camera): its triangle ids and linear depths.
+uniform usampler2D u_peel_id;
+uniform sampler2D u_peel_depth;
+uniform float u_peel_eps;  // relative depth margin
+#endif
+
+layout(location = 0) out vec4 out_color;
+layout(location = 1) out float out_depth;
+layout(location = 2) out vec4 out_normal;
+layout(location = 3) out vec4 out_position;
+layout(location = 4) out uint out_tri;
+
+void main() {
+    uint tri = TRIANGLE_ID;
+#ifdef NON_REDUNDANT
+    // Alg. 3 against every previous image: reproject into I_j, fetch, compare.
+    for (int j = 0; j < N_PREV; ++j) {
+#ifdef VS_PROJECT
+        vec4 c = f.prev[j];
+#else
+        vec4 c = u_prev_texel[j] * vec4(f.position, 1.0);
+#endif
+        if (c.w > 0.0) {  // in front of V_j
+            vec3 q = c.xyz / c.w;  // (texel x, texel y, NDC z) in I_j
+            if (all(greaterThanEqual(q.xy, vec2(0.0))) && all(lessThanEqual(q.xy, u_prev_size[j]))
+                && abs(q.z) <= 1.0) {  // inside I_j's frustum
+                ivec2 texel = min(ivec2(q.xy), ivec2(u_prev_size[j]) - 1);
+                if (texelFetch(u_prev_id[j], texel, 0).r == tri) discard;  // pixel-redundant
+            }
+        }
+    }
+#endif
+#ifdef PEEL
+    ivec2 px = ivec2(gl_FragCoord.xy);
+    uint prev = texelFetch(u_peel_id, px, 0).r;
+    if (prev == 0u || prev == tri) discard;  // nothing left behind / the peeled surface
+    if (f.depth <= texelFetch(u_peel_depth, px, 0).r * (1.0 + u_peel_eps)) discard;
+#endif
+    vec3 n = normalize(f.normal);
+    if (!gl_FrontFacing) n = -n;
+    out_color = vec4(local_shade(u_albedo, n), 1.0);
+    out_depth = f.depth;
+    out_normal = vec4(n, 0.0);
+    out_position = vec4(f.position, 1.0);
+    out_tri = tri;
+}

@@ -1,0 +1,79 @@
+"""Camera rigs for depth-image sets (thesis Ch. 2, Fig. 8 and §2.3.2).
+
+`fig8_rig`: three reference viewpoints V0, V1, V2 around the scene, all looking
+at its centre, plus the depth-peeling viewpoint at their centroid (the red and
+white points of Fig. 8). `intermediate_views`: viewpoints uniformly distributed
+in the segment (n = 2) or triangle (n = 3) spanned by the reference eyes, used
+by the "useful" and "available" sample metrics (§2.3.2, metrics 3 and 4).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import replace
+
+import numpy as np
+
+from scenes.camera import Camera
+
+
+def fig8_rig(bounds: tuple[np.ndarray, np.ndarray], width: int, height: int, spread_deg: float = 20.0,
+             azimuth: float = 35.0, elevation: float = 25.0, distance: float = 1.6, fov: float = 45.0
+             ) -> tuple[list[Camera], Camera]:
+    """The Fig. 8 rig for the box `bounds` (min, max corners).
+
+    The rig axis points from the box centre toward (azimuth, elevation) degrees
+    (azimuth about +Y from +Z, as `look_at_scene`). The three eyes lie at
+    `distance` × the box diagonal from the centre, `spread_deg` degrees off that
+    axis, at 120° steps around it (V0 above the axis, V1 lower left, V2 lower
+    right as seen from the scene). All cameras look at the box centre with the
+    given vertical fov and width × height pixels, near/far fitted to the box.
+
+    Returns (cameras [V0, V1, V2], peeling camera at the eyes' centroid)."""
+    if not (0.0 < spread_deg < 90.0):
+        raise ValueError(f"spread_deg must be in (0, 90), got {spread_deg}")
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
+    c = (lo + hi) / 2
+    diag = float(np.linalg.norm(hi - lo)) or 1.0
+    a, e = np.radians(azimuth), np.radians(elevation)
+    axis = np.array([np.cos(e) * np.sin(a), np.sin(e), np.cos(e) * np.cos(a)])
+    # Orthonormal frame around the axis: `up` is the world +Y made orthogonal to it.
+    world_up = np.array([0.0, 1.0, 0.0]) if abs(axis[1]) < 0.99 else np.array([0.0, 0.0, 1.0])
+    right = np.cross(world_up, axis)
+    right /= np.linalg.norm(right)
+    up = np.cross(axis, right)
+    s = np.radians(spread_deg)
+    cams = []
+    for k in range(3):
+        phi = np.radians(90.0 + 120.0 * k)
+        d = np.cos(s) * axis + np.sin(s) * (np.cos(phi) * right + np.sin(phi) * up)
+        eye = c + distance * diag * d
+        cams.append(Camera(tuple(eye), tuple(c), tuple(world_up), fov, width, height).fit_clip((lo, hi)))
+    centroid = np.mean([cam.eye for cam in cams], axis=0)
+    peel = Camera(tuple(centroid), tuple(c), tuple(world_up), fov, width, height).fit_clip((lo, hi))
+    return cams, peel
+
+
+def intermediate_views(cameras: Sequence[Camera], count: int, seed: int = 0) -> list[Camera]:
+    """`count` cameras whose eyes are uniformly distributed (seeded) in the
+    simplex spanned by the reference eyes: the segment V0V1 for n = 2, the
+    triangle V0V1V2 for n = 3 (uniform barycentric coordinates, i.e. a flat
+    Dirichlet draw; for n = 1 every view is V0). Target, up, fov and size are
+    cameras[0]'s; near/far are the references' min near / max far when all have
+    them (the eyes lie in their convex hull), else left unset."""
+    if not cameras:
+        raise ValueError("intermediate_views needs at least one reference camera")
+    if count < 0:
+        raise ValueError("count must be ≥ 0")
+    eyes = np.array([cam.eye for cam in cameras], dtype=np.float64)
+    rng = np.random.default_rng(seed)
+    weights = rng.dirichlet(np.ones(len(cameras)), size=count) if len(cameras) > 1 else np.ones((count, 1))
+    ref = cameras[0]
+    clip = all(cam.near is not None and cam.far is not None for cam in cameras)
+    near = min(cam.near for cam in cameras) if clip else None  # type: ignore[type-var]
+    far = max(cam.far for cam in cameras) if clip else None  # type: ignore[type-var]
+    out = []
+    for w in weights:
+        eye = w @ eyes
+        out.append(replace(ref, eye=tuple(float(x) for x in eye), near=near, far=far))
+    return out

@@ -1,0 +1,464 @@
+"""Depth-image sets (thesis Ch. 2): conventional, non-redundant (Alg. 1 with the
+pixel-redundancy test of Alg. 3), depth peeling, and the Fig. 8 camera rig.
+
+The Figs. 11-12 example is built as a small 3-D scene of four boxes seen from
+two viewpoints V0, V1 (x = ∓3, z = 10, looking at the origin): C is hidden
+from V0 by D and from V1 by B, and doubly hidden (behind A, then B) from their
+midpoint, the peeling viewpoint; an intermediate viewpoint sees it.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.ndimage import binary_erosion
+
+from gl_passes import depth_images as di
+from gl_passes.context import create_gl_context
+from gl_passes.gbuffer import GBufferPass
+from gl_passes.upload import SceneGPU
+from reference.raycast import RayCaster
+from scenes import Camera, Material, Scene, SceneObject
+from scenes.depth_image import DepthImage
+from scenes.rig import fig8_rig, intermediate_views
+from tests.test_gl_core import _live_gl_objects
+
+RES = 160  # reference images of the Fig. 11 scene
+A, B, C, D = 1, 2, 3, 4  # object ids in figure11_scene()
+
+
+# --- scenes and cameras ----------------------------------------------------------------
+
+def box(name: str, lo: tuple, hi: tuple, albedo: tuple = (0.7, 0.7, 0.7)) -> SceneObject:
+    """Axis-aligned box with flat faces; every face is split along the diagonal
+    from its (min, min) to its (max, max) corner (CCW seen from outside)."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    verts, faces, normals = [], [], []
+    for k in range(3):
+        u, v = (k + 1) % 3, (k + 2) % 3
+        for sign in (1, -1):
+            uv = [(0, 0), (1, 0), (1, 1), (0, 1)] if sign > 0 else [(0, 0), (0, 1), (1, 1), (1, 0)]
+            base = len(verts)
+            for a, b in uv:
+                p = np.where(np.arange(3) == k, hi[k] if sign > 0 else lo[k], 0.0)
+                p[u] = hi[u] if a else lo[u]
+                p[v] = hi[v] if b else lo[v]
+                verts.append(p)
+                normals.append(np.eye(3)[k] * sign)
+            faces += [[base, base + 1, base + 2], [base, base + 2, base + 3]]
+    return SceneObject(name, np.array(verts), np.array(faces), normals=np.array(normals),
+                       material=Material(albedo))
+
+
+def figure11_scene() -> Scene:
+    return Scene([
+        box("A", (-0.3, -1.5, 4.9), (0.3, 1.5, 5.1), (0.8, 0.3, 0.3)),
+        box("B", (-0.2, -1.5, 1.9), (1.2, 3.5, 2.1), (0.3, 0.8, 0.3)),
+        box("C", (-0.2, -0.5, -0.3), (0.2, 0.5, 0.0), (0.3, 0.3, 0.8)),
+        box("D", (-2.2, -1.5, 4.9), (-1.2, 1.5, 5.1), (0.8, 0.8, 0.3)),
+    ], name="figure11")
+
+
+def fig11_camera(x: float, res: int = RES) -> Camera:
+    return Camera((x, 0.0, 10.0), (0.0, 0.0, 0.0), fov=40.0, width=res, height=res)
+
+
+def cluttered_scene() -> Scene:
+    """A sphere among seeded random boxes on a slab: many occlusion layers."""
+    rng = np.random.default_rng(3)
+    s = trimesh.creation.icosphere(3, radius=0.8)
+    objs = [SceneObject("sphere", s.vertices, s.faces, material=Material((0.8, 0.4, 0.2)))]
+    objs.append(box("slab", (-3, -1.2, -3), (3, -1.0, 3)))
+    for k in range(10):
+        c = rng.uniform([-2.5, -1.0, -2.5], [2.5, 0.5, 2.5])
+        e = rng.uniform(0.2, 0.8, 3)
+        objs.append(box(f"box{k}", c - e / 2, c + e / 2, tuple(rng.uniform(0.2, 0.9, 3))))
+    return Scene(objs, name="cluttered")
+
+
+# --- numpy checks ----------------------------------------------------------------------
+
+def object_ids(scene: Scene, tri_id: np.ndarray) -> np.ndarray:
+    out = np.zeros(tri_id.shape, np.int64)
+    m = tri_id > 0
+    out[m] = scene.face_object[tri_id[m].astype(np.int64) - 1]
+    return out
+
+
+def lookup(image: DepthImage, points: np.ndarray, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """(inside, tri id at the texel) of world points projected into `image`
+    (pixel-redundancy lookup of Alg. 3). inside also requires the point to be at
+    least `margin` pixels from a texel edge, so float rounding cannot flip it."""
+    cam = image.camera
+    px, z = cam.project(points)
+    inside = (z >= cam.near) & (z <= cam.far) & (px[:, 0] >= 0) & (px[:, 0] < cam.width) \
+        & (px[:, 1] >= 0) & (px[:, 1] < cam.height)
+    if margin:
+        frac = px - np.floor(px)
+        inside &= np.all((frac > margin) & (frac < 1 - margin), axis=1)
+    tri = np.zeros(len(points), np.uint32)
+    cols, rows = np.floor(px[inside]).astype(int).T
+    tri[inside] = image.tri_id[rows, cols]
+    return inside, tri
+
+
+def redundant_samples(images: list[DepthImage], margin: float = 1e-2) -> list[int]:
+    """Per image i: samples pixel-redundant with some I_j, j < i (§2.3.2 metric 1)."""
+    counts = []
+    for i, im in enumerate(images):
+        pts, tris = im.position[im.mask].astype(np.float64), im.tri_id[im.mask]
+        red = np.zeros(len(pts), bool)
+        for prev in images[:i]:
+            inside, t = lookup(prev, pts, margin)
+            red |= inside & (t == tris)
+        counts.append(int(red.sum()))
+    return counts
+
+
+def available(images: list[DepthImage], points: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """(N,) bool: the output sample (point on triangle tris) is pixel-redundant
+    with some image of the set (§2.3.2 metric 4, "available")."""
+    ok = np.zeros(len(points), bool)
+    for im in images:
+        inside, t = lookup(im, points)
+        ok |= inside & (t == tris)
+    return ok
+
+
+def splat(images: list[DepthImage], cam: Camera) -> np.ndarray:
+    """Point-splat reconstruction: every sample of the set projected into `cam`,
+    nearest per pixel wins. Returns the triangle ids (H,W)."""
+    pts = np.concatenate([im.position[im.mask] for im in images]).astype(np.float64)
+    tris = np.concatenate([im.tri_id[im.mask] for im in images])
+    px, z = cam.project(pts)
+    ok = (z > 0) & (px[:, 0] >= 0) & (px[:, 0] < cam.width) & (px[:, 1] >= 0) & (px[:, 1] < cam.height)
+    pix = np.floor(px[ok, 1]).astype(int) * cam.width + np.floor(px[ok, 0]).astype(int)
+    order = np.lexsort((z[ok], pix))  # by pixel, then nearest first
+    first = np.unique(pix[order], return_index=True)[1]
+    out = np.zeros(cam.width * cam.height, np.uint32)
+    out[pix[order][first]] = tris[ok][order][first]
+    return out.reshape(cam.height, cam.width)
+
+
+def cross2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
+def assert_real_front_facing_samples(scene: Scene, images: list[DepthImage], conv: list[DepthImage]) -> None:
+    """Each sample lies on its triangle where the pixel's centre ray meets it, the
+    triangle faces the camera, and it is no nearer than the conventional sample."""
+    v = scene.vertices.astype(np.float64)
+    f = scene.faces.astype(np.int64)
+    for im, cv in zip(images, conv, strict=True):
+        cam = im.camera
+        rows, cols = np.nonzero(im.mask)
+        tri = v[f[im.tri_id[rows, cols].astype(np.int64) - 1]]  # (N,3,3)
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        p = im.position[rows, cols].astype(np.float64)
+        eye = np.asarray(cam.eye)
+        assert np.abs(np.einsum("ij,ij->i", p - tri[:, 0], n)).max() < 1e-4 * scene.diagonal
+        assert (np.einsum("ij,ij->i", eye - p, n) > 0).all(), "back-facing sample"
+        d = cam.pixel_directions()[rows, cols]
+        t = np.einsum("ij,ij->i", tri[:, 0] - eye, n) / np.einsum("ij,ij->i", d, n)
+        hit = eye + t[:, None] * d
+        np.testing.assert_allclose(t * (d @ cam.basis()[2]), im.depth[rows, cols], rtol=2e-5)
+        np.testing.assert_allclose(hit, p, atol=1e-4 * scene.diagonal)
+        # The pixel centre is inside the projected triangle (≤ 0.05 px outside an
+        # edge: rounding on triangles seen edge-on).
+        q = np.stack([cam.project(tri[:, k])[0] for k in range(3)], axis=1)  # (N,3,2) pixels
+        centre = np.stack([cols, rows], axis=1) + 0.5
+        area = cross2(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0])
+        for k in range(3):
+            a, b = q[:, k], q[:, (k + 1) % 3]
+            length = np.maximum(np.linalg.norm(b - a, axis=1), 1e-9)
+            assert (np.sign(area) * cross2(b - a, centre - a) / length).min() > -0.05
+        assert (im.depth[rows, cols] >= cv.depth[rows, cols] * (1 - 1e-6)).all()
+
+
+# --- fixtures --------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def fig11(gl):
+    scene = figure11_scene()
+    sg = SceneGPU(gl, scene)
+    cams = [fig11_camera(-3.0), fig11_camera(3.0)]
+    peel_cam = fig11_camera(0.0)
+    r = di.DepthImageRenderer(gl)
+    out = {
+        "scene": scene, "cams": cams, "peel_cam": peel_cam,
+        "conv": di.conventional(gl, sg, cams, renderer=r),
+        "nr": di.non_redundant(gl, sg, cams, renderer=r),
+        "peel": di.depth_peeling(gl, sg, peel_cam, 3, renderer=r),
+        "conv_peel": di.conventional(gl, sg, [peel_cam], renderer=r)[0],
+    }
+    r.release()
+    sg.release()
+    return out
+
+
+@pytest.fixture(scope="module")
+def clutter(gl):
+    scene = cluttered_scene()
+    sg = SceneGPU(gl, scene)
+    cams, peel_cam = fig8_rig(scene.bounds, 96, 96, spread_deg=25.0, distance=0.9)
+    out = {"scene": scene, "sg": sg, "cams": cams, "peel_cam": peel_cam,
+           "conv": di.conventional(gl, sg, cams), "nr": di.non_redundant(gl, sg, cams),
+           "peel": di.depth_peeling(gl, sg, peel_cam, 3)}
+    yield out
+    sg.release()
+
+
+# --- Figs. 11-12 -----------------------------------------------------------------------
+
+def test_fig11_scene_is_the_figure(fig11):
+    """Preconditions, by Embree: C hidden from V0, V1 and the peeling view,
+    visible from an intermediate view; each box is one object."""
+    scene = fig11["scene"]
+    rc = RayCaster(scene)
+    for cam in (*fig11["cams"], fig11["peel_cam"]):
+        assert not (object_ids(scene, rc.gbuffer(cam.fit_clip(scene.bounds)).tri_id) == C).any()
+    mid = rc.gbuffer(fig11_camera(-1.8, 96).fit_clip(scene.bounds))
+    assert (object_ids(scene, mid.tri_id) == C).sum() > 40
+
+
+def test_fig11_nr_captures_C_conventional_and_peeling_do_not(fig11):
+    scene = fig11["scene"]
+    conv_obj = [object_ids(scene, im.tri_id) for im in fig11["conv"]]
+    nr_obj = [object_ids(scene, im.tri_id) for im in fig11["nr"]]
+    peel_obj = [object_ids(scene, im.tri_id) for im in fig11["peel"]]
+    # Fig. 12: I0 holds the fronts of A and D (and the part of B seen from V0).
+    assert {A, D} <= set(np.unique(nr_obj[0])) and not (nr_obj[0] == C).any()
+    # Non-redundant I1 holds B's part unseen from V0 and C; conventional I1 only B.
+    assert (nr_obj[1] == C).sum() > 100 and (nr_obj[1] == B).sum() > 100
+    assert not any((o == C).any() for o in conv_obj)
+    assert (conv_obj[1] == B).sum() > (nr_obj[1] == B).sum()
+    # Peeling from the midpoint: C is behind A and B, so two layers miss it and
+    # only the third layer reaches it.
+    assert not (peel_obj[0] == C).any() and not (peel_obj[1] == C).any()
+    assert (peel_obj[1] == B).sum() > 100
+    assert (peel_obj[2] == C).sum() > 100
+
+
+def test_fig11_intermediate_view_has_no_hole_at_C(fig11):
+    """Output view at 20 % of V0V1: its Embree-visible C front pixels are available in
+    the NR set (metric 4) and a point-splat reconstruction shows C there; the
+    conventional set and two peeled layers leave a hole."""
+    scene = fig11["scene"]
+    cam = fig11_camera(-1.8, 96).fit_clip(scene.bounds)
+    gt = RayCaster(scene).gbuffer(cam)
+    # C's front (+z) face: its side face seen here faces away from V1 and is
+    # behind D from V0, so no pixel-redundancy set over V0, V1 can hold it.
+    c_mask = (object_ids(scene, gt.tri_id) == C) & (gt.normal[..., 2] > 0.99)
+    inner = binary_erosion(c_mask)  # away from C's silhouette (edge pixels sample coverage)
+    assert inner.sum() > 20
+    pts, tris = gt.position[c_mask].astype(np.float64), gt.tri_id[c_mask]
+    sets = {"nr": fig11["nr"], "conv": fig11["conv"], "peel2": fig11["peel"][:2]}
+    avail = {k: available(v, pts, tris) for k, v in sets.items()}
+    assert avail["nr"][inner[c_mask]].mean() >= 0.98 and avail["nr"].mean() >= 0.9, avail["nr"].mean()
+    assert not avail["conv"].any() and not avail["peel2"].any()
+    shown = {k: (object_ids(scene, splat(v, cam))[inner] == C).mean() for k, v in sets.items()}
+    assert shown["nr"] >= 0.98 and shown["conv"] == 0 and shown["peel2"] == 0, shown
+
+
+# --- non-redundant images ----------------------------------------------------------------
+
+@pytest.mark.parametrize("which", ["fig11", "clutter"])
+def test_nr_image0_is_the_conventional_image(which, request):
+    s = request.getfixturevalue(which)
+    c0, n0 = s["conv"][0], s["nr"][0]
+    np.testing.assert_array_equal(n0.tri_id, c0.tri_id)
+    np.testing.assert_array_equal(n0.depth, c0.depth)
+    np.testing.assert_array_equal(n0.color, c0.color)
+    assert n0.camera == c0.camera and n0.camera.near is not None
+
+
+@pytest.mark.parametrize("which", ["fig11", "clutter"])
+def test_nr_images_have_no_pixel_redundant_samples(which, request):
+    s = request.getfixturevalue(which)
+    nr, conv = s["nr"], s["conv"]
+    assert redundant_samples(nr) == [0] * len(nr)
+    # The margin only skips samples within 1/100 px of a texel edge: a handful.
+    assert redundant_samples(nr, margin=0.0)[1:] <= [max(2, im.n_samples // 1000) for im in nr[1:]]
+    # Conventional images of the same views are heavily redundant.
+    assert all(r > 0.2 * im.n_samples for r, im in zip(redundant_samples(conv)[1:], conv[1:], strict=True))
+
+
+@pytest.mark.parametrize("which", ["fig11", "clutter"])
+def test_nr_samples_are_real_front_facing_surface_points(which, request):
+    s = request.getfixturevalue(which)
+    assert_real_front_facing_samples(s["scene"], s["nr"], s["conv"])
+    # NR samples differ from the conventional ones only where those are redundant.
+    for im, cv in zip(s["nr"][1:], s["conv"][1:], strict=True):
+        changed = im.tri_id != cv.tri_id
+        assert changed.any()
+        assert (im.depth[changed & im.mask] > cv.depth[changed & im.mask]).all()
+
+
+def test_conventional_matches_gbuffer_and_embree(gl, clutter):
+    scene, sg = clutter["scene"], clutter["sg"]
+    gp = GBufferPass(gl)
+    rc = RayCaster(scene)
+    try:
+        for im in clutter["conv"]:
+            g = gp.render(sg, im.camera)
+            np.testing.assert_array_equal(im.tri_id, g.tri_id)
+            m = im.mask
+            np.testing.assert_allclose(im.depth[m], g.depth[m], rtol=1e-5)
+            np.testing.assert_allclose(im.color[m], g.color[m], atol=1e-5)
+            np.testing.assert_allclose(im.normal[m], g.normal[m], atol=1e-5)
+            np.testing.assert_allclose(im.position[m], g.position[m], atol=1e-5 * scene.diagonal)
+            assert not im.color[~m].any() and not im.position[~m].any() and np.isinf(im.depth[~m]).all()
+            r = rc.gbuffer(im.camera)
+            assert (r.tri_id == im.tri_id).mean() > 0.99
+    finally:
+        gp.release()
+
+
+def test_projection_and_triangle_id_variants_agree(gl, clutter):
+    """Per-vertex vs per-fragment reprojection, gl_PrimitiveID vs geometry shader."""
+    sg, cams = clutter["sg"], clutter["cams"]
+    ref = clutter["nr"]
+    for vs, geom in ((False, False), (True, True)):
+        r = di.DepthImageRenderer(gl, vs_project=vs, tri_from_geom=geom)
+        try:
+            out = di.non_redundant(gl, sg, cams, renderer=r)
+        finally:
+            r.release()
+        for a, b in zip(out, ref, strict=True):
+            assert (a.tri_id != b.tri_id).sum() <= 2
+
+
+def test_sixteen_images_and_limits(gl, clutter):
+    sg, scene = clutter["sg"], clutter["scene"]
+    lo, hi = scene.bounds
+    eyes = [tuple(scene.center + 1.2 * scene.diagonal * np.array([np.cos(a), 0.4, np.sin(a)]))
+            for a in np.linspace(0, 2 * np.pi, 16, endpoint=False)]
+    cams = [Camera(e, tuple(scene.center), fov=50.0, width=24, height=24) for e in eyes]
+    nr = di.non_redundant(gl, sg, cams, res=20)
+    assert len(nr) == 16 and all(im.tri_id.shape == (20, 20) for im in nr)
+    assert all(im.camera.near is not None and im.camera.width == 20 for im in nr)
+    assert redundant_samples(nr) == [0] * 16
+    assert sum(im.n_samples for im in nr[8:]) > 0
+    with pytest.raises(ValueError):
+        di.non_redundant(gl, sg, cams + cams[:1])
+    with pytest.raises(ValueError):
+        di.non_redundant(gl, sg, cams[:2], redundancy="strict")
+
+
+def test_visibility_redundancy_delegates_to_reference(gl, fig11):
+    pytest.importorskip("reference.visibility")
+    scene = fig11["scene"]
+    sg = SceneGPU(gl, scene)
+    try:
+        vis = di.non_redundant(gl, sg, fig11["cams"], redundancy="visibility")
+    finally:
+        sg.release()
+    assert len(vis) == 2 and all(isinstance(im, DepthImage) for im in vis)
+    assert (vis[0].tri_id == fig11["conv"][0].tri_id).mean() > 0.99
+    assert (object_ids(scene, vis[1].tri_id) == C).sum() > 100
+
+
+def test_visibility_redundancy_without_reference_is_not_implemented(gl, clutter, monkeypatch):
+    monkeypatch.setitem(sys.modules, "reference.visibility", None)  # makes the import fail
+    with pytest.raises(NotImplementedError, match="non_redundant_visibility"):
+        di.non_redundant(gl, clutter["sg"], clutter["cams"], redundancy="visibility")
+
+
+# --- depth peeling -----------------------------------------------------------------------
+
+@pytest.mark.parametrize("which", ["fig11", "clutter"])
+def test_peeling_layers(which, request, gl):
+    s = request.getfixturevalue(which)
+    peel = s["peel"]
+    conv = s["conv_peel"] if "conv_peel" in s else di.conventional(gl, s["sg"], [s["peel_cam"]])[0]
+    np.testing.assert_array_equal(peel[0].tri_id, conv.tri_id)
+    np.testing.assert_array_equal(peel[0].depth, conv.depth)
+    for prev, cur in zip(peel[:-1], peel[1:], strict=True):
+        m = cur.mask
+        assert m.any() and not (m & ~prev.mask).any()
+        assert (cur.depth[m] > prev.depth[m]).all()
+        assert not (cur.tri_id[m] == prev.tri_id[m]).any()
+    assert_real_front_facing_samples(s["scene"], peel, [conv] * len(peel))
+
+
+# --- resources ---------------------------------------------------------------------------
+
+def test_non_redundant_20_times_does_not_grow_gl_objects():
+    """A fresh context on its own thread (as in test_gl_core): live GL objects
+    are unchanged after 20 more non_redundant + peeling calls."""
+    result: dict = {}
+
+    def run() -> None:
+        gl = create_gl_context("egl")
+        scene = figure11_scene()
+        sg = SceneGPU(gl, scene)
+        cams = [fig11_camera(-3.0, 24), fig11_camera(3.0, 24), fig11_camera(0.0, 24)]
+        di.non_redundant(gl, sg, cams)
+        di.depth_peeling(gl, sg, cams[2], 2)
+        probe = gl.ctx.texture((1, 1), 1)
+        result["before"] = _live_gl_objects(probe.glo + 64)
+        probe.release()
+        for k in range(20):
+            di.non_redundant(gl, sg, cams, res=16 + 4 * (k % 3))
+            di.depth_peeling(gl, sg, cams[2], 2)
+        probe = gl.ctx.texture((1, 1), 1)
+        result["after"] = _live_gl_objects(probe.glo + 64)
+        probe.release()
+        sg.release()
+        gl.release()
+
+    t = threading.Thread(target=run)
+    t.start()
+    t.join()
+    assert result["before"] > 0
+    assert result["after"] == result["before"]
+
+
+# --- the Fig. 8 rig ------------------------------------------------------------------------
+
+def test_fig8_rig_geometry():
+    lo, hi = np.array([-1.0, 0.0, -2.0]), np.array([1.0, 2.0, 2.0])
+    c, diag = (lo + hi) / 2, np.linalg.norm(hi - lo)
+    cams, peel = fig8_rig((lo, hi), 64, 48, spread_deg=20.0, distance=1.5)
+    assert len(cams) == 3
+    eyes = np.array([cam.eye for cam in cams])
+    np.testing.assert_allclose(np.linalg.norm(eyes - c, axis=1), 1.5 * diag)
+    for cam in (*cams, peel):
+        np.testing.assert_allclose(cam.target, c)
+        assert (cam.width, cam.height) == (64, 48) and cam.near is not None
+    # Eyes 20° off the rig axis (the centroid direction), 120° apart around it.
+    axis = (eyes.mean(axis=0) - c) / np.linalg.norm(eyes.mean(axis=0) - c)
+    dirs = (eyes - c) / np.linalg.norm(eyes - c, axis=1, keepdims=True)
+    np.testing.assert_allclose(np.degrees(np.arccos(dirs @ axis)), 20.0, atol=1e-9)
+    np.testing.assert_allclose(peel.eye, eyes.mean(axis=0))
+    sides = np.linalg.norm(eyes - np.roll(eyes, 1, axis=0), axis=1)
+    np.testing.assert_allclose(sides, sides[0])
+
+
+def test_intermediate_views_are_uniform_in_the_simplex():
+    cams, _ = fig8_rig((np.zeros(3), np.ones(3)), 32, 32)
+    eyes = np.array([cam.eye for cam in cams])
+    views = intermediate_views(cams, 3000, seed=7)
+    assert [v.eye for v in views[:5]] == [v.eye for v in intermediate_views(cams, 5, seed=7)]
+    assert views[0].eye != intermediate_views(cams, 1, seed=8)[0].eye
+    p = np.array([v.eye for v in views])
+    # Barycentric coordinates in the eye triangle: non-negative, uniform (mean 1/3,
+    # P(w0 > 1/2) = 1/4 for the uniform distribution on a triangle).
+    w = np.linalg.lstsq(np.vstack([eyes.T, np.ones(3)]), np.vstack([p.T, np.ones(len(p))]), rcond=None)[0].T
+    np.testing.assert_allclose(w.sum(1), 1.0, atol=1e-9)
+    assert w.min() > -1e-9
+    np.testing.assert_allclose(w.mean(0), 1 / 3, atol=0.02)
+    assert abs((w[:, 0] > 0.5).mean() - 0.25) < 0.03
+    for v in views[:10]:
+        assert (v.target, v.fov, v.width, v.height, v.up) == (cams[0].target, cams[0].fov, 32, 32, cams[0].up)
+        assert v.near == min(c.near for c in cams) and v.far == max(c.far for c in cams)
+    # n = 2: on the segment V0V1, uniformly.
+    seg = np.array([v.eye for v in intermediate_views(cams[:2], 2000, seed=1)])
+    t = (seg - eyes[0]) @ (eyes[1] - eyes[0]) / np.sum((eyes[1] - eyes[0]) ** 2)
+    np.testing.assert_allclose(eyes[0] + t[:, None] * (eyes[1] - eyes[0]), seg, atol=1e-9)
+    assert t.min() >= 0 and t.max() <= 1 and abs(t.mean() - 0.5) < 0.03
