@@ -51,6 +51,7 @@ from starlette.datastructures import UploadFile
 from starlette.formparsers import MultiPartException, MultiPartParser
 
 from scenes.loaders import SceneLoadError
+from scenes.model import Scene
 from service.config import Settings
 from service.schemas import BuiltinParams, BuiltinSceneRequest, FrameRequest, Readiness, SceneInfo, SceneList
 from service.store import (
@@ -209,6 +210,49 @@ def _unavailable(detail: str, settings: Settings) -> HTTPException:
     return HTTPException(503, detail, headers={"Retry-After": str(settings.retry_after_s)})
 
 
+def check_size(settings: Settings, width: int, height: int, what: str = "frame") -> None:
+    """422 when width, height or their product exceed the service limits."""
+    for name, value, limit in ((f"{what} width", width, settings.max_width),
+                               (f"{what} height", height, settings.max_height),
+                               (f"{what} width × height", width * height, settings.max_pixels)):
+        if value > limit:
+            raise HTTPException(422, f"{name} {value} exceeds the limit {limit}")
+
+
+async def load_scene(app: FastAPI, scene_id: str) -> Scene:
+    """The stored scene (parsed off the event loop); 404/422 on store errors."""
+    try:
+        return await run_in_threadpool(app.state.store.get_scene, scene_id)
+    except Exception as exc:  # noqa: BLE001
+        raise _http_error(exc) from None
+
+
+async def run_job(app: FastAPI, job: Any, label: str) -> Any:
+    """Submit a job to the GL worker and await its result: 503 (+ Retry-After) when
+    the queue is full or there is no context, 504 past the job timeout, 500 when
+    the job raised."""
+    settings: Settings = app.state.settings
+    worker: RenderWorker = app.state.worker
+    try:
+        fut = worker.submit(job, timeout=settings.job_timeout_s, label=label)
+    except (QueueFull, WorkerUnavailable) as exc:
+        raise _unavailable(str(exc), settings) from None
+    try:
+        return await asyncio.wait_for(asyncio.wrap_future(fut), timeout=settings.job_timeout_s)
+    except (asyncio.TimeoutError, JobExpired):
+        fut.cancel()
+        raise HTTPException(504, f"{label} did not finish within {settings.job_timeout_s:g} s") from None
+    except WorkerUnavailable as exc:
+        raise _unavailable(str(exc), settings) from None
+    except HTTPException:
+        raise
+    except ValueError as exc:  # a job rejecting its parameters
+        raise HTTPException(422, str(exc)) from None
+    except Exception as exc:  # noqa: BLE001
+        log.exception("render job failed", exc_info=exc)
+        raise HTTPException(500, f"{label} failed: {type(exc).__name__}: {exc}") from None
+
+
 # --- the app --------------------------------------------------------------------------
 def create_app(settings: Settings | None = None) -> FastAPI:
     """The FastAPI application; its lifespan opens the scene store and starts
@@ -356,35 +400,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             "X-Render-Seconds": f"{dt:.4f}", "Content-Disposition": f'inline; filename="frame.{req.format}"'})
 
     async def _render(app_: FastAPI, scene_id: str, req: FrameRequest) -> tuple[bytes, str]:
-        for what, value, limit in (("width", req.width, settings.max_width),
-                                   ("height", req.height, settings.max_height),
-                                   ("width × height", req.width * req.height, settings.max_pixels)):
-            if value > limit:
-                raise HTTPException(422, f"frame {what} {value} exceeds the limit {limit}")
-        store: SceneStore = app_.state.store
-        worker: RenderWorker = app_.state.worker
-        try:
-            scene = await run_in_threadpool(store.get_scene, scene_id)
-        except Exception as exc:  # noqa: BLE001
-            raise _http_error(exc) from None
+        check_size(settings, req.width, req.height)
+        scene = await load_scene(app_, scene_id)
         camera = req.to_camera().fit_clip(scene.bounds)
-        try:
-            fut = worker.submit(frame_job(scene_id, scene, camera, req.cull_back_faces),
-                                timeout=settings.job_timeout_s, label=f"frame {scene_id[:12]}")
-        except QueueFull as exc:
-            raise _unavailable(str(exc), settings) from None
-        except WorkerUnavailable as exc:
-            raise _unavailable(str(exc), settings) from None
-        try:
-            gbuf = await asyncio.wait_for(asyncio.wrap_future(fut), timeout=settings.job_timeout_s)
-        except (asyncio.TimeoutError, JobExpired):
-            fut.cancel()
-            raise HTTPException(504, f"render did not finish within {settings.job_timeout_s:g} s") from None
-        except WorkerUnavailable as exc:
-            raise _unavailable(str(exc), settings) from None
-        except Exception as exc:  # noqa: BLE001
-            log.exception("render job failed", exc_info=exc)
-            raise HTTPException(500, f"render failed: {type(exc).__name__}: {exc}") from None
+        gbuf = await run_job(app_, frame_job(scene_id, scene, camera, req.cull_back_faces), f"frame {scene_id[:12]}")
         body = await run_in_threadpool(encode_frame, gbuf, req.format)
         return body, MEDIA_TYPES[req.format]
 
