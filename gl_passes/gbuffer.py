@@ -7,8 +7,6 @@ gets the sky colour and ids 0.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import moderngl
 import numpy as np
 
@@ -17,29 +15,11 @@ from gl_passes.readback import read_texture
 from gl_passes.shaders import program
 from gl_passes.uniforms import set_camera
 from gl_passes.upload import SceneGPU
+from scenes.buffers import FrameBuffers
 from scenes.camera import Camera
 
-
-@dataclass
-class GBuffer:
-    """Per-pixel buffers, row 0 = top. color (H,W,3) float32 linear; depth (H,W)
-    float32 positive eye-space z (+inf background); normal, position (H,W,3)
-    float32 world space; tri_id (H,W) uint32; obj_id (H,W) uint16; specular,
-    glossiness (H,W) float32."""
-
-    color: np.ndarray
-    depth: np.ndarray
-    normal: np.ndarray
-    position: np.ndarray
-    tri_id: np.ndarray
-    obj_id: np.ndarray
-    specular: np.ndarray
-    glossiness: np.ndarray
-
-    @property
-    def mask(self) -> np.ndarray:
-        """(H,W) bool: pixel covered by geometry."""
-        return self.tri_id > 0
+#: The G-buffer's read-back layout (shared with the Embree reference).
+GBuffer = FrameBuffers
 
 
 # (name, components, dtype) of the colour attachments, in shader location order.

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from embreex import mesh_construction, rtcore_scene
 
+from scenes.buffers import FrameBuffers
 from scenes.camera import Camera
 from scenes.model import Scene
 from scenes.shading import local_shade, sky
@@ -39,25 +40,8 @@ class Hits:
         return self.tri_id > 0
 
 
-@dataclass
-class RayBuffers:
-    """Reference image buffers, same layout as the GL G-buffer (row 0 = top):
-    color (H,W,3) float32 linear, depth (H,W) float32 eye-space z (+inf
-    background), normal/position (H,W,3) float32, tri_id (H,W) uint32, obj_id
-    (H,W) uint16, specular/glossiness (H,W) float32."""
-
-    color: np.ndarray
-    depth: np.ndarray
-    normal: np.ndarray
-    position: np.ndarray
-    tri_id: np.ndarray
-    obj_id: np.ndarray
-    specular: np.ndarray
-    glossiness: np.ndarray
-
-    @property
-    def mask(self) -> np.ndarray:
-        return self.tri_id > 0
+#: Reference primary-ray buffers: the same layout as the GL G-buffer.
+RayBuffers = FrameBuffers
 
 
 def _embree_scene(vertices: np.ndarray, faces: np.ndarray) -> object:
