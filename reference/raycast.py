@@ -109,9 +109,16 @@ class RayCaster:
             self._viewpoint_cache.popitem(last=False)
         return entry
 
-    def _intersect_from_point(self, eye: np.ndarray, d: np.ndarray, limit: np.ndarray) -> Hits:
-        emb, faces = self._viewpoint_scene(eye)
+    def cast_from(self, eye: np.ndarray, directions: np.ndarray, tmax: np.ndarray | float | None = None) -> Hits:
+        """Closest front-facing hit of rays from the single point `eye` (3,) along
+        unit `directions` (N,3), with exact back-face culling (a per-viewpoint BVH of
+        the faces front-facing from `eye`, cached for the last few viewpoints: worth
+        it for a whole image of rays, not for a handful)."""
+        eye = np.asarray(eye, np.float64)
+        d = np.asarray(directions, np.float64).reshape(-1, 3)
         n = len(d)
+        limit = np.minimum(np.broadcast_to(np.inf if tmax is None else np.asarray(tmax, np.float64), (n,)), 1e30)
+        emb, faces = self._viewpoint_scene(eye)
         t = np.full(n, np.inf)
         tri = np.zeros(n, np.uint32)
         u = np.zeros(n)
@@ -140,8 +147,6 @@ class RayCaster:
         limit = np.full(n, np.inf if tmax is None else 0.0) if tmax is None else np.broadcast_to(
             np.asarray(tmax, np.float64), (n,)).copy()
         limit = np.minimum(limit, 1e30)
-        if cull_back_faces and n and (o == o[0]).all():
-            return self._intersect_from_point(o[0], d, limit)
         t = np.full(n, np.inf)
         tri = np.zeros(n, np.uint32)
         u = np.zeros(n)
@@ -238,7 +243,7 @@ class RayCaster:
         h, w = camera.height, camera.width
         d = camera.pixel_directions().reshape(-1, 3)
         o = np.broadcast_to(np.asarray(camera.eye, np.float64), d.shape)
-        hits = self.intersect(o, d, cull_back_faces=cull_back_faces)
+        hits = self.cast_from(camera.eye, d) if cull_back_faces else self.intersect(o, d, cull_back_faces=False)
         col, n = self.shade_hits(hits, d)
         _, _, fwd = camera.basis()
         hit = hits.hit

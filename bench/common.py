@@ -1,0 +1,266 @@
+"""Shared helpers for the benchmark scripts in bench/: what machine and renderer
+ran a benchmark, wall-clock timing (repeated, interleaved side by side, median),
+scene loading by name, and result writers (Markdown tables + JSON).
+
+Nothing here is specific to one benchmark; scripts write to bench/results/.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import statistics
+import sys
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import asdict, dataclass, is_dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+RESULTS_DIR = Path(__file__).resolve().parent / "results"
+SHARED_SCENES = Path(os.environ.get("DEPTHVIEW_SHARED_SCENES",
+                                    Path(__file__).resolve().parents[2] / "shared" / "scenes"))
+
+#: Real models usable by name in benchmarks (path relative to SHARED_SCENES).
+SHARED_MODELS = {"diorama": "macross_diorama/scene.glb"}
+
+
+# --- machine / renderer description ------------------------------------------------
+
+def cpu_model() -> str:
+    """CPU model name from /proc/cpuinfo (or platform.processor())."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.lower().startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def memory_gib() -> float | None:
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemTotal:"):
+                return round(int(line.split()[1]) / 2**20, 1)
+    except (OSError, ValueError):
+        pass
+    return None
+
+
+def usable_cpus() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - non-Linux
+        return os.cpu_count() or 1
+
+
+def _version(mod: str) -> str | None:
+    try:
+        from importlib.metadata import version
+
+        return version(mod)
+    except Exception:  # noqa: BLE001 - any failure means "unknown"
+        return None
+
+
+def machine_info(gl: Any = None) -> dict[str, Any]:
+    """Machine, CPU, memory, software versions and (when `gl`, a
+    gl_passes.context.GLContext, is given) the GL backend, renderer and version."""
+    info: dict[str, Any] = {
+        "machine": platform.machine(),
+        "system": f"{platform.system()} {platform.release()}",
+        "cpu": cpu_model(),
+        "cpus_usable": usable_cpus(),
+        "cpus_total": os.cpu_count(),
+        "memory_gib": memory_gib(),
+        "python": sys.version.split()[0],
+        "numpy": np.__version__,
+        "embreex": _version("embreex"),
+        "moderngl": _version("moderngl"),
+    }
+    if gl is not None:
+        info["gl_backend"] = getattr(gl, "backend", None)
+        info["gl_renderer"] = getattr(gl, "renderer", None)
+        info["gl_version"] = getattr(gl, "version", None)
+        info["gl_software"] = getattr(gl, "is_software", None)
+    return info
+
+
+def machine_markdown(info: Mapping[str, Any]) -> str:
+    """A short bullet list describing the machine (from `machine_info`)."""
+    lines = [f"- CPU: {info.get('cpu')} ({info.get('cpus_usable')} usable of {info.get('cpus_total')} logical "
+             f"CPUs, shared with other jobs), {info.get('memory_gib')} GiB RAM, {info.get('system')} "
+             f"{info.get('machine')}"]
+    if info.get("gl_renderer"):
+        lines.append(f"- GL: {info.get('gl_renderer')} ({info.get('gl_version')}, backend "
+                     f"{info.get('gl_backend')}{', software rasteriser' if info.get('gl_software') else ''})")
+    lines.append(f"- Python {info.get('python')}, numpy {info.get('numpy')}, embreex {info.get('embreex')}, "
+                 f"moderngl {info.get('moderngl')}")
+    return "\n".join(lines)
+
+
+# --- timing -----------------------------------------------------------------------
+
+@dataclass
+class Timing:
+    """Wall-clock samples of one timed function, in milliseconds."""
+
+    samples_ms: list[float]
+
+    @property
+    def median_ms(self) -> float:
+        return statistics.median(self.samples_ms)
+
+    @property
+    def min_ms(self) -> float:
+        return min(self.samples_ms)
+
+    @property
+    def mean_ms(self) -> float:
+        return statistics.fmean(self.samples_ms)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"median_ms": self.median_ms, "min_ms": self.min_ms, "mean_ms": self.mean_ms,
+                "repeat": len(self.samples_ms), "samples_ms": self.samples_ms}
+
+
+def time_once(fn: Callable[[], Any], sync: Callable[[], Any] | None = None) -> float:
+    """Milliseconds for one call of fn (sync, e.g. ctx.finish, is called before
+    starting the clock and before stopping it)."""
+    if sync:
+        sync()
+    t0 = time.perf_counter()
+    fn()
+    if sync:
+        sync()
+    return (time.perf_counter() - t0) * 1e3
+
+
+def time_side_by_side(fns: Mapping[str, Callable[[], Any]], repeat: int = 10, warmup: int = 2,
+                      sync: Callable[[], Any] | None = None) -> dict[str, Timing]:
+    """Time several functions in one run, interleaved round by round (so load
+    changes on a shared machine hit all of them alike): `warmup` untimed rounds,
+    then `repeat` timed rounds. Returns name → Timing (use the median)."""
+    for _ in range(warmup):
+        for fn in fns.values():
+            fn()
+    if sync:
+        sync()
+    out = {name: Timing([]) for name in fns}
+    for _ in range(repeat):
+        for name, fn in fns.items():
+            out[name].samples_ms.append(time_once(fn, sync))
+    return out
+
+
+class Stopwatch:
+    """Named wall-clock sections: `with sw("cast"): ...`; sw.seconds is a dict."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+
+    def __call__(self, name: str) -> Stopwatch._Section:
+        return Stopwatch._Section(self, name)
+
+    class _Section:
+        def __init__(self, sw: Stopwatch, name: str) -> None:
+            self.sw, self.name = sw, name
+
+        def __enter__(self) -> None:
+            self.t0 = time.perf_counter()
+
+        def __exit__(self, *exc: object) -> None:
+            self.sw.seconds[self.name] = self.sw.seconds.get(self.name, 0.0) + time.perf_counter() - self.t0
+
+
+def progress(iterable: Iterable, enabled: bool = True, **kw: Any) -> Iterable:
+    """tqdm progress bar around iterable (plain iterable when disabled)."""
+    if not enabled:
+        return iterable
+    from tqdm import tqdm
+
+    return tqdm(iterable, **kw)
+
+
+# --- scenes -----------------------------------------------------------------------
+
+def shared_model_path(name: str) -> Path | None:
+    """Path of a real model from ../shared/scenes by short name, None if absent."""
+    rel = SHARED_MODELS.get(name)
+    if rel is None:
+        return None
+    p = SHARED_SCENES / rel
+    return p if p.exists() else None
+
+
+def load_named_scene(name: str, detail: float = 1.0, seed: int = 0):
+    """A built-in scene (scenes.builtin) or a shared real model by short name
+    (SHARED_MODELS). Raises FileNotFoundError for an absent shared model."""
+    if name in SHARED_MODELS:
+        p = shared_model_path(name)
+        if p is None:
+            raise FileNotFoundError(f"shared model {name!r} not found under {SHARED_SCENES}")
+        from scenes.loaders import load_scene
+
+        return load_scene(p)
+    from scenes.builtin import make_builtin
+
+    return make_builtin(name, detail=detail, seed=seed)
+
+
+# --- results writers ----------------------------------------------------------------
+
+def jsonable(obj: Any) -> Any:
+    """Convert numpy scalars/arrays, dataclasses, Paths and non-finite floats
+    (→ None) into plain JSON values."""
+    if is_dataclass(obj) and not isinstance(obj, type):
+        return jsonable(asdict(obj))
+    if hasattr(obj, "to_dict") and callable(obj.to_dict):
+        return jsonable(obj.to_dict())
+    if isinstance(obj, Mapping):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        return jsonable(obj.item())
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+def write_json(path: str | Path, obj: Any) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(jsonable(obj), indent=2) + "\n")
+    return path
+
+
+def write_text(path: str | Path, text: str) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text if text.endswith("\n") else text + "\n")
+    return path
+
+
+def md_table(headers: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
+    """A GitHub-flavoured Markdown table; cells are str()-ed."""
+    head = "| " + " | ".join(str(h) for h in headers) + " |"
+    sep = "|" + "|".join("---" for _ in headers) + "|"
+    body = ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+    return "\n".join([head, sep, *body])
+
+
+def pct(x: float | None, digits: int = 0) -> str:
+    """0.123 → '12%' (digits decimals); None/NaN → '—'."""
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "—"
+    return f"{100 * x:.{digits}f}%"

@@ -1,0 +1,428 @@
+"""Sampling-quality metrics of a depth-image set (thesis §2.3.2), by Embree only.
+
+Given a scene S and a set of depth images I_0..I_{n-1} of reference views
+V_0..V_{n-1} (conventional, non-redundant or peeling layers), §2.3.2 defines
+three view-independent metrics and one view-dependent metric. Every one of them
+rests on a redundancy test "sample x is redundant with image I" (§2.2.1):
+
+* ``pixel`` (Alg. 3): project x into I; the texel containing the projection
+  (inside the image, depth in (near, far)) holds the same triangle id as x.
+* ``visibility`` (Alg. 2): x is visible from I's viewpoint inside I's frustum,
+  front-facing and unoccluded with back-face culling (`reference.visibility`).
+
+The metrics (per image and for the whole set):
+
+1. **Redundant samples** (§2.3.2 item 1): samples of I_i redundant with some
+   *earlier image of the same set* I_j, j < i. Counted per image, as a fraction
+   of I_i's samples. Zero by construction for non-redundant images of the same
+   definition and for depth-peeling layers.
+2. **Occluded samples** (item 2): samples that the *conventional* images C_0..
+   C_{n-1} of V_0..V_{n-1} do not capture. "Captured by C_j" is the same
+   redundancy test against C_j: pixel — the sample's projection into C_j lands on
+   a texel of the same triangle; visibility — the sample is visible from V_j in
+   C_j's frustum. All n conventional images are used, for every image of the
+   set, as the thesis's introduction ("occluded to V0, V1 and V2") and its
+   peeling rule say. (Its item 2 says j < i for NR images; read literally, every
+   sample of NR I_1 would be occluded, being non-redundant with I_0 = C_0 by
+   construction, which contradicts its 62-88 % figures.) Zero by construction
+   for the conventional images themselves. Fraction of I_i's samples.
+3. **Useful samples** (item 3): occluded samples needed by at least one
+   intermediate output frame, i.e. redundant with that frame under the same
+   definition: pixel — projected into the frame's Embree-cast triangle-id buffer
+   the texel holds the sample's triangle; visibility — the sample is visible from
+   the frame's viewpoint. Fraction of the occluded samples. Evaluated frame by
+   frame with a per-sample boolean "needed" mask (memory O(samples + one frame)).
+4. **Available samples** (item 4, view-dependent): per intermediate frame, the
+   fraction of its samples (pixels whose Embree primary ray hits a front face, at
+   the frame's own resolution) that are redundant with at least one image of the
+   set; average and minimum over the frames. Pixel — the frame sample's
+   projection into I_i lands on a texel holding the same triangle (Alg. 3 with
+   the frame as the sample's source). Visibility — the thesis compares with what
+   each image *stores*, so "visible from V_i" is generalised by layers: the
+   *layer* of a stored sample is the number of front-facing surfaces its pixel
+   ray crosses before it (0 for conventional images, k for peeling layer k, any
+   for NR images); the frame sample x is represented by I_i when x is inside
+   I_i's frustum, faces V_i, and the segment V_i → x crosses exactly k
+   front-facing surfaces where k is the layer of a sample I_i stores within one
+   texel of x's projection (3×3 texels: the visibility definition ignores the
+   image resolution, so a surface seen through a one-texel gap still counts).
+   For a conventional image this is "x visible from V_i" wherever I_i has a
+   sample next to x's projection.
+
+Intermediate frames are Embree primary-ray casts (back faces culled) of the
+given cameras; they are shared by every set evaluated in one call
+(`evaluate_sets`), so comparing methods costs one cast per frame.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.ndimage import maximum_filter
+
+from reference.raycast import RayCaster
+from reference.visibility import (
+    MAX_LAYERS,
+    clipped,
+    count_front_hits,
+    front_facing,
+    project_texels,
+    visible_from,
+)
+from scenes.camera import Camera
+from scenes.depth_image import DepthImage
+from scenes.model import Scene
+
+REDUNDANCY = ("pixel", "visibility")
+
+
+@dataclass
+class SamplingMetrics:
+    """§2.3.2 metrics of one depth-image set under one redundancy definition.
+
+    Per image lists (index i = image I_i): ``samples`` (pixels holding a sample),
+    ``redundant`` (metric 1), ``occluded`` (metric 2), ``useful`` (metric 3,
+    subset of occluded). ``available`` holds metric 4 per intermediate frame
+    (fraction in [0, 1]; frames with no visible pixel are skipped). Masks (H,W)
+    bool per image are kept only when asked (`keep_masks`)."""
+
+    redundancy: str
+    samples: list[int]
+    redundant: list[int]
+    occluded: list[int]
+    useful: list[int]
+    available: list[float]
+    n_views: int
+    occluded_masks: list[np.ndarray] | None = field(default=None, repr=False, compare=False)
+    useful_masks: list[np.ndarray] | None = field(default=None, repr=False, compare=False)
+
+    @staticmethod
+    def _frac(a: Sequence[int], b: Sequence[int]) -> list[float]:
+        return [float(x) / y if y else 0.0 for x, y in zip(a, b, strict=True)]
+
+    @property
+    def redundant_frac(self) -> list[float]:
+        """Redundant samples / samples, per image."""
+        return self._frac(self.redundant, self.samples)
+
+    @property
+    def occluded_frac(self) -> list[float]:
+        """Occluded samples / samples, per image."""
+        return self._frac(self.occluded, self.samples)
+
+    @property
+    def useful_frac(self) -> list[float]:
+        """Useful samples / occluded samples, per image (0 when none occluded)."""
+        return self._frac(self.useful, self.occluded)
+
+    @property
+    def total_samples(self) -> int:
+        return int(sum(self.samples))
+
+    @property
+    def total_redundant(self) -> int:
+        return int(sum(self.redundant))
+
+    @property
+    def total_occluded(self) -> int:
+        return int(sum(self.occluded))
+
+    @property
+    def total_useful(self) -> int:
+        return int(sum(self.useful))
+
+    @property
+    def available_avg(self) -> float:
+        return float(np.mean(self.available)) if self.available else float("nan")
+
+    @property
+    def available_min(self) -> float:
+        return float(np.min(self.available)) if self.available else float("nan")
+
+    def to_dict(self) -> dict:
+        """JSON-ready numbers (no masks)."""
+        tot = self.total_samples
+        return {
+            "redundancy": self.redundancy,
+            "samples": list(self.samples),
+            "redundant": list(self.redundant),
+            "occluded": list(self.occluded),
+            "useful": list(self.useful),
+            "redundant_frac": self.redundant_frac,
+            "occluded_frac": self.occluded_frac,
+            "useful_frac_of_occluded": self.useful_frac,
+            "total": {
+                "samples": tot,
+                "redundant": self.total_redundant,
+                "occluded": self.total_occluded,
+                "useful": self.total_useful,
+                "redundant_frac": self.total_redundant / tot if tot else 0.0,
+                "occluded_frac": self.total_occluded / tot if tot else 0.0,
+                "useful_frac_of_occluded": self.total_useful / self.total_occluded if self.total_occluded else 0.0,
+            },
+            "available_avg": self.available_avg,
+            "available_min": self.available_min,
+            "n_views": self.n_views,
+        }
+
+
+# --- sample sets ------------------------------------------------------------------
+
+
+@dataclass
+class _Samples:
+    """The samples of an image list, flattened: image index, flat pixel index,
+    world position (float64) and triangle id per sample."""
+
+    image: np.ndarray
+    pixel: np.ndarray
+    position: np.ndarray
+    tri: np.ndarray
+    counts: list[int]
+
+    @classmethod
+    def of(cls, images: Sequence[DepthImage]) -> _Samples:
+        imgs, pixs, pos, tri, counts = [], [], [], [], []
+        for i, im in enumerate(images):
+            flat = np.flatnonzero(im.tri_id.reshape(-1) > 0)
+            imgs.append(np.full(len(flat), i, np.int64))
+            pixs.append(flat)
+            pos.append(im.position.reshape(-1, 3)[flat].astype(np.float64))
+            tri.append(im.tri_id.reshape(-1)[flat].astype(np.uint32))
+            counts.append(len(flat))
+        return cls(np.concatenate(imgs), np.concatenate(pixs), np.concatenate(pos).reshape(-1, 3),
+                   np.concatenate(tri), counts)
+
+    def per_image(self, mask: np.ndarray, n: int) -> list[int]:
+        return [int(x) for x in np.bincount(self.image[mask], minlength=n)[:n]]
+
+    def to_masks(self, mask: np.ndarray, images: Sequence[DepthImage]) -> list[np.ndarray]:
+        out = []
+        for i, im in enumerate(images):
+            m = np.zeros(im.tri_id.size, bool)
+            sel = self.image == i
+            m[self.pixel[sel]] = mask[sel]
+            out.append(m.reshape(im.tri_id.shape))
+        return out
+
+
+def pixel_redundant(image_tri: np.ndarray, camera: Camera, points: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """(N,) bool, Alg. 3: the texel of `image_tri` (H,W) that each point projects
+    to (inside the frustum of `camera`) holds the point's triangle id."""
+    ix, iy, inside = project_texels(camera, points)
+    return inside & (image_tri[iy, ix] == np.asarray(tri, np.uint32))
+
+
+def redundant_with(caster: RayCaster, image: DepthImage, points: np.ndarray, tri: np.ndarray,
+                   redundancy: str) -> np.ndarray:
+    """(N,) bool: surface points on triangles `tri` are redundant with `image`
+    (module docstring; visibility ignores the stored content, as §2.2.1)."""
+    if redundancy == "pixel":
+        return pixel_redundant(image.tri_id, image.camera, points, tri)
+    if redundancy == "visibility":
+        return visible_from(caster, image.camera, points, tri)
+    raise ValueError(f"redundancy must be one of {REDUNDANCY}, got {redundancy!r}")
+
+
+def _any_redundant(caster: RayCaster, images: Sequence[DepthImage], pts: np.ndarray, tri: np.ndarray,
+                   redundancy: str, select: np.ndarray | None = None) -> np.ndarray:
+    """(N,) bool: redundant with at least one of `images`; tests only where
+    `select` (default all) and each point at most until it is found redundant."""
+    out = np.zeros(len(pts), bool)
+    todo = np.ones(len(pts), bool) if select is None else select.copy()
+    for im in images:
+        idx = np.flatnonzero(todo)
+        if len(idx) == 0:
+            break
+        r = redundant_with(caster, im, pts[idx], tri[idx], redundancy)
+        out[idx[r]] = True
+        todo[idx[r]] = False
+    return out
+
+
+def redundant_samples(caster: RayCaster, images: Sequence[DepthImage], redundancy: str) -> np.ndarray:
+    """Metric 1 per sample of `_Samples.of(images)`: redundant with an earlier image."""
+    s = _Samples.of(images)
+    out = np.zeros(len(s.tri), bool)
+    for i in range(1, len(images)):
+        sel = np.flatnonzero(s.image == i)
+        out[sel] = _any_redundant(caster, images[:i], s.position[sel], s.tri[sel], redundancy)
+    return out
+
+
+def layer_map(caster: RayCaster, image: DepthImage) -> np.ndarray:
+    """(H,W) int64: number of front-facing surfaces the pixel ray crosses before
+    the stored sample (-1 where no sample); 0 everywhere for conventional images."""
+    out = np.full(image.tri_id.shape, -1, np.int64).reshape(-1)
+    flat = np.flatnonzero(image.tri_id.reshape(-1) > 0)
+    pos = image.position.reshape(-1, 3)[flat].astype(np.float64)
+    out[flat] = count_front_hits(caster, np.asarray(image.camera.eye, np.float64), pos,
+                                 image.tri_id.reshape(-1)[flat], MAX_LAYERS)
+    return out.reshape(image.tri_id.shape)
+
+
+def _layer_match(layers: np.ndarray, camera: Camera, points: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """(N,) bool: points (inside camera's frustum) whose layer counts k equal the
+    layer of some stored sample in the 3×3 texels around their projection."""
+    ix, iy, inside = project_texels(camera, points)
+    h, w = layers.shape
+    out = np.zeros(len(points), bool)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            x, y = ix + dx, iy + dy
+            ok = inside & (x >= 0) & (x < w) & (y >= 0) & (y < h)
+            kr = np.where(ok, layers[np.clip(y, 0, h - 1), np.clip(x, 0, w - 1)], -1)
+            out |= ok & (kr >= 0) & (kr == k)
+    return out
+
+
+@dataclass
+class _View:
+    """One intermediate frame: camera, triangle-id buffer (H,W), and its hit
+    pixels as points (M,3) + triangle ids (M,)."""
+
+    camera: Camera
+    tri_buffer: np.ndarray
+    points: np.ndarray
+    tri: np.ndarray
+
+
+def cast_view(caster: RayCaster, camera: Camera) -> _View:
+    """Embree primary-ray cast of an intermediate frame (back faces culled)."""
+    d = camera.pixel_directions().reshape(-1, 3)
+    eye = np.asarray(camera.eye, np.float64)
+    # Per-ray culling (RayCaster.intersect): no per-viewpoint BVH for each of many frames.
+    h = caster.intersect(np.broadcast_to(eye, d.shape), d, cull_back_faces=True)
+    hit = h.hit
+    pts = eye + d[hit] * h.t[hit, None]
+    return _View(camera, h.tri_id.reshape(camera.height, camera.width), pts, h.tri_id[hit])
+
+
+@dataclass
+class _Job:
+    name: str
+    images: list[DepthImage]
+    redundancy: str
+    samples: _Samples
+    redundant: np.ndarray
+    occluded: np.ndarray
+    needed: np.ndarray
+    available: list[float]
+    layers: list[np.ndarray] | None
+
+
+def evaluate_sets(scene: Scene, sets: Mapping[str, tuple[Sequence[DepthImage], str]],
+                  conventional_images: Sequence[DepthImage], intermediate_cameras: Sequence[Camera],
+                  caster: RayCaster | None = None, progress: bool = False,
+                  keep_masks: bool = False) -> dict[str, SamplingMetrics]:
+    """§2.3.2 metrics of several sets at once: sets maps a name to (images,
+    redundancy); every intermediate frame is cast once and shared. See the module
+    docstring for the definitions; conventional_images are the conventional depth
+    images of the reference viewpoints (metric 2)."""
+    rc = caster or RayCaster(scene)
+    views = [clipped(c, scene) for c in intermediate_cameras]
+    jobs: list[_Job] = []
+    for name, (images, redundancy) in sets.items():
+        if redundancy not in REDUNDANCY:
+            raise ValueError(f"redundancy must be one of {REDUNDANCY}, got {redundancy!r}")
+        images = list(images)
+        s = _Samples.of(images)
+        red = redundant_samples(rc, images, redundancy)
+        captured = _any_redundant(rc, conventional_images, s.position, s.tri, redundancy)
+        layers = [layer_map(rc, im) for im in images] if redundancy == "visibility" else None
+        jobs.append(_Job(name, images, redundancy, s, red, ~captured, np.zeros(len(s.tri), bool), [], layers))
+
+    # Reference cameras of the visibility jobs, each with the 3×3-max of its
+    # images' layer maps (how deep a frame sample's walk along it must go).
+    vis_cams: dict[Camera, np.ndarray] = {}
+    for job in jobs:
+        if job.layers is not None:
+            for im, lay in zip(job.images, job.layers, strict=True):
+                grown = maximum_filter(lay, size=3, mode="constant", cval=-1)
+                prev = vis_cams.get(im.camera)
+                vis_cams[im.camera] = grown if prev is None else np.maximum(prev, grown)
+
+    it = views
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(views, desc="intermediate views", unit="view", leave=False)
+    for cam in it:
+        view = cast_view(rc, cam)
+        m = len(view.tri)
+        # Layer counts of the frame's samples along each reference camera
+        # (visibility), computed lazily for the samples some set still needs and
+        # walked only as deep as some image of that camera needs (-2: no match
+        # possible, -3: not computed yet).
+        counts = {ref: np.full(m, -3, np.int64) for ref in vis_cams}
+
+        def layer_counts(ref: Camera, idx: np.ndarray, view: _View = view, counts: dict = counts) -> np.ndarray:
+            k = counts[ref]
+            todo = idx[k[idx] == -3]
+            if len(todo):
+                ix, iy, inside = project_texels(ref, view.points[todo])
+                cap = vis_cams[ref][iy, ix]
+                eye = np.asarray(ref.eye, np.float64)
+                ok = inside & (cap >= 0)
+                ok[ok] = front_facing(rc, eye, view.points[todo[ok]], view.tri[todo[ok]])
+                k[todo] = -2
+                c = todo[ok]
+                k[c] = count_front_hits(rc, eye, view.points[c], view.tri[c], cap[ok])
+            return k[idx]
+
+        for job in jobs:
+            s = job.samples
+            # Metric 3: occluded samples needed by this frame.
+            todo = np.flatnonzero(job.occluded & ~job.needed)
+            if len(todo):
+                if job.redundancy == "pixel":
+                    need = pixel_redundant(view.tri_buffer, cam, s.position[todo], s.tri[todo])
+                else:
+                    need = visible_from(rc, cam, s.position[todo], s.tri[todo])
+                job.needed[todo[need]] = True
+            # Metric 4: frame samples represented by the set.
+            if m == 0:
+                continue
+            avail = np.zeros(m, bool)
+            for i, im in enumerate(job.images):
+                idx = np.flatnonzero(~avail)
+                if len(idx) == 0:
+                    break
+                if job.redundancy == "pixel":
+                    avail[idx] = pixel_redundant(im.tri_id, im.camera, view.points[idx], view.tri[idx])
+                else:
+                    avail[idx] = _layer_match(job.layers[i], im.camera, view.points[idx],
+                                              layer_counts(im.camera, idx))
+            job.available.append(float(avail.mean()))
+
+    out: dict[str, SamplingMetrics] = {}
+    for job in jobs:
+        n = len(job.images)
+        s = job.samples
+        useful = job.occluded & job.needed
+        out[job.name] = SamplingMetrics(
+            redundancy=job.redundancy,
+            samples=list(s.counts),
+            redundant=s.per_image(job.redundant, n),
+            occluded=s.per_image(job.occluded, n),
+            useful=s.per_image(useful, n),
+            available=job.available,
+            n_views=len(views),
+            occluded_masks=s.to_masks(job.occluded, job.images) if keep_masks else None,
+            useful_masks=s.to_masks(useful, job.images) if keep_masks else None,
+        )
+    return out
+
+
+def sampling_metrics(scene: Scene, images: Sequence[DepthImage], conventional_images: Sequence[DepthImage],
+                     intermediate_cameras: Sequence[Camera], redundancy: str = "pixel", progress: bool = False,
+                     caster: RayCaster | None = None, keep_masks: bool = False) -> SamplingMetrics:
+    """§2.3.2 metrics of one depth-image set (module docstring). images: the set
+    I_0..I_{n-1}; conventional_images: conventional images of the same reference
+    viewpoints (for metric 2); intermediate_cameras: output frames for metrics 3
+    and 4 (e.g. `scenes.rig.intermediate_views`); redundancy: "pixel" or
+    "visibility"; progress: tqdm bar over the intermediate frames."""
+    return evaluate_sets(scene, {"set": (images, redundancy)}, conventional_images, intermediate_cameras,
+                         caster=caster, progress=progress, keep_masks=keep_masks)["set"]
