@@ -13,6 +13,8 @@ POST /scenes               multipart upload (field ``file``; format from the fil
 GET  /scenes/{id}          one scene's metadata
 DELETE /scenes/{id}        204; built-in defaults → 409
 POST /scenes/{id}/frames   a frame: image/png (sRGB) or image/x-exr (RGB, Z, N, id, object)
+POST /scenes/{id}/depth-images  a depth-image set (conventional | non_redundant | peeling): multi-part
+                           EXR or npz; metrics=true → JSON with the §2.3.2 metrics and the set (base64)
 =========================  =====================================================================
 
 Status codes: 400 malformed request body (bad JSON/multipart); 404 unknown or
@@ -31,6 +33,7 @@ rendering run as jobs on the ``RenderWorker`` thread.
 from __future__ import annotations
 
 import asyncio
+import base64
 import logging
 import math
 import threading
@@ -53,7 +56,17 @@ from starlette.formparsers import MultiPartException, MultiPartParser
 from scenes.loaders import SceneLoadError
 from scenes.model import Scene
 from service.config import Settings
-from service.schemas import BuiltinParams, BuiltinSceneRequest, FrameRequest, Readiness, SceneInfo, SceneList
+from service.depth_sets import embree_set, encode_set, needs_gl, plan_set, set_job, set_metrics
+from service.effects import encode_reflections, raytrace, reflection_job
+from service.schemas import (
+    BuiltinParams,
+    BuiltinSceneRequest,
+    DepthImagesRequest,
+    FrameRequest,
+    Readiness,
+    SceneInfo,
+    SceneList,
+)
 from service.store import (
     InvalidBuiltin,
     InvalidSceneId,
@@ -403,9 +416,46 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         check_size(settings, req.width, req.height)
         scene = await load_scene(app_, scene_id)
         camera = req.to_camera().fit_clip(scene.bounds)
-        gbuf = await run_job(app_, frame_job(scene_id, scene, camera, req.cull_back_faces), f"frame {scene_id[:12]}")
-        body = await run_in_threadpool(encode_frame, gbuf, req.format)
+        label = f"frame {scene_id[:12]}"
+        method, rays = req.effects.reflections, req.effects.glossy_rays
+        if method == "none":
+            gbuf = await run_job(app_, frame_job(scene_id, scene, camera, req.cull_back_faces), label)
+            body = await run_in_threadpool(encode_frame, gbuf, req.format)
+        else:
+            if method == "raytrace":
+                result = await run_in_threadpool(raytrace, scene, camera, rays)
+            else:
+                result = await run_job(app_, reflection_job(scene_id, scene, camera, method, rays), label)
+            body = await run_in_threadpool(encode_reflections, result, req.format)
         return body, MEDIA_TYPES[req.format]
+
+
+    # --- depth-image sets (thesis Ch. 2) ---------------------------------------------------
+    @app.post(
+        "/scenes/{scene_id}/depth-images", tags=["depth images"], summary="Render a depth-image set",
+        response_class=Response,
+        responses={200: {"content": {"image/x-exr": {}, "application/x-npz": {}, "application/json": {}},
+                         "description": "multi-part EXR (one part per image) or npz; with metrics=true JSON "
+                                        "{metrics, media_type, images_b64}"},
+                   404: {"description": "unknown scene"}, 422: {"description": "invalid cameras or size"},
+                   503: {"description": "render queue full"}, 504: {"description": "timed out"}})
+    async def render_depth_images(scene_id: str, req: DepthImagesRequest, request: Request) -> Response:
+        check_size(settings, req.width, req.height, "depth image")
+        scene = await load_scene(request.app, scene_id)
+        plan = plan_set(scene, req.method, req.redundancy, req.to_cameras(), req.width, req.height, req.layers)
+        images, conv = None, None
+        if needs_gl(plan, req.metrics):
+            images, conv = await run_job(request.app, set_job(scene_id, scene, plan, req.metrics),
+                                         f"depth images {scene_id[:12]}")
+        if images is None:
+            images = await run_in_threadpool(embree_set, scene, plan)
+        body = await run_in_threadpool(encode_set, images, req.format)
+        media = {"exr": "image/x-exr", "npz": "application/x-npz"}[req.format]
+        if not req.metrics:
+            return Response(body, media_type=media)
+        metrics = await run_in_threadpool(set_metrics, scene, plan, images, conv, req.intermediate_views, req.seed)
+        return JSONResponse({"metrics": _json_safe(metrics), "media_type": media,
+                             "images_b64": base64.b64encode(body).decode("ascii")})
 
     def custom_openapi() -> dict[str, Any]:
         if app.openapi_schema:

@@ -17,9 +17,13 @@ from scenes.camera import Camera, CameraError
 
 Vec3 = tuple[float, float, float]
 
-#: Effect methods accepted by /frames at this stage (more arrive with the passes).
+#: Effect methods accepted by /frames (soft shadows arrive with the Ch. 3 passes).
 SHADOW_METHODS = ("none",)
-REFLECTION_METHODS = ("none",)
+#: cluster: cluster depth images (thesis Ch. 4, GL); raytrace: Embree reference;
+#: envmap: environment map only (baseline); none: local shading only.
+REFLECTION_METHODS = ("none", "cluster", "raytrace", "envmap")
+#: Glossy lobe rays per reflective sample (thesis §4.6 uses 8–49).
+MAX_GLOSSY_RAYS = 64
 
 
 def _finite_vec3(name: str, v: Any) -> Any:
@@ -57,12 +61,14 @@ class CameraSpec(BaseModel):
 
 
 class Effects(BaseModel):
-    """Effects applied to a frame. Only "none" is implemented at this stage."""
+    """Effects applied to a frame: reflections by method (2×2 supersampled), with
+    `glossy_rays` lobe rays per sample on glossy surfaces."""
 
     model_config = ConfigDict(extra="forbid")
 
     shadows: str = Field(default="none", description=f"soft-shadow method; one of {list(SHADOW_METHODS)}")
     reflections: str = Field(default="none", description=f"reflection method; one of {list(REFLECTION_METHODS)}")
+    glossy_rays: int = Field(default=8, ge=1, le=MAX_GLOSSY_RAYS, description="lobe rays per glossy sample")
 
     @field_validator("shadows")
     @classmethod
@@ -158,3 +164,44 @@ class Readiness(BaseModel):
     software: bool | None = None
     gl_version: str | None = None
     error: str | None = None
+
+
+#: Most images in one depth-image set (the NR shader binds one texture per previous image).
+MAX_SET_IMAGES = 16
+#: Most intermediate views for the view-dependent metrics of one request.
+MAX_METRIC_VIEWS = 256
+
+
+class DepthImagesRequest(BaseModel):
+    """``POST /scenes/{id}/depth-images``: a depth-image set (thesis Ch. 2).
+
+    Cameras come from ``cameras`` or, when omitted, from the Fig. 8 rig (three
+    viewpoints around the scene; peeling from their centroid). ``peeling`` renders
+    ``layers`` layers from one viewpoint: the single given camera, or the eyes'
+    centroid looking at the first camera's target."""
+
+    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [
+        {"method": "non_redundant", "width": 256, "height": 256, "metrics": True}]})
+
+    cameras: list[CameraSpec] | None = Field(
+        default=None, min_length=1, max_length=MAX_SET_IMAGES,
+        description="reference viewpoints in rendering order; omitted → the Fig. 8 rig")
+    method: Literal["conventional", "non_redundant", "peeling"] = "non_redundant"
+    redundancy: Literal["pixel", "visibility"] = Field(
+        default="pixel", description="non_redundant only: pixel (GL, Alg. 3) or visibility (Embree, Alg. 2)")
+    width: int = Field(default=512, ge=1)
+    height: int = Field(default=512, ge=1)
+    layers: int = Field(default=3, ge=1, le=MAX_SET_IMAGES, description="peeling layers")
+    format: Literal["exr", "npz"] = Field(
+        default="exr", description="exr: one part per image (RGB, Z, N, P, id); npz: stacked arrays")
+    metrics: bool = Field(default=False, description="add the four §2.3.2 sampling metrics (JSON response)")
+    intermediate_views: int = Field(default=16, ge=1, le=MAX_METRIC_VIEWS,
+                                    description="intermediate views for the useful/available metrics")
+    seed: int = Field(default=0, ge=0, lt=2**63, description="seed of the intermediate views")
+
+    def to_cameras(self) -> list[Camera] | None:
+        """The requested cameras (without near/far), or None for the rig."""
+        if self.cameras is None:
+            return None
+        return [Camera(eye=c.eye, target=c.target, up=c.up, fov=c.fov, width=self.width, height=self.height)
+                for c in self.cameras]

@@ -1,0 +1,107 @@
+"""Depth-image sets for the service (thesis Ch. 2): the GL job, the Embree-only
+paths, encoding and the §2.3.2 metrics. GL work runs only inside the job on the
+worker thread; Embree work (visibility redundancy, metrics) runs off it."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from gl_passes.depth_images import DepthImageRenderer, conventional, depth_peeling, non_redundant
+from reference.sampling_metrics import sampling_metrics
+from reference.visibility import non_redundant_visibility
+from scenes.camera import Camera
+from scenes.depth_image import DepthImage
+from scenes.model import Scene
+from scenes.rig import fig8_rig, intermediate_views
+from service import image_io
+
+
+@dataclass
+class SetPlan:
+    """What to render: the reference cameras (near/far fitted) and, for peeling,
+    the peeling camera."""
+
+    method: str
+    redundancy: str
+    cameras: list[Camera]
+    peel_camera: Camera
+    layers: int
+
+
+def plan_set(scene: Scene, method: str, redundancy: str, cameras: list[Camera] | None, width: int, height: int,
+             layers: int) -> SetPlan:
+    """Cameras of the request, or the Fig. 8 rig; peeling from the single camera
+    or from the eyes' centroid toward the first camera's target."""
+    if cameras is None:
+        cams, peel = fig8_rig(scene.bounds, width, height)
+    else:
+        cams = [c.fit_clip(scene.bounds) for c in cameras]
+        if len(cams) == 1:
+            peel = cams[0]
+        else:
+            c0 = cams[0]
+            centroid = tuple(np.mean([c.eye for c in cams], axis=0))
+            peel = Camera(centroid, c0.target, c0.up, c0.fov, width, height).fit_clip(scene.bounds)
+    return SetPlan(method, redundancy, cams, peel, layers)
+
+
+def set_job(scene_key: str, scene: Scene, plan: SetPlan, want_conventional: bool
+            ) -> Callable[[object], tuple[list[DepthImage] | None, list[DepthImage] | None]]:
+    """Worker job: (the set rendered by GL — None when it is Embree-only —, the
+    conventional images of the reference cameras when wanted)."""
+
+    def run(state: object) -> tuple[list[DepthImage] | None, list[DepthImage] | None]:
+        gpu = state.scene_gpu(scene_key, scene)  # type: ignore[attr-defined]
+        renderer = state.resource("depth_images", DepthImageRenderer)  # type: ignore[attr-defined]
+        gl = state.gl  # type: ignore[attr-defined]
+        images = None
+        if plan.method == "conventional":
+            images = conventional(gl, gpu, plan.cameras, renderer=renderer)
+        elif plan.method == "peeling":
+            images = depth_peeling(gl, gpu, plan.peel_camera, plan.layers, renderer=renderer)
+        elif plan.redundancy == "pixel":
+            images = non_redundant(gl, gpu, plan.cameras, renderer=renderer)
+        conv = None
+        if want_conventional:
+            conv = images if plan.method == "conventional" else conventional(gl, gpu, plan.cameras, renderer=renderer)
+        return images, conv
+
+    return run
+
+
+def needs_gl(plan: SetPlan, metrics: bool) -> bool:
+    return metrics or not (plan.method == "non_redundant" and plan.redundancy == "visibility")
+
+
+def embree_set(scene: Scene, plan: SetPlan) -> list[DepthImage]:
+    """The visibility-redundancy NR set (Alg. 2), Embree only."""
+    return non_redundant_visibility(scene, plan.cameras)
+
+
+def set_metrics(scene: Scene, plan: SetPlan, images: list[DepthImage], conv: list[DepthImage], n_views: int,
+                seed: int) -> dict:
+    """The four §2.3.2 metrics of `images` (redundancy definition of the plan;
+    pixel for conventional/peeling sets), JSON-ready."""
+    views = intermediate_views(plan.cameras, n_views, seed)
+    redundancy = plan.redundancy if plan.method == "non_redundant" else "pixel"
+    return sampling_metrics(scene, images, conv, views, redundancy=redundancy).to_dict()
+
+
+def encode_set(images: list[DepthImage], fmt: str) -> bytes:
+    """EXR: one part per image ("image_<k>": RGB, Z, N, P, id); npz: stacked arrays
+    color (n,H,W,3), depth (n,H,W), normal, position (n,H,W,3), tri_id (n,H,W) and
+    per-image camera view/projection matrices (n,4,4)."""
+    if fmt == "exr":
+        parts = [(f"image_{k}", {"RGB": im.color, "Z": im.depth, "N": im.normal, "P": im.position, "id": im.tri_id})
+                 for k, im in enumerate(images)]
+        return image_io.encode_exr_multipart(parts)
+    if fmt == "npz":
+        stack = {name: np.stack([np.ascontiguousarray(getattr(im, name)) for im in images])
+                 for name in ("color", "depth", "normal", "position", "tri_id")}
+        stack["view"] = np.stack([im.camera.view_matrix() for im in images])
+        stack["projection"] = np.stack([im.camera.projection_matrix() for im in images])
+        return image_io.encode_npz(stack)
+    raise ValueError(f"unknown depth-image set format {fmt!r}")

@@ -1,0 +1,115 @@
+"""POST /scenes/{id}/depth-images: methods, formats, metrics and bad input."""
+
+from __future__ import annotations
+
+import base64
+
+import numpy as np
+import pytest
+
+from gl_passes.depth_images import conventional, non_redundant
+from gl_passes.upload import SceneGPU
+from scenes.builtin import make_builtin
+from scenes.camera import Camera
+from scenes.rig import fig8_rig
+from service import image_io
+from tests.test_service import frame_camera, service
+
+RES = 40
+
+
+@pytest.fixture(scope="module")
+def client(tmp_path_factory):
+    with service(tmp_path_factory.mktemp("data")) as c:
+        sid = c.post("/scenes", json={"builtin": "cornell"}).json()["id"]
+        yield c, sid
+
+
+def post(client, sid, **body):
+    return client.post(f"/scenes/{sid}/depth-images", json={"width": RES, "height": RES, **body})
+
+
+def test_rig_nr_set_as_exr_matches_direct_render(client, gl):
+    c, sid = client
+    r = post(c, sid, method="non_redundant")
+    assert r.status_code == 200, r.text
+    assert r.headers["content-type"] == "image/x-exr"
+    parts = image_io.decode_exr_multipart(r.content)
+    assert [name for name, _ in parts] == ["image_0", "image_1", "image_2"]
+    scene = make_builtin("cornell")
+    cams, _ = fig8_rig(scene.bounds, RES, RES)
+    sg = SceneGPU(gl, scene)
+    direct = non_redundant(gl, sg, cams)
+    sg.release()
+    for (_, ch), im in zip(parts, direct, strict=True):
+        np.testing.assert_array_equal(ch["id"], im.tri_id)
+        np.testing.assert_array_equal(ch["Z"], im.depth)
+    assert (parts[1][1]["id"] > 0).sum() < (direct[0].tri_id > 0).sum()  # later NR images hold fewer samples
+
+
+def test_conventional_npz_with_given_cameras(client, gl):
+    c, sid = client
+    cam = frame_camera()
+    cam2 = {**cam, "eye": [cam["eye"][0] + 0.5, cam["eye"][1], cam["eye"][2]]}
+    r = post(c, sid, method="conventional", cameras=[cam, cam2], format="npz")
+    assert r.status_code == 200, r.text
+    z = image_io.decode_npz(r.content)
+    assert z["tri_id"].shape == (2, RES, RES) and z["color"].shape == (2, RES, RES, 3)
+    assert z["view"].shape == (2, 4, 4)
+    scene = make_builtin("cornell")
+    direct_cam = Camera(tuple(cam["eye"]), tuple(cam["target"]), tuple(cam["up"]), cam["fov"], RES, RES)
+    sg = SceneGPU(gl, scene)
+    direct = conventional(gl, sg, [direct_cam])[0]
+    sg.release()
+    np.testing.assert_array_equal(z["tri_id"][0], direct.tri_id)
+
+
+def test_peeling_layers_and_metrics_json(client):
+    c, sid = client
+    r = post(c, sid, method="peeling", layers=2, metrics=True, intermediate_views=3)
+    assert r.status_code == 200, r.text
+    body = r.json()
+    assert body["media_type"] == "image/x-exr"
+    parts = image_io.decode_exr_multipart(base64.b64decode(body["images_b64"]))
+    assert len(parts) == 2
+    m = body["metrics"]
+    assert m["n_views"] == 3 and len(m["samples"]) == 2
+    assert m["redundant"] == [0, 0]  # peeling layers never repeat a pixel's triangle
+
+
+def test_nr_metrics_have_no_redundant_samples(client):
+    c, sid = client
+    m = post(c, sid, method="non_redundant", metrics=True, intermediate_views=2).json()["metrics"]
+    assert m["total"]["redundant"] == 0
+    conv = post(c, sid, method="conventional", metrics=True, intermediate_views=2).json()["metrics"]
+    assert conv["total"]["redundant"] > 0 and conv["total"]["occluded"] == 0
+    assert 0 < m["available_min"] <= m["available_avg"] <= 1
+
+
+def test_visibility_redundancy_is_served_by_embree(client):
+    c, sid = client
+    r = post(c, sid, method="non_redundant", redundancy="visibility")
+    assert r.status_code == 200, r.text
+    assert len(image_io.decode_exr_multipart(r.content)) == 3
+
+
+@pytest.mark.parametrize("body, status, needle", [
+    ({"method": "splat"}, 422, "method"),
+    ({"redundancy": "fuzzy"}, 422, "redundancy"),
+    ({"width": 5000}, 422, "width"),
+    ({"layers": 0}, 422, "layers"),
+    ({"cameras": []}, 422, "cameras"),
+    ({"cameras": [{"eye": [0, 1, 0], "target": [0, 1, 0]}]}, 422, "coincide"),
+    ({"format": "png"}, 422, "format"),
+    ({"intermediate_views": 100000}, 422, "intermediate_views"),
+])
+def test_bad_requests_name_the_problem(client, body, status, needle):
+    c, sid = client
+    r = post(c, sid, **body)
+    assert r.status_code == status
+    assert needle in r.text
+
+
+def test_unknown_scene_is_404(client):
+    c, _ = client
+    assert post(c, "0" * 64).status_code == 404
