@@ -7,7 +7,7 @@ are compiled once per GL context and cached on it.
 from __future__ import annotations
 
 import re
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 import moderngl
@@ -19,7 +19,7 @@ SHADER_DIR = Path(__file__).parent / "shaders"
 _INCLUDE = re.compile(r'^\s*#include\s+"([^"]+)"\s*$', re.MULTILINE)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _read(name: str) -> str:
     return (SHADER_DIR / name).read_text()
 

@@ -1,0 +1,417 @@
+"""Reflections with cluster depth images (thesis Ch. 4, Alg. 6/7; DESIGN.md technique 3).
+
+`ClusterReflections(gl).render(scene_gpu, camera, glossy_rays=8)`:
+
+1. G-buffer at ss×ss supersampling (GBufferPass at ss·W × ss·H);
+2. clustering of the reflective samples on the GPU (gl_passes.clustering, §4.3);
+3. one cluster camera per cluster (gl_passes.cluster_camera, §4.4): per-cluster
+   statistics and ray extents by compute passes with atomics, the per-cluster
+   camera algebra in numpy on those few numbers;
+4. cluster depth images (local-shaded colour + linear depth) rendered into one
+   atlas texture, one viewport per cluster, with frustum culling of 512-triangle
+   chunks (finer than SceneGPU.object_bounds, so large floors and walls are mostly
+   culled) and the fitting plane as a clip plane. Three layers per cluster image:
+   every object except the cluster's own reflector; the reflector alone (its
+   self-reflections) — otherwise the reflector's far side, which faces e_c, hides
+   what its rays see; and the reflector's second surface (one depth peel,
+   cluster_peel.frag), for self-reflections behind its nearest surface (thick rims,
+   the inside of a bathtub or a bowl);
+5. intersection (Alg. 7, reflect_trace.comp) per sample: the reflected ray's
+   projection is marched one texel per step with perspective-correct depth (1/z
+   linear in the image) over all layers at once (their depths packed in one
+   texel, cluster_pack.comp); the first surface met along the ray wins. Hit = the
+   step whose ray-depth span reaches the stored depth, unless the surface lies in
+   front of the span by more than `thickness` spans (the ray passes behind a thin
+   surface) or in front of the ray's entry point, or is the sample's own triangle;
+   the hit is refined inside the step where the ray's inverse depth crosses the
+   bilinearly interpolated surface's; stretches of 8×8 texels whose nearest stored
+   depth is behind the ray are skipped (cluster_mindepth.comp; exact, the result
+   does not change). For glossy reflectors `glossy_rays` lobe rays (scenes.glossy)
+   with fade to diffuse;
+   misses read the sky (mirrors) or the diffuse colour (glossy, as the reference);
+6. colour = mix(diffuse, reflected, s) and ss×ss averages (reflect_resolve.comp,
+   the same aggregation rules as reference.reflections).
+
+Only small per-cluster records cross the bus: per-object sample counts, per-bin
+statistics and per-cluster extents (a few dozen uints each) and the final images.
+
+`method="envmap"` is the environment-map baseline (reflected = sky(r), lobe mean
+for glossy samples, ray length +inf). Results follow reference.reflections'
+ReflectionResult layout, plus the cluster cameras and per-step timings.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import moderngl
+import numpy as np
+
+from gl_passes import cluster_camera as cc
+from gl_passes.cluster_camera import ClusterCamera, ClusterExtentPass
+from gl_passes.clustering import ClusteringPass
+from gl_passes.context import GLContext
+from gl_passes.gbuffer import GBufferPass
+from gl_passes.readback import read_texture
+from gl_passes.shaders import compute_program, program
+from gl_passes.uniforms import set_uniform
+from gl_passes.upload import SceneGPU
+from scenes.camera import Camera
+from scenes.glossy import FADE_FRACTION, lobe_offsets
+
+MAX_RAYS = 64
+CHUNK = 512  # triangles per culling chunk of the cluster depth images
+BLOCK = 8    # atlas texels per side of a coarse min-depth block (march skipping)
+GL_CLIP_DISTANCE0 = 0x3000
+BACKGROUND_DEPTH = 1e30
+STEPS = ("gbuffer", "clustering", "cluster_cameras", "depth_images", "intersection", "resolve")
+
+
+@dataclass
+class ClusterReflectionResult:
+    """Output-resolution arrays (same rules as reference.reflections.ReflectionResult):
+    color, reflected, diffuse (H,W,3) float32; specular (H,W) float32 mean s;
+    reflective (H,W) bool; ray_length (H,W) float64 mean mirror-ray length (+inf if a
+    sample missed, NaN where no sample is reflective). cameras: the cluster cameras;
+    timings_ms: per step (STEPS) plus "total"; atlas_size: (w, h) texels;
+    drawn_chunks: triangle chunks drawn into the cluster images (after culling)."""
+
+    color: np.ndarray
+    reflected: np.ndarray
+    diffuse: np.ndarray
+    specular: np.ndarray
+    reflective: np.ndarray
+    ray_length: np.ndarray
+    method: str = "clusters"
+    supersample: int = 2
+    n_clusters: int = 0
+    cameras: list[ClusterCamera] = field(default_factory=list)
+    timings_ms: dict[str, float] = field(default_factory=dict)
+    atlas_size: tuple[int, int] = (0, 0)
+    drawn_chunks: int = 0
+
+
+class ClusterReflections:
+    """Reflection renderer on `gl`'s thread. Parameters: max_resolution caps a
+    cluster image's side; resolution_scale multiplies the texel density derived
+    from the cluster's projected sample spacing; bin_scale and bin_rule set the §4.3
+    bin counts (gl_passes.clustering); thickness is the hit tolerance in units of a step's depth span; max_shift
+    clamps the e0 → P_c shift 1 − f; atlas_budget caps the total cluster-image area
+    at that many texels per G-buffer sample (None = no cap; all images shrink uniformly)."""
+
+    def __init__(self, gl: GLContext, max_resolution: int = 1024, resolution_scale: float = 1.0,
+                 bin_scale: float = 1.0, thickness: float = 1.0, atlas_max: int = 4096,
+                 max_shift: float = cc.MAX_SHIFT, bin_rule: str = "relative",
+                 atlas_budget: float | None = 16.0) -> None:
+        gl.check_thread()
+        self.gl = gl
+        self.max_resolution = int(max_resolution)
+        self.resolution_scale = float(resolution_scale)
+        self.bin_scale = float(bin_scale)
+        self.thickness = float(thickness)
+        self.atlas_max = int(atlas_max)
+        self.max_shift = float(max_shift)
+        self.bin_rule = bin_rule
+        self.atlas_budget = atlas_budget
+        self.gbuffer = GBufferPass(gl)
+        self.clustering = ClusteringPass(gl)
+        self.extent = ClusterExtentPass(gl)
+        defines = {"FADE_FRACTION": repr(float(FADE_FRACTION)), "MAX_RAYS": str(MAX_RAYS), "BLOCK": str(BLOCK)}
+        self.depth_prog = program(gl, "cluster_depth.vert", "cluster_depth.frag")
+        self.peel_prog = program(gl, "cluster_depth.vert", "cluster_peel.frag")
+        self.trace_prog = compute_program(gl, "reflect_trace.comp", defines)
+        self.resolve_prog = compute_program(gl, "reflect_resolve.comp")
+        self.pack_prog = compute_program(gl, "cluster_pack.comp")
+        self.mindepth_prog = compute_program(gl, "cluster_mindepth.comp", {"BLOCK": str(BLOCK)})
+        self._atlas: list = []
+        self._samples: moderngl.Texture | None = None
+        self._outputs: dict[str, moderngl.Texture] = {}
+        self._chunk_cache: dict = {}
+
+    # --- GPU resources -------------------------------------------------------------
+    def _atlas_target(self, size: tuple[int, int]) -> list[tuple[moderngl.Texture, moderngl.Texture,
+                                                                  moderngl.Framebuffer]]:
+        """Three atlas layers of the same layout, (colour+depth, triangle id or None,
+        framebuffer): the other objects, the cluster's own reflector, and the
+        reflector's second surface (one depth peel)."""
+        need = (max(256, -(-size[0] // 256) * 256), max(256, -(-size[1] // 256) * 256))
+        have = self._atlas[0][0].size if self._atlas else (0, 0)
+        if not self._atlas or have[0] < need[0] or have[1] < need[1]:
+            self._release_atlas()
+            ctx = self.gl.ctx
+            need = (max(need[0], have[0]), max(need[1], have[1]))
+            for layer in range(3):  # only the reflector layers need triangle ids
+                color = ctx.texture(need, 4, dtype="f4")
+                color.filter = (moderngl.NEAREST, moderngl.NEAREST)
+                tri = ctx.texture(need, 1, dtype="u4") if layer >= 1 else None
+                if tri is not None:
+                    tri.filter = (moderngl.NEAREST, moderngl.NEAREST)
+                depth = ctx.depth_texture(need)
+                fbo = ctx.framebuffer([color] if tri is None else [color, tri], depth)
+                self._atlas.append((color, tri, fbo, depth))
+        return [a[:3] for a in self._atlas]
+
+    def _release_atlas(self) -> None:
+        for color, tri, fbo, depth in self._atlas:
+            fbo.release()
+            depth.release()
+            if tri is not None:
+                tri.release()
+            color.release()
+        self._atlas = []
+
+    def _pack_layers(self, layers, used: tuple[int, int]) -> tuple[moderngl.Texture, moderngl.Texture]:
+        """Both layers' depths in one texel, and their BLOCK×BLOCK minimum."""
+        pack = self._texture("pack", layers[0][0].size, components=4)
+        if used[0] > 0 and used[1] > 0:
+            pack.bind_to_image(5, read=False, write=True)
+            layers[0][0].use(4)
+            layers[1][0].use(9)
+            layers[2][0].use(12)
+            p = self.pack_prog
+            for name, unit in (("u_atlas", 4), ("u_atlas_self", 9), ("u_atlas_peel", 12)):
+                set_uniform(p, name, unit)
+            set_uniform(p, "u_size", tuple(int(x) for x in used))
+            p.run((used[0] + 15) // 16, (used[1] + 15) // 16, 1)
+            self.gl.ctx.memory_barrier()
+        csize = (-(-pack.size[0] // BLOCK), -(-pack.size[1] // BLOCK))
+        coarse = self._texture("coarse", csize, components=1)
+        if used[0] > 0 and used[1] > 0:
+            coarse.bind_to_image(6, read=False, write=True)
+            pack.use(10)
+            p = self.mindepth_prog
+            set_uniform(p, "u_pack", 10)
+            set_uniform(p, "u_size", tuple(int(x) for x in used))
+            p.run((-(-used[0] // BLOCK) + 7) // 8, (-(-used[1] // BLOCK) + 7) // 8, 1)
+            self.gl.ctx.memory_barrier()
+        return pack, coarse
+
+    def _texture(self, key: str, size: tuple[int, int], components: int = 4) -> moderngl.Texture:
+        tex = self._outputs.get(key)
+        if tex is None or tex.size != size:
+            if tex is not None:
+                tex.release()
+            tex = self.gl.ctx.texture(size, components, dtype="f4")
+            tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            self._outputs[key] = tex
+        return tex
+
+    # --- the technique -------------------------------------------------------------
+    def render(self, scene_gpu: SceneGPU, camera: Camera, glossy_rays: int = 8, supersample: int = 2,
+               method: str = "clusters", sync_timings: bool = True) -> ClusterReflectionResult:
+        """Reflections for `camera` (near/far fitted to the scene when absent).
+        method: "clusters" (Alg. 6) or "envmap" (baseline)."""
+        self.gl.check_thread()
+        if method not in ("clusters", "envmap"):
+            raise ValueError(f"method must be 'clusters' or 'envmap', got {method!r}")
+        if not 1 <= glossy_rays <= MAX_RAYS:
+            raise ValueError(f"glossy_rays must be in [1, {MAX_RAYS}]")
+        ss = int(supersample)
+        if ss < 1:
+            raise ValueError("supersample must be >= 1")
+        ctx = self.gl.ctx
+        scene = scene_gpu.scene
+        cam = camera if camera.near is not None else camera.fit_clip(scene.bounds)
+        W, H = cam.width, cam.height
+        ss_cam = cam.with_size(W * ss, H * ss)
+        timings: dict[str, float] = {}
+        t_start = t = time.perf_counter()
+
+        def lap(name: str) -> None:
+            nonlocal t
+            if sync_timings:
+                ctx.finish()
+            now = time.perf_counter()
+            timings[name] = (now - t) * 1e3
+            t = now
+
+        # 1. supersampled G-buffer
+        tex = self.gbuffer.draw(scene_gpu, ss_cam).textures
+        lap("gbuffer")
+        # 2. clustering
+        stats = self.clustering.run(tex, scene.bounds, len(scene.objects), self.bin_scale, self.bin_rule)
+        lap("clustering")
+        # 3. cluster cameras
+        bins = self.clustering.bins_tex
+        size = bins.size
+        scene_gpu.vbo.bind_to_storage_buffer(6)
+        scene_gpu.ibo.bind_to_storage_buffer(7)
+        bins.use(0)
+        tex["tri_id"].use(1)
+        tex["normal"].use(2)
+        tex["position"].use(3)
+        eye = np.asarray(cam.eye, np.float64)
+        cams = cc.initial_cameras(stats, cam, scene.materials, scene.diagonal)
+        atlas_size = (0, 0)
+        drawn = 0
+        if method == "clusters" and cams:
+            ext0 = self.extent.run(0, cc.stage0_frames(cams), size, eye)
+            cc.place_centers(cams, ext0, stats, scene.diagonal, self.max_shift)
+            ext1 = self.extent.run(1, cc.stage1_frames(cams), size, eye)
+            cc.finish_cameras(cams, ext1, cam, ss, self.resolution_scale, self.max_resolution)
+            budget = self.atlas_budget * size[0] * size[1] if self.atlas_budget else None
+            atlas_size = cc.pack_atlas(cams, self.atlas_max, budget)
+        lap("cluster_cameras")
+        # 4. cluster depth images
+        layers = self._atlas_target(atlas_size if atlas_size[0] else (1, 1))
+        if method == "clusters" and cams:
+            drawn = self._draw_atlas(scene_gpu, cams, [fb for _, _, fb in layers])
+        lap("depth_images")
+        # 5. intersection
+        frames = np.asarray([c.frame() for c in cams], np.float32).reshape(-1, cc.FRAME_FLOATS)
+        self.extent.upload_frames(frames if len(frames) else np.zeros((1, cc.FRAME_FLOATS), np.float32))
+        samples = self._texture("samples", size)
+        samples.bind_to_image(1, read=False, write=True)
+        bins.use(0)
+        tex["tri_id"].use(1)
+        tex["normal"].use(2)
+        tex["position"].use(3)
+        layers[0][0].use(4)
+        layers[1][0].use(9)
+        pack, coarse = self._pack_layers(layers, atlas_size)
+        pack.use(10)
+        coarse.use(11)
+        layers[1][1].use(8)
+        layers[2][0].use(12)
+        layers[2][1].use(13)
+        tex["color"].use(5)
+        tex["material"].use(6)
+        p = self.trace_prog
+        for name, unit in (("u_bins", 0), ("u_tri", 1), ("u_normal", 2), ("u_position", 3), ("u_atlas", 4),
+                           ("u_color", 5), ("u_material", 6), ("u_atlas_self", 9), ("u_pack", 10),
+                           ("u_atlas_self_tri", 8), ("u_coarse", 11), ("u_atlas_peel", 12),
+                           ("u_atlas_peel_tri", 13)):
+            set_uniform(p, name, unit)
+        set_uniform(p, "u_eye", eye)
+        set_uniform(p, "u_sun", np.asarray(scene.sun_direction))
+        set_uniform(p, "u_mode", 1 if method == "envmap" else 0)
+        set_uniform(p, "u_rays", int(glossy_rays))
+        set_uniform(p, "u_thickness", self.thickness)
+        if "u_lobe" in p:
+            lobe = np.zeros((MAX_RAYS, 2), np.float32)
+            lobe[:glossy_rays] = lobe_offsets(glossy_rays)
+            p["u_lobe"].write(lobe.tobytes())
+        p.run((size[0] + 7) // 8, (size[1] + 7) // 8, 1)
+        ctx.memory_barrier()
+        lap("intersection")
+        # 6. blend + ss×ss resolve + readback
+        out = {k: self._texture(k, (W, H)) for k in ("out_color", "out_reflected", "out_diffuse")}
+        for unit, k in ((2, "out_color"), (3, "out_reflected"), (4, "out_diffuse")):
+            out[k].bind_to_image(unit, read=False, write=True)
+        samples.use(7)
+        p = self.resolve_prog
+        for name, unit in (("u_bins", 0), ("u_color", 5), ("u_material", 6), ("u_reflected", 7)):
+            set_uniform(p, name, unit)
+        set_uniform(p, "u_ss", ss)
+        p.run((W + 7) // 8, (H + 7) // 8, 1)
+        ctx.memory_barrier()
+        col = read_texture(out["out_color"])
+        ref = read_texture(out["out_reflected"])
+        dif = read_texture(out["out_diffuse"])
+        lap("resolve")
+        timings["total"] = (time.perf_counter() - t_start) * 1e3
+        return ClusterReflectionResult(
+            color=col[..., :3].copy(), reflected=ref[..., :3].copy(), diffuse=dif[..., :3].copy(),
+            specular=col[..., 3].copy(), reflective=dif[..., 3] > 0, ray_length=ref[..., 3].astype(np.float64),
+            method=method, supersample=ss, n_clusters=len(cams), cameras=cams, timings_ms=timings,
+            atlas_size=atlas_size, drawn_chunks=drawn)
+
+    def render_envmap(self, scene_gpu: SceneGPU, camera: Camera, glossy_rays: int = 8,
+                      supersample: int = 2) -> ClusterReflectionResult:
+        """Environment-map baseline (the service's method="envmap")."""
+        return self.render(scene_gpu, camera, glossy_rays, supersample, method="envmap")
+
+    def _chunks(self, scene_gpu: SceneGPU) -> dict[str, np.ndarray]:
+        """Per-object runs of at most CHUNK triangles with their AABBs (cached per
+        SceneGPU): the unit of frustum culling for the cluster images, finer than
+        SceneGPU.object_bounds so that large objects (floors, walls) are mostly culled."""
+        key = id(scene_gpu)
+        cached = self._chunk_cache.get(key)
+        if cached is not None and cached["scene"] is scene_gpu.scene:
+            return cached
+        scene = scene_gpu.scene
+        obj, first, count = [], [], []
+        for k, (f0, n) in enumerate(scene_gpu.ranges):
+            for a in range(0, n, CHUNK):
+                obj.append(k)
+                first.append(f0 + a)
+                count.append(min(CHUNK, n - a))
+        tri = scene.vertices[scene.faces.astype(np.int64)]  # (F,3,3)
+        lo = np.minimum.reduceat(tri.min(axis=1), first, axis=0) if first else np.zeros((0, 3))
+        hi = np.maximum.reduceat(tri.max(axis=1), first, axis=0) if first else np.zeros((0, 3))
+        cached = {"scene": scene, "obj": np.asarray(obj, np.int64), "first": np.asarray(first, np.int64),
+                  "count": np.asarray(count, np.int64), "bounds": np.stack([lo, hi], axis=1).astype(np.float64)}
+        self._chunk_cache = {key: cached}
+        return cached
+
+    def _draw_atlas(self, scene_gpu: SceneGPU, cams: list[ClusterCamera], fbos: list[moderngl.Framebuffer]) -> int:
+        """Render every cluster image into its atlas viewport: layer 0 = the objects
+        other than the cluster's reflector, layer 1 = the reflector itself; only the
+        triangle chunks that survive frustum culling are drawn (adjacent visible
+        chunks of one object in one draw). Returns the number of chunks drawn."""
+        ctx = self.gl.ctx
+        prog = self.depth_prog
+        ch = self._chunks(scene_gpu)
+        vaos = (scene_gpu.vao(self.depth_prog), scene_gpu.vao(self.peel_prog))
+        self._atlas[1][0].use(12)
+        set_uniform(self.peel_prog, "u_prev", 12)
+        set_uniform(self.peel_prog, "u_sun", np.asarray(scene_gpu.scene.sun_direction))
+        materials = scene_gpu.scene.materials
+        ctx.enable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+        ctx.depth_func = "<"
+        ctx.front_face = "ccw"
+        ctx.cull_face = "back"
+        ctx.enable_direct(GL_CLIP_DISTANCE0)
+        set_uniform(prog, "u_sun", np.asarray(scene_gpu.scene.sun_direction))
+        drawn = 0
+        used = (0, 0, max(c.atlas[0] + c.atlas[2] for c in cams), max(c.atlas[1] + c.atlas[3] for c in cams))
+        for fbo in fbos:  # one clear of the used atlas area (tri id clears to 0)
+            fbo.clear(0.0, 0.0, 0.0, BACKGROUND_DEPTH, depth=1.0, viewport=used)
+        for c in cams:
+            if not c.valid:
+                continue
+            vp = c.atlas
+            vis = cc.visible_boxes(c, ch["bounds"])
+            prog = self.depth_prog
+            set_uniform(prog, "u_view", c.view_matrix())
+            set_uniform(prog, "u_view_proj", c.view_projection())
+            set_uniform(prog, "u_clip_plane", np.array([*c.plane_normal, c.clip_offset]))
+            own = c.object_id - 1
+            for layer, fbo in enumerate(fbos):
+                prog = self.peel_prog if layer == 2 else self.depth_prog
+                vao = vaos[layer == 2]
+                if layer == 2:
+                    for name, value in (("u_view", c.view_matrix()), ("u_view_proj", c.view_projection()),
+                                        ("u_clip_plane", np.array([*c.plane_normal, c.clip_offset]))):
+                        set_uniform(prog, name, value)
+                fbo.use()
+                fbo.viewport = vp
+                sel = np.nonzero(vis & ((ch["obj"] == own) == (layer >= 1)))[0]
+                drawn += len(sel)
+                # Merge runs of consecutive chunks of the same object into one draw.
+                i = 0
+                while i < len(sel):
+                    j = i
+                    while j + 1 < len(sel) and sel[j + 1] == sel[j] + 1 and ch["obj"][sel[j + 1]] == ch["obj"][sel[i]]:
+                        j += 1
+                    k = int(ch["obj"][sel[i]])
+                    first = int(ch["first"][sel[i]])
+                    count = int(ch["first"][sel[j]] + ch["count"][sel[j]]) - first
+                    set_uniform(prog, "u_base", first)
+                    set_uniform(prog, "u_albedo", tuple(float(x) for x in materials[k + 1, :3]))
+                    vao.render(moderngl.TRIANGLES, vertices=3 * count, first=3 * first)
+                    i = j + 1
+        ctx.disable_direct(GL_CLIP_DISTANCE0)
+        ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+        return drawn
+
+    def release(self) -> None:
+        self.gl.check_thread()
+        self.gbuffer.release()
+        self.clustering.release()
+        self.extent.release()
+        self._release_atlas()
+        for t in self._outputs.values():
+            t.release()
+        self._outputs.clear()

@@ -1,0 +1,14 @@
+#version 430 core
+// Cluster depth image texel: local-shaded colour (rgb) + linear depth (a), triangle id.
+#include "common.glsl"
+uniform vec3 u_albedo;
+uniform uint u_base;  // first global face of the drawn object
+in vec3 vs_normal;
+in float vs_depth;
+layout(location = 0) out vec4 out_color;
+layout(location = 1) out uint out_tri;  // triangle id (1-based)
+
+void main() {
+    out_color = vec4(local_shade(u_albedo, normalize(vs_normal)), vs_depth);
+    out_tri = u_base + uint(gl_PrimitiveID) + 1u;
+}

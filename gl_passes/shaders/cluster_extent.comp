@@ -1,0 +1,127 @@
+#version 430 core
+// §4.4 per-sample extents of a cluster's reflected rays, seen from a centre c in a
+// frame (A, B, Z): AABBs (tangent units u = (X-c)·A / (X-c)·Z) of the clipped ray
+// start and end points (glossy: end points of the lobe boundary too), the range of
+// start depths z = (P-c)·Z, the min clipped start depth, the max clipped end depth
+// and (stage 1) the mean projected spacing of neighbouring samples.
+// Stage 0: c = e0, frame = fitting plane basis (d_n, d_f of eq. 6);
+// stage 1: c = e_c, frame = the cluster camera (image rectangle, far, resolution).
+layout(local_size_x = 16, local_size_y = 16) in;
+#include "reflect_common.glsl"
+uniform usampler2D u_bins;
+uniform usampler2D u_tri;
+uniform sampler2D u_normal;
+uniform sampler2D u_position;
+uniform vec3 u_eye;
+uniform int u_stage;
+layout(std430, binding = 4) buffer Ext { uint ext[]; };
+#define STRIDE 16u
+#define MAXTAN 20.0
+#define SPACING_FIXED 268435456.0
+shared uint s_ext[STRIDE];
+shared int s_cid;
+bool g_local;
+uint g_base;
+
+void amin(uint k, uint v) { if (g_local) atomicMin(s_ext[k], v); else atomicMin(ext[g_base + k], v); }
+void amax(uint k, uint v) { if (g_local) atomicMax(s_ext[k], v); else atomicMax(ext[g_base + k], v); }
+void add64(uint k, uint v) {
+    if (g_local) { uint o = atomicAdd(s_ext[k], v); if (o + v < o) atomicAdd(s_ext[k + 1u], 1u); }
+    else { uint o = atomicAdd(ext[g_base + k], v); if (o + v < o) atomicAdd(ext[g_base + k + 1u], 1u); }
+}
+
+void accum_point(vec3 X, uint slot, ClusterFrame F) {
+    vec3 q = X - F.c_near.xyz;
+    float z = max(dot(q, F.fwd_half.xyz), 1e-30);
+    vec2 uv = clamp(vec2(dot(q, F.right_far.xyz), dot(q, F.up_len.xyz)) / z, -MAXTAN, MAXTAN);
+    amin(slot, f2o(uv.x)); amin(slot + 1u, f2o(uv.y));
+    amax(slot + 2u, f2o(uv.x)); amax(slot + 3u, f2o(uv.y));
+}
+
+// Clip P + t·d, t in [0, len], to the clip plane and to depth >= near. False if empty.
+bool clip_ray(vec3 P, vec3 d, ClusterFrame F, out float t0, out float t1) {
+    t0 = 0.0; t1 = F.up_len.w;
+    float a = dot(F.plane.xyz, P) - F.plane.w, da = dot(F.plane.xyz, d);
+    if (abs(da) > 1e-12) { float t = -a / da; if (da > 0.0) t0 = max(t0, t); else t1 = min(t1, t); }
+    else if (a < 0.0) return false;
+    float z = dot(P - F.c_near.xyz, F.fwd_half.xyz) - F.c_near.w, dz = dot(d, F.fwd_half.xyz);
+    if (abs(dz) > 1e-12) { float t = -z / dz; if (dz > 0.0) t0 = max(t0, t); else t1 = min(t1, t); }
+    else if (z < 0.0) return false;
+    return t0 < t1;
+}
+
+void accum_ray(vec3 P, vec3 d, ClusterFrame F, bool with_start) {
+    float t0, t1;
+    if (!clip_ray(P, d, F, t0, t1)) return;
+    vec3 S = P + t0 * d, E = P + t1 * d;
+    if (with_start) accum_point(S, 0u, F);
+    accum_point(E, 4u, F);
+    vec3 Z = F.fwd_half.xyz, c = F.c_near.xyz;
+    amin(10u, f2o(dot(S - c, Z)));
+    amax(11u, f2o(max(dot(E - c, Z), dot(S - c, Z))));
+}
+
+vec2 project_uv(vec3 X, ClusterFrame F) {
+    vec3 q = X - F.c_near.xyz;
+    float z = max(dot(q, F.fwd_half.xyz), 1e-30);
+    return vec2(dot(q, F.right_far.xyz), dot(q, F.up_len.xyz)) / z;
+}
+
+void main() {
+    if (gl_LocalInvocationIndex < STRIDE) {
+        uint k = gl_LocalInvocationIndex;
+        bool is_min = k == 0u || k == 1u || k == 4u || k == 5u || k == 8u || k == 10u;
+        bool is_max = k == 2u || k == 3u || k == 6u || k == 7u || k == 9u || k == 11u;
+        s_ext[k] = is_min ? 0xFFFFFFFFu : 0u;
+    }
+    if (gl_LocalInvocationIndex == 0u) s_cid = -1;
+    barrier();
+    ivec2 p = ivec2(gl_GlobalInvocationID.xy);
+    ivec2 size = textureSize(u_bins, 0);
+    uint bin = all(lessThan(p, size)) ? texelFetch(u_bins, p, 0).r : 0u;
+    int cid = bin > 0u ? remap[bin - 1u] : -1;
+    if (cid >= 0) atomicCompSwap(s_cid, -1, cid);
+    barrier();
+    if (cid >= 0) {
+        g_local = cid == s_cid;
+        g_base = uint(cid) * STRIDE;
+        ClusterFrame F = frames[cid];
+        vec3 P = texelFetch(u_position, p, 0).xyz;
+        vec3 n = normalize(texelFetch(u_normal, p, 0).xyz);
+        vec3 ng = geom_normal(texelFetch(u_tri, p, 0).r);
+        vec3 r = mirror_dir(normalize(P - u_eye), n, ng);
+        float zp = dot(P - F.c_near.xyz, F.fwd_half.xyz);
+        amin(8u, f2o(zp)); amax(9u, f2o(zp));
+        accum_ray(P, r, F, true);
+        float half_angle = F.fwd_half.w;
+        if (half_angle > 0.0) {
+            for (int k = 0; k < 8; ++k) {
+                float a = float(k) * 0.78539816339;
+                accum_ray(P, lift_above(lobe_dir(r, half_angle, vec2(cos(a), sin(a))), ng), F, true);
+            }
+        }
+        if (u_stage == 1 && zp > 0.0) {
+            vec2 uv = project_uv(P, F);
+            for (int k = 0; k < 2; ++k) {
+                ivec2 q = p + (k == 0 ? ivec2(1, 0) : ivec2(0, 1));
+                if (any(greaterThanEqual(q, size)) || texelFetch(u_bins, q, 0).r != bin) continue;
+                vec3 Pq = texelFetch(u_position, q, 0).xyz;
+                if (dot(Pq - F.c_near.xyz, F.fwd_half.xyz) <= 0.0) continue;
+                float dist = min(length(project_uv(Pq, F) - uv), 15.0);
+                add64(12u, uint(dist * SPACING_FIXED + 0.5));
+                if (g_local) atomicAdd(s_ext[14], 1u); else atomicAdd(ext[g_base + 14u], 1u);
+            }
+        }
+    }
+    barrier();
+    if (s_cid >= 0 && gl_LocalInvocationIndex < STRIDE) {
+        uint k = gl_LocalInvocationIndex, gb = uint(s_cid) * STRIDE;
+        uint v = s_ext[k];
+        bool is_min = k == 0u || k == 1u || k == 4u || k == 5u || k == 8u || k == 10u;
+        bool is_max = k == 2u || k == 3u || k == 6u || k == 7u || k == 9u || k == 11u;
+        if (is_min) { if (v != 0xFFFFFFFFu) atomicMin(ext[gb + k], v); }
+        else if (is_max) { if (v != 0u) atomicMax(ext[gb + k], v); }
+        else if (k == 12u) { uint o = atomicAdd(ext[gb + 12u], v); atomicAdd(ext[gb + 13u], s_ext[13] + (o + v < o ? 1u : 0u)); }
+        else if (k == 14u) atomicAdd(ext[gb + 14u], v);
+    }
+}

@@ -1,0 +1,19 @@
+#version 430 core
+// Second surface of the cluster's own reflector (one depth peel): like
+// cluster_depth.frag, but fragments not behind the first reflector layer (u_prev,
+// same atlas viewport) are discarded, so the depth test keeps the next surface.
+#include "common.glsl"
+uniform vec3 u_albedo;
+uniform uint u_base;
+uniform sampler2D u_prev;  // first reflector layer: rgb colour, a = depth
+in vec3 vs_normal;
+in float vs_depth;
+layout(location = 0) out vec4 out_color;
+layout(location = 1) out uint out_tri;
+
+void main() {
+    float first = texelFetch(u_prev, ivec2(gl_FragCoord.xy), 0).a;
+    if (vs_depth <= first * (1.0 + 1e-5)) discard;
+    out_color = vec4(local_shade(u_albedo, normalize(vs_normal)), vs_depth);
+    out_tri = u_base + uint(gl_PrimitiveID) + 1u;
+}

@@ -1,0 +1,63 @@
+// Shared by the cluster/reflection compute shaders (technique 3, Ch. 4).
+// Mesh access for geometric normals, the mirror-direction rules and the glossy
+// lobe of scenes/glossy.py + reference/reflections.py (same formulas).
+layout(std430, binding = 6) readonly buffer MeshVerts { float mesh_v[]; };  // (pos, normal) × V
+layout(std430, binding = 7) readonly buffer MeshFaces { uint mesh_f[]; };   // 3 × F
+
+vec3 mesh_pos(uint i) { return vec3(mesh_v[6u * i], mesh_v[6u * i + 1u], mesh_v[6u * i + 2u]); }
+
+// Unit geometric normal (CCW front) of triangle id `tri` (1-based).
+vec3 geom_normal(uint tri) {
+    uint f = 3u * (tri - 1u);
+    vec3 a = mesh_pos(mesh_f[f]), b = mesh_pos(mesh_f[f + 1u]), c = mesh_pos(mesh_f[f + 2u]);
+    vec3 n = cross(b - a, c - a);
+    float l = length(n);
+    return l > 0.0 ? n / l : vec3(0.0, 1.0, 0.0);
+}
+
+// Mirror direction about the shading normal; below-surface rule: reflect about
+// the geometric normal when that direction points into the surface.
+vec3 mirror_dir(vec3 d, vec3 n, vec3 ng) {
+    vec3 r = normalize(d - 2.0 * dot(d, n) * n);
+    if (dot(r, ng) < 0.0) r = normalize(d - 2.0 * dot(d, ng) * ng);
+    return r;
+}
+
+// Lobe direction: tilt the axis m by rho·half toward phi, offset = rho·(cos phi, sin phi),
+// in the branchless orthonormal frame of Duff et al. (scenes.glossy.lobe_directions).
+vec3 lobe_dir(vec3 m, float half_angle, vec2 off) {
+    float sgn = m.z >= 0.0 ? 1.0 : -1.0;
+    float a = -1.0 / (sgn + m.z);
+    float b = m.x * m.y * a;
+    vec3 t1 = vec3(1.0 + sgn * m.x * m.x * a, sgn * b, -sgn * m.x);
+    vec3 t2 = vec3(b, sgn + m.y * m.y * a, -m.y);
+    float rho = length(off);
+    float scale = rho > 0.0 ? tan(rho * half_angle) / rho : half_angle;
+    return normalize(m + off.x * scale * t1 + off.y * scale * t2);
+}
+
+// Lobe directions below the geometric tangent plane are mirrored about it.
+vec3 lift_above(vec3 d, vec3 ng) {
+    float dn = dot(d, ng);
+    return dn < 0.0 ? d - 2.0 * dn * ng : d;
+}
+
+// Per-cluster camera record (8 vec4, see gl_passes/cluster_camera.py FRAME_LAYOUT).
+struct ClusterFrame {
+    vec4 c_near;      // centre of projection, projection near depth
+    vec4 right_far;   // image-plane x axis, far depth
+    vec4 up_len;      // image-plane y axis, ray length (far distance along rays)
+    vec4 fwd_half;    // viewing axis, glossy lobe half-angle (rad)
+    vec4 plane;       // clip plane: dot(n, X) >= w (the fitting plane, shifted to hold all ray starts)
+    vec4 rect;        // off-axis image rectangle (u0, v0, u1, v1) in tangent units
+    vec4 atlas;       // atlas viewport (x, y, w, h) in texels
+    vec4 misc;        // glossiness, 0, 0, 0
+};
+layout(std430, binding = 5) readonly buffer Frames { ClusterFrame frames[]; };
+layout(std430, binding = 3) readonly buffer Remap { int remap[]; };  // raw bin -> cluster (-1 none)
+
+// Order-preserving float <-> uint map for atomicMin/atomicMax on floats.
+uint f2o(float f) {
+    uint u = floatBitsToUint(f);
+    return (u & 0x80000000u) != 0u ? ~u : (u | 0x80000000u);
+}

@@ -1,0 +1,219 @@
+#version 430 core
+// Alg. 7 per reflective sample: march the reflected ray's projection through its
+// cluster's depth image one texel per step, depth interpolated perspective-correctly
+// (1/z linear in the image). Hit rule: in the texel where the ray's depth span
+// [z_lo, z_hi] first reaches the stored depth D (D <= z_hi) and the surface is not
+// in front of the span by more than u_thickness·(z_hi - z_lo) (else the ray passes
+// behind a thin surface and marching goes on), and never in front of the ray's entry
+// depth. Two layers per cluster image: other objects / the cluster's own reflector. Miss -> sky (mirror) or the diffuse
+// colour (glossy: a miss within far contributes diffuse, §4.6 / reference).
+// u_mode 1 = environment map baseline (no intersection).
+layout(local_size_x = 8, local_size_y = 8) in;
+#include "common.glsl"
+#include "reflect_common.glsl"
+uniform usampler2D u_bins;
+uniform usampler2D u_tri;
+uniform sampler2D u_normal;
+uniform sampler2D u_position;
+uniform sampler2D u_material;
+uniform sampler2D u_color;
+uniform sampler2D u_atlas;
+// Second layer, same layout: the cluster's own reflector only (self-reflections); the
+// first layer holds every other object, so the reflector cannot hide them.
+uniform sampler2D u_atlas_self;
+uniform usampler2D u_atlas_self_tri;  // triangle id per texel of the reflector layer
+// Third layer: the reflector's second surface (depth peel), so a ray passing behind
+// the reflector's nearest surface can still meet the one behind it.
+uniform sampler2D u_atlas_peel;
+uniform usampler2D u_atlas_peel_tri;
+// Both layers' depths packed (cluster_pack.comp): one fetch per step; their
+// BLOCK×BLOCK minimum (cluster_mindepth.comp) for skipping empty stretches.
+uniform sampler2D u_pack;
+uniform sampler2D u_coarse;
+uint g_own_tri;  // the sample's own triangle: never a hit (it faces away from its reflected rays)
+uniform vec3 u_eye;
+uniform int u_mode;
+uniform int u_rays;
+uniform vec2 u_lobe[MAX_RAYS];
+uniform float u_thickness;
+layout(rgba32f, binding = 1) writeonly uniform image2D u_out;  // reflected rgb, mirror-ray length
+
+float f_inf() { return uintBitsToFloat(0x7f800000u); }
+
+// Clip P + t·d, t in [0, len], to the clip plane and the depth range [near, far].
+bool clip_ray(vec3 P, vec3 d, ClusterFrame F, out float t0, out float t1) {
+    t0 = 0.0; t1 = F.up_len.w;
+    float a = dot(F.plane.xyz, P) - F.plane.w, da = dot(F.plane.xyz, d);
+    if (abs(da) > 1e-12) { float t = -a / da; if (da > 0.0) t0 = max(t0, t); else t1 = min(t1, t); }
+    else if (a < 0.0) return false;
+    float z = dot(P - F.c_near.xyz, F.fwd_half.xyz), dz = dot(d, F.fwd_half.xyz);
+    float zn = F.c_near.w, zf = F.right_far.w;
+    if (abs(dz) > 1e-12) {
+        float ta = (zn - z) / dz, tb = (zf - z) / dz;
+        t0 = max(t0, min(ta, tb)); t1 = min(t1, max(ta, tb));
+    } else if (z < zn || z > zf) return false;
+    return t0 < t1;
+}
+
+vec2 to_texel(vec3 X, ClusterFrame F, out float z) {
+    vec3 q = X - F.c_near.xyz;
+    z = dot(q, F.fwd_half.xyz);
+    vec2 uv = vec2(dot(q, F.right_far.xyz), dot(q, F.up_len.xyz)) / z;
+    return (uv - F.rect.xy) / (F.rect.zw - F.rect.xy) * F.atlas.zw;
+}
+
+// Layer test at one step: the hit rule above, against the stored depth D.
+bool layer_hit(float D, float zhi, float lower) { return D <= zhi * (1.0 + 1e-5) && D >= lower; }
+
+// Bilinear colour (rgb) and depth (a) of the surface at image point pix, over the
+// 2×2 texels whose depth is within dtol of D (the hit surface).
+vec4 surface_at(sampler2D atlas, ivec2 org, ivec2 top, vec2 pix, float D, float dtol) {
+    vec2 f = pix - 0.5;
+    ivec2 b = ivec2(floor(f));
+    vec2 w = f - floor(f);
+    vec4 acc = vec4(0.0);
+    float wsum = 0.0;
+    for (int j = 0; j < 2; ++j) for (int i = 0; i < 2; ++i) {
+        vec4 tex = texelFetch(atlas, org + clamp(b + ivec2(i, j), ivec2(0), top), 0);
+        float wt = (i == 1 ? w.x : 1.0 - w.x) * (j == 1 ? w.y : 1.0 - w.y);
+        if (abs(tex.a - D) <= dtol) { acc += wt * tex; wsum += wt; }
+    }
+    return wsum > 1e-6 ? acc / wsum : vec4(texelFetch(atlas, org + clamp(ivec2(floor(pix)), ivec2(0), top), 0).rgb, D);
+}
+
+// Hit refinement inside the step [alo, ahi]: where the ray's depth crosses the
+// bilinearly interpolated surface depth. Returns the image
+// parameter of the crossing, or -1 when the ray does not cross there.
+float refine(sampler2D atlas, ivec2 org, ivec2 top, vec2 s2, vec2 e2, float is2, float ie2, float alo,
+             float ahi, float D, float dtol) {
+    // In inverse depth both the ray and a planar surface are linear in the image.
+    float glo = mix(is2, ie2, alo) - 1.0 / surface_at(atlas, org, top, mix(s2, e2, alo), D, dtol).a;
+    float ghi = mix(is2, ie2, ahi) - 1.0 / surface_at(atlas, org, top, mix(s2, e2, ahi), D, dtol).a;
+    if (glo >= 0.0 && ghi <= 0.0 && glo > ghi) return alo + (ahi - alo) * glo / (glo - ghi);
+    return -1.0;
+}
+
+bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
+    col = vec3(0.0); t_hit = f_inf();
+    if (F.atlas.z <= 0.0) return false;  // cluster without a valid camera: miss
+    float t0, t1;
+    if (!clip_ray(P, d, F, t0, t1)) return false;
+    float zs, ze;
+    vec2 ps = to_texel(P + t0 * d, F, zs), pe = to_texel(P + t1 * d, F, ze);
+    vec2 wh = F.atlas.zw, dp = pe - ps;
+    float a0 = 0.0, a1 = 1.0;
+    for (int k = 0; k < 2; ++k) {  // Liang-Barsky against the image rectangle
+        if (abs(dp[k]) < 1e-9) { if (ps[k] < 0.0 || ps[k] > wh[k]) return false; continue; }
+        float ta = -ps[k] / dp[k], tb = (wh[k] - ps[k]) / dp[k];
+        a0 = max(a0, min(ta, tb)); a1 = min(a1, max(ta, tb));
+    }
+    if (a0 > a1) return false;
+    float is = 1.0 / zs, ie = 1.0 / ze;
+    vec2 s2 = ps + a0 * dp, e2 = ps + a1 * dp;
+    float is2 = mix(is, ie, a0), ie2 = mix(is, ie, a1);
+    vec2 span = abs(e2 - s2);
+    int steps = max(1, int(ceil(max(span.x, span.y))));
+    ivec2 org = ivec2(F.atlas.xy), top = ivec2(wh) - 1;
+    // A ray moving away from the camera never hits a surface in front of its entry
+    // point (e.g. the reflector's own far side seen from e_c).
+    float zfirst = ie2 < is2 ? (1.0 + 1e-4) / is2 : 0.0;
+    vec2 delta = (e2 - s2) / float(steps);
+    for (int k = 0; k <= steps; ++k) {
+        float ac = float(k) / float(steps);
+        vec2 pix = mix(s2, e2, ac);
+        ivec2 tx = clamp(ivec2(floor(pix)), ivec2(0), top);
+        // Block skip: the steps that stay in this coarse block cannot hit when the
+        // block's nearest stored depth is behind the ray's deepest point there.
+#ifndef NO_BLOCK_SKIP
+        if (all(equal(tx, ivec2(floor(pix))))) {
+            ivec2 cb = (org + tx) / BLOCK;
+            vec2 b0 = vec2(cb * BLOCK - org), b1 = b0 + float(BLOCK);
+            float ex = delta.x > 0.0 ? (b1.x - pix.x) / delta.x : (delta.x < 0.0 ? (pix.x - b0.x) / -delta.x : 1e9);
+            float ey = delta.y > 0.0 ? (b1.y - pix.y) / delta.y : (delta.y < 0.0 ? (pix.y - b0.y) / -delta.y : 1e9);
+            int last = min(k + int(max(floor(min(ex, ey) - 1e-4), 0.0)), steps);
+            if (last > k) {
+                float aa = max(0.0, (float(k) - 0.5) / float(steps)), ab = min(1.0, (float(last) + 0.5) / float(steps));
+                float zmax = max(1.0 / mix(is2, ie2, aa), 1.0 / mix(is2, ie2, ab));
+                if (texelFetch(u_coarse, cb, 0).r > zmax * (1.0 + 1e-5)) { k = last; continue; }
+            }
+        }
+#endif
+        float alo = max(0.0, (float(k) - 0.5) / float(steps)), ahi = min(1.0, (float(k) + 0.5) / float(steps));
+        float za = 1.0 / mix(is2, ie2, alo), zb = 1.0 / mix(is2, ie2, ahi);
+        float zlo = min(za, zb), zhi = max(za, zb);
+        float tol = u_thickness * (zhi - zlo) + 1e-4 * zhi;
+        float lower = max(zlo - tol, zfirst);
+        vec3 pk = texelFetch(u_pack, org + tx, 0).xyz;  // depth: other objects, reflector, reflector 2nd
+        bool h0 = layer_hit(pk.x, zhi, lower);
+        bool h1 = layer_hit(pk.y, zhi, lower);
+        bool h2 = layer_hit(pk.z, zhi, lower);
+        if (!(h0 || h1 || h2)) continue;
+        // The sample's own triangle is never a hit (checked only on candidate hits).
+        if (h1) h1 = texelFetch(u_atlas_self_tri, org + tx, 0).r != g_own_tri;
+        if (h2) h2 = texelFetch(u_atlas_peel_tri, org + tx, 0).r != g_own_tri;
+        if (!(h0 || h1 || h2)) continue;
+        // Several layers hit in this step: the surface met first along the ray.
+        bool away = ie2 < is2;  // depth grows along the ray
+        int layer = -1;
+        float D = 0.0;
+        for (int l = 0; l < 3; ++l) {
+            bool h = l == 0 ? h0 : (l == 1 ? h1 : h2);
+            float Dl = pk[l];
+            if (h && (layer < 0 || (away ? Dl < D : Dl > D))) { layer = l; D = Dl; }
+        }
+        float dtol = max(2.0 * tol, 5e-3 * D);
+        float ar = layer == 0 ? refine(u_atlas, org, top, s2, e2, is2, ie2, alo, ahi, D, dtol)
+                 : (layer == 1 ? refine(u_atlas_self, org, top, s2, e2, is2, ie2, alo, ahi, D, dtol)
+                               : refine(u_atlas_peel, org, top, s2, e2, is2, ie2, alo, ahi, D, dtol));
+        if (ar >= 0.0) { ac = ar; pix = mix(s2, e2, ar); D = 1.0 / mix(is2, ie2, ar); }
+        col = (layer == 0 ? surface_at(u_atlas, org, top, pix, D, dtol)
+               : (layer == 1 ? surface_at(u_atlas_self, org, top, pix, D, dtol)
+                             : surface_at(u_atlas_peel, org, top, pix, D, dtol))).rgb;
+        // Hit distance along the ray from the hit depth.
+        float ao = mix(a0, a1, ac);
+        if (abs(ze - zs) > 1e-5 * zs) t_hit = t0 + (t1 - t0) * clamp((D - zs) / (ze - zs), 0.0, 1.0);
+        else t_hit = t0 + (t1 - t0) * ao * ie / mix(is, ie, ao);
+        return true;
+    }
+    return false;
+}
+
+void main() {
+    ivec2 p = ivec2(gl_GlobalInvocationID.xy);
+    ivec2 size = textureSize(u_bins, 0);
+    if (any(greaterThanEqual(p, size))) return;
+    uint bin = texelFetch(u_bins, p, 0).r;
+    if (bin == 0u) { imageStore(u_out, p, vec4(0.0, 0.0, 0.0, uintBitsToFloat(0x7fc00000u))); return; }
+    int cid = remap[bin - 1u];
+    ClusterFrame F = frames[max(cid, 0)];
+    vec3 P = texelFetch(u_position, p, 0).xyz;
+    vec3 n = normalize(texelFetch(u_normal, p, 0).xyz);
+    g_own_tri = texelFetch(u_tri, p, 0).r;
+    vec3 ng = geom_normal(g_own_tri);
+    vec3 r = mirror_dir(normalize(P - u_eye), n, ng);
+    float g = texelFetch(u_material, p, 0).g;
+    vec3 diff = texelFetch(u_color, p, 0).rgb;
+    float half_angle = F.fwd_half.w, far_len = F.up_len.w;
+    vec3 refl = vec3(0.0);
+    float len = f_inf();
+    if (u_mode == 1) {
+        if (g <= 0.0) refl = sky(r);
+        else { for (int k = 0; k < u_rays; ++k) refl += sky(lift_above(lobe_dir(r, half_angle, u_lobe[k]), ng));
+               refl /= float(u_rays); }
+    } else {
+        vec3 hc; float th;
+        bool h = trace(P, r, F, hc, th);
+        len = h ? th : f_inf();
+        if (g <= 0.0) refl = h ? hc : sky(r);
+        else {
+            for (int k = 0; k < u_rays; ++k) {
+                vec3 dk = lift_above(lobe_dir(r, half_angle, u_lobe[k]), ng);
+                h = trace(P, dk, F, hc, th);
+                float w = h ? clamp((far_len - th) / (FADE_FRACTION * far_len), 0.0, 1.0) : 0.0;
+                refl += w * hc + (1.0 - w) * diff;
+            }
+            refl /= float(u_rays);
+        }
+    }
+    imageStore(u_out, p, vec4(refl, len));
+}

@@ -1,0 +1,52 @@
+"""Frame effects for the service: reflections by method (thesis Ch. 4).
+
+`cluster` and `envmap` run as GL jobs on the worker thread (gl_passes.reflections);
+`raytrace` is the Embree reference and runs in the thread pool, never on the GL
+thread. All return linear colour (H,W,3) plus the reflection buffers for EXR."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from gl_passes.reflections import ClusterReflections
+from reference.reflections import raytrace_reflections
+from scenes.camera import Camera
+from scenes.model import Scene
+from service import image_io
+
+#: API method name → gl_passes.reflections method name.
+GL_METHODS = {"cluster": "clusters", "envmap": "envmap"}
+
+
+def reflection_job(scene_key: str, scene: Scene, camera: Camera, method: str, glossy_rays: int
+                   ) -> Callable[[Any], Any]:
+    """Worker job rendering reflections with the GL method `method` (cluster|envmap)."""
+
+    def run(state: Any) -> Any:
+        gpu = state.scene_gpu(scene_key, scene)
+        renderer = state.resource("reflections", ClusterReflections)
+        return renderer.render(gpu, camera, glossy_rays=glossy_rays, method=GL_METHODS[method])
+
+    return run
+
+
+def raytrace(scene: Scene, camera: Camera, glossy_rays: int) -> Any:
+    """The Embree reference (CPU; call off the GL thread)."""
+    return raytrace_reflections(scene, camera, supersample=2, glossy_rays=glossy_rays)
+
+
+def encode_reflections(result: Any, fmt: str) -> bytes:
+    """PNG (sRGB final colour) or EXR (linear RGB final colour, "reflected" RGB,
+    "diffuse" RGB, "specular" s and the mirror-ray length "ray_length", +inf on a miss)."""
+    if fmt == "png":
+        return image_io.encode_png(result.color)
+    if fmt == "exr":
+        return image_io.encode_exr({
+            "RGB": result.color, "reflected": result.reflected, "diffuse": result.diffuse,
+            "specular": np.asarray(result.specular, np.float32),
+            "ray_length": np.nan_to_num(np.asarray(result.ray_length, np.float32), nan=0.0, posinf=np.inf),
+        })
+    raise ValueError(f"unknown frame format {fmt!r}")
