@@ -189,7 +189,8 @@ def flythrough_path(bounds: tuple[np.ndarray, np.ndarray], frames: int, seed: in
         i = min(int(s), n - 2)
         u = s - i
         p0, p1, p2, p3 = p[max(i - 1, 0)], p[i], p[i + 1], p[min(i + 2, n - 1)]
-        return 0.5 * ((2 * p1) + (-p0 + p2) * u + (2 * p0 - 5 * p1 + 4 * p2 - p3) * u**2 + (-p0 + 3 * p1 - 3 * p2 + p3) * u**3)
+        return 0.5 * ((2 * p1) + (-p0 + p2) * u + (2 * p0 - 5 * p1 + 4 * p2 - p3) * u**2
+                      + (-p0 + 3 * p1 - 3 * p2 + p3) * u**3)
 
     cams = []
     for k in range(frames):

@@ -152,7 +152,7 @@ class Scene:
     def faces(self) -> np.ndarray:
         """(F,3) uint32 global faces indexing self.vertices; row k is triangle id k+1."""
         return np.concatenate(
-            [o.faces.astype(np.int64) + off for o, off in zip(self.objects, self.vertex_offsets)]
+            [o.faces.astype(np.int64) + off for o, off in zip(self.objects, self.vertex_offsets[:-1], strict=True)]
         ).astype(np.uint32)
 
     @cached_property
@@ -163,7 +163,8 @@ class Scene:
     @cached_property
     def materials(self) -> np.ndarray:
         """(n_objects+1, 5) float32 rows [r, g, b, s, g]; row 0 is the background."""
-        rows = [[0, 0, 0, 0, 0]] + [[*o.material.albedo, o.material.specular, o.material.glossiness] for o in self.objects]
+        rows = [[0, 0, 0, 0, 0]]
+        rows += [[*o.material.albedo, o.material.specular, o.material.glossiness] for o in self.objects]
         return np.asarray(rows, dtype=np.float32)
 
     @property
