@@ -77,8 +77,8 @@ def main(argv: list[str] | None = None) -> None:
         "primary rays through every pixel centre, back-face culling emulation, the same shading and buffers. "
         "Ratio > 1 means GL is faster. The machine's two cores are shared with other jobs: medians within about "
         "20 % of each other (e.g. draw vs draw+readback at 512², where the read-back sync can even come out "
-        "cheaper than glFinish) are not distinguishable in one run. No GPU was lent to this run; on a GPU the GL "
-        "column would drop by orders of magnitude while Embree stays on the CPU.",
+        "cheaper than glFinish) are not distinguishable in one run. No GPU was lent to this task, so there are "
+        "no GPU figures yet.",
         md_table(["scene", "triangles", "res", "GL draw ms", "GL draw+readback ms", "Embree ms",
                   "Embree / GL draw", "Embree / GL+readback"], rows),
     ])
