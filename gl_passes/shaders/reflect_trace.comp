@@ -141,9 +141,11 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
         float alo = max(0.0, (float(k) - 0.5) / float(steps)), ahi = min(1.0, (float(k) + 0.5) / float(steps));
         float za = 1.0 / mix(is2, ie2, alo), zb = 1.0 / mix(is2, ie2, ahi);
         float zlo = min(za, zb), zhi = max(za, zb);
+        vec3 pk = texelFetch(u_pack, org + tx, 0).xyz;  // depth: other objects, reflector, reflector 2nd
+        // Fast reject (the common case): every stored surface behind the ray here.
+        if (min(pk.x, pk.y) > zhi * (1.0 + 1e-5)) continue;
         float tol = u_thickness * (zhi - zlo) + 1e-4 * zhi;
         float lower = max(zlo - tol, zfirst);
-        vec3 pk = texelFetch(u_pack, org + tx, 0).xyz;  // depth: other objects, reflector, reflector 2nd
         bool h0 = layer_hit(pk.x, zhi, lower);
         bool h1 = layer_hit(pk.y, zhi, lower);
         bool h2 = layer_hit(pk.z, zhi, lower);
