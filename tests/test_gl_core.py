@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import ctypes
 import json
 import os
 import subprocess
@@ -18,6 +17,7 @@ from gl_passes.gbuffer import GBufferPass
 from gl_passes.upload import SceneGPU
 from reference.raycast import RayCaster
 from scenes import Camera, Material, Scene, SceneObject, look_at_scene
+from tests.gl_leaks import gl_object_growth
 
 
 def sphere_on_slab() -> Scene:
@@ -147,47 +147,29 @@ def test_occlusion_queries_hand_checked():
     np.testing.assert_array_equal(rc.occluded(a, b, cull_back_faces=True), [True, False, False, False])
 
 
-def _live_gl_objects(max_name: int) -> int:
-    """Count live textures, buffers, framebuffers and vertex arrays with names ≤ max_name (EGL/glvnd)."""
-    lib = ctypes.CDLL("libOpenGL.so.0")
-    total = 0
-    for fn in ("glIsTexture", "glIsBuffer", "glIsFramebuffer", "glIsVertexArray", "glIsRenderbuffer"):
-        f = getattr(lib, fn)
-        f.restype = ctypes.c_ubyte
-        total += sum(f(i) for i in range(1, max_name + 1))
-    return total
-
-
 def test_1000_frames_do_not_grow_gl_objects():
-    """A fresh context on its own thread: upload, render 1000 frames (several
-    sizes, scene re-uploads), and check the live GL object count is unchanged."""
-    result: dict = {}
+    """Upload, render 1000 frames (several sizes, scene re-uploads) on a fresh
+    context: the live GL object count is unchanged."""
 
-    def run() -> None:
-        gl = create_gl_context("egl")
-        sc = quad_scene(True)
-        gp = GBufferPass(gl)
-        sg = SceneGPU(gl, sc)
-        cam = Camera((0, 0, 4), (0, 0, 0), width=16, height=16).fit_clip(sc.bounds)
-        gp.render(sg, cam)
-        probe = gl.ctx.texture((1, 1), 1)
-        result["before"] = _live_gl_objects(probe.glo + 64)
-        probe.release()
-        for i in range(1000):
+    class State:
+        def __init__(self, gl):
+            self.gl, self.scene = gl, quad_scene(True)
+            self.gp, self.sg = GBufferPass(gl), SceneGPU(gl, self.scene)
+            self.cam = Camera((0, 0, 4), (0, 0, 0), width=16, height=16).fit_clip(self.scene.bounds)
+            self.gp.render(self.sg, self.cam)
+
+        def frame(self, i):
             if i % 100 == 0:  # re-upload, as the worker's scene cache does on eviction
-                sg.release()
-                sg = SceneGPU(gl, sc)
-            gp.render(sg, cam.with_size(16 + (i % 3) * 8, 16))
-        gp.render(sg, cam)
-        probe = gl.ctx.texture((1, 1), 1)
-        result["after"] = _live_gl_objects(probe.glo + 64)
-        probe.release()
-        sg.release()
-        gp.release()
-        gl.release()
+                self.sg.release()
+                self.sg = SceneGPU(self.gl, self.scene)
+            self.gp.render(self.sg, self.cam.with_size(16 + (i % 3) * 8, 16))
+            if i == 999:
+                self.gp.render(self.sg, self.cam)
 
-    t = threading.Thread(target=run)
-    t.start()
-    t.join()
-    assert result["before"] > 0
-    assert result["after"] == result["before"]
+        def release(self):
+            self.sg.release()
+            self.gp.release()
+
+    before, after = gl_object_growth(State, State.frame, 1000)
+    assert before > 0
+    assert after == before
