@@ -25,7 +25,7 @@ from reference.raycast import RayCaster
 from scenes import Camera, Material, Scene, SceneObject
 from scenes.depth_image import DepthImage
 from scenes.rig import fig8_rig, intermediate_views
-from tests.test_gl_core import _live_gl_objects
+from tests.gl_leaks import live_gl_objects as _live_gl_objects
 
 RES = 160  # reference images of the Fig. 11 scene
 A, B, C, D = 1, 2, 3, 4  # object ids in figure11_scene()
