@@ -79,18 +79,22 @@ THESIS_T7 = {"nest": (1.8, 3.6, 3.3), "grass": (1.7, 3.0, 3.2), "city": (1.6, 3.
 # --- rig --------------------------------------------------------------------------
 
 def content_bounds(scene) -> tuple[np.ndarray, np.ndarray]:
-    """Bounds of the scene without objects named "ground" (the built-ins' ground
-    planes are much larger than what they carry); the whole scene otherwise."""
+    """Bounds of the scene without objects named "ground": the object of interest,
+    which the thesis's views frame (Fig. 9: the nest fills them); the whole
+    scene when it has nothing else. (The grounds of the built-in nest and tree are
+    modest discs ≈ 1.4 × the object's footprint; grass and city grounds are the
+    patch / street grid the content covers.)"""
     objs = [o for o in scene.objects if o.name != "ground"] or scene.objects
     v = np.concatenate([o.vertices for o in objs]).astype(np.float64)
     return v.min(axis=0), v.max(axis=0)
 
 
-def make_rig(scene, res: int, distance: float):
-    """Fig. 8 rig framed on the scene's content, clip planes fitted to the whole scene."""
+def make_rig(scene, res: int, distance: float | None, spread: float = 20.0):
+    """Fig. 8 rig framed on the scene's content (distance None: `scenes.rig.fit_distance`,
+    the content's bounding sphere fills every view), clip planes fitted to the whole scene."""
     from scenes.rig import fig8_rig
 
-    cams, peel = fig8_rig(content_bounds(scene), res, res, distance=distance)
+    cams, peel = fig8_rig(content_bounds(scene), res, res, spread_deg=spread, distance=distance)
     return [c.fit_clip(scene.bounds) for c in cams], peel.fit_clip(scene.bounds)
 
 
@@ -217,7 +221,7 @@ def run_scene(name: str, gl, args, sw: Stopwatch, ground: bool = True) -> dict |
         rc = RayCaster(scene)
         sg = SceneGPU(gl, scene)
     try:
-        cams, peel_cam = make_rig(scene, args.res, args.distance)
+        cams, peel_cam = make_rig(scene, args.res, args.distance, getattr(args, "spread", 20.0))
         with sw(f"{label}/render"):
             sets = render_sets(gl, sg, rc, cams, peel_cam)
         views = intermediate_views(cams, args.views, seed=args.seed)
@@ -238,7 +242,9 @@ def run_scene(name: str, gl, args, sw: Stopwatch, ground: bool = True) -> dict |
             "res": args.res,
             "views": args.views,
             "rig": {"eyes": [c.eye for c in cams], "peeling_eye": peel_cam.eye, "target": cams[0].target,
-                    "fov": cams[0].fov, "distance_x_content_diagonal": args.distance},
+                    "fov": cams[0].fov, "spread_deg": getattr(args, "spread", 20.0),
+                    "distance_x_content_diagonal": float(np.linalg.norm(np.subtract(cams[0].eye, cams[0].target))
+                                                         / np.linalg.norm(np.subtract(*content_bounds(scene))))},
             "metrics": {k: m.to_dict() for k, m in metrics.items()},
             "table3_png": pic.name,
             "timing": timing,
@@ -261,7 +267,7 @@ def run_sweep(name: str, gl, args, sw: Stopwatch) -> dict:
     try:
         for res in progress(args.sweep_res, args.progress, desc=f"sweep {name}", unit="res", leave=False):
             with sw(f"sweep/{name}/{res}"):
-                cams, peel_cam = make_rig(scene, res, args.distance)
+                cams, peel_cam = make_rig(scene, res, args.distance, getattr(args, "spread", 20.0))
                 sets = render_sets(gl, sg, rc, cams, peel_cam)
                 views = intermediate_views(cams, args.sweep_views, seed=args.seed)
                 m = evaluate_sets(scene, metric_jobs(sets), sets["conventional"], views, caster=rc)
@@ -394,11 +400,12 @@ DISCUSSION = """\
   how much hidden, front-facing geometry lies behind what V0..V2 see, so
   per-cell gaps of tens of points are expected; the orderings are what can be
   compared (section "The thesis's claims, checked").
-* **Ground planes.** Our built-ins stand on a large ground plane that fills
-  the frame's edges. What an NR image adds there is mostly ground outside V0's
-  frustum or in a shadow of V0 that V1/V2 see directly: non-redundant but not
-  occluded, so the occluded fractions of NR images drop well below the
-  thesis's (62-88 %). The variant without ground planes shows the effect.
+* **Ground.** The nest and the tree stand on modest ground discs (1.4 × their
+  footprint); grass and city grounds are the patch and the street grid the
+  content covers. (Earlier runs used 1.5 m / 12 m ground quads around the
+  nest / tree: the plane filled the image corners with ground that NR images
+  mostly drop as redundant or keep as non-occluded, and lowered the NR
+  occluded fractions; the counts of useful occluded samples barely changed.)
 * **Tiny triangles and resolution.** The nest's twigs and the tree's leaves
   are a few pixels or less at 512²: pixel redundancy (same triangle id at the
   reprojected texel) then misses much of the true redundancy, so conventional
@@ -408,9 +415,16 @@ DISCUSSION = """\
   ones as the resolution grows, as §2.3.3 states; it also shows NR overtaking
   the conventional set in pixel-definition availability only from 512² up.
 * **Rig.** Fig. 8 gives no numbers: we use `scenes.rig.fig8_rig` (eyes 20° off
-  a common axis at elevation 25°) framed on the scene without its ground plane
-  (`--distance` × that box's diagonal) and clip planes fitted to the whole
-  scene. A wider spread makes V1/V2 less redundant and NR images deeper.
+  a common axis at elevation 25°, fov 45°) framed on the scene without its
+  ground: the content box's bounding sphere just fits the narrowest view of the
+  rig (`scenes.rig.fit_distance`, 1.39 × the content diagonal), so every
+  reference, peeling and intermediate view holds the whole content. Clip
+  planes are fitted to the whole scene. Only the tree's ground disc reaches
+  past the peeling view: 0.5 % of the tree's intermediate-view samples lie
+  outside the peeling camera's frustum (inside all of V0..V2's), which lowers
+  peeling's available fraction on the tree by at most that much (measured at
+  128², 20 views; nest, grass, city: 0 %). A wider spread makes V1/V2 less
+  redundant and NR images less deep.
 * **Views.** Fewer intermediate views than the thesis's 1000 lower the useful
   fraction slightly (a sample needed by a rare view can be missed) and raise
   the minimum available fraction.
@@ -459,9 +473,179 @@ def ranking_table(results: list[dict]) -> str:
                      "NR more useful", "available avg NR / conv / peel [%]", "NR most available"], rows)
 
 
+# --- issue 3's "Done when" -----------------------------------------------------------
+
+#: Issue 3, criterion (d): at 1024², NR time ≤ 2.5 × conventional and ≤ 1.3 × peeling.
+MAX_NR_OVER_CONV, MAX_NR_OVER_PEEL = 2.5, 1.3
+CRITERIA_SCENES = ("nest", "grass", "city", "tree")
+
+
+CRITERIA_NOTES = """\
+### What the criteria show, and why (measured)
+
+* **(a) holds.** The visibility NR sets (Embree) have no visibility-redundant
+  sample. The GL pixel NR sets show 0-11 pixel-redundant samples out of
+  1e5-3e5 when the reference re-tests them, and every one is a texel-edge
+  tie: its projection lies within 1e-4 texel of a texel edge (measured on nest
+  and grass at 1024²), where GL's float32 Alg. 3 and the reference's float64
+  projection fall on neighbouring texels. (Until this run the visibility NR
+  sets also showed 0-1 such sample: `non_redundant_visibility` tested the
+  float64 hit point but stored it as float32, and an occlusion ray grazing an
+  edge could answer differently for the two; it now tests the stored point.)
+* **(b) holds with the visibility definition on all four scenes** at 512² and
+  1024² (NR ahead of conventional by 1.4-6.5 points and of peeling by 1.0-1.7
+  points on average; on the minimum by 2.8-8.0 and 2.3-5.5 points). **With
+  the pixel definition NR stays ahead of peeling but falls 0.15-1.5 points
+  below the conventional set**
+  on grass, city and tree (and on nest at 512²; at 1024² nest holds). The
+  mechanism, measured on grass and nest at 512² (10 views): per view NR loses
+  3.4 % (grass) / 2.4 % (nest) of the samples the conventional set makes
+  available and gains 2.4 % / 2.1 %; 100 % of the lost samples are on a
+  triangle that C1 or C2 holds at their texel and that NR dropped there as
+  pixel-redundant with an earlier image, while the frame sample's own
+  projection into that earlier image lands on a texel of another triangle
+  (silhouettes of thin blades, twigs and leaves, and building edges). It is
+  the pixel definition's texel granularity: the gap shrinks from 512² to
+  1024² (grass 0.98 → 0.15, city 1.09 → 0.54, tree 1.46 → 0.84 points; nest
+  −0.32 → +0.86) as pixel redundancy converges to visibility redundancy.
+* **(c) fails: NR holds more useful occluded samples than peeling only on
+  city (visibility definition)**, at both resolutions; grass (visibility) is
+  close (−4 % at 512² and 1024²). The per-image table above shows why:
+  1. *Peeling's layer 0 is a conventional image from the centroid*, itself
+     an intermediate view, so its occluded samples are ~100 % useful. With
+     the pixel definition it is also inflated by reprojection misses on
+     sub-pixel triangles: L0 has 2.2-4.4× more occluded samples under the
+     pixel than under the visibility definition on nest, tree and grass (nest
+     16.3k vs 7.6k, grass 14.4k vs 3.3k at 512²; city 6.9k vs 0.2k), whereas an NR image's first-layer samples lie on
+     C_i's own pixel rays and are always captured (see
+     `reference/sampling_metrics.py`). Under the pixel definition L0's useful
+     samples alone are 98 % of NR's total on nest and exceed it on grass
+     and tree.
+  2. *Our peeling layers 1-2 are far more useful than the thesis's*: useful
+     share of L1's occluded samples 80 / 99 / 46 / 75 % (nest, grass, city,
+     tree, pixel, 512²) against the thesis's 2 / 4 / 7 / 98 %. Surfaces hidden
+     from the centroid are seen by other views of the eye triangle because our
+     occluders (twigs 4-10 mm, blades, leaves) are thin compared with the
+     rig's eye baseline (triangle side ≈ 0.8 × the content diagonal).
+  3. *NR images spend most samples on first-layer surfaces* V0 (or V0, V1)
+     does not see, which C1/C2 capture: only 12-37 % of NR I1/I2's samples are
+     occluded on nest, grass, tree (pixel, 512²; thesis 56-88 %), and 16-46 %
+     at 1024².
+  Ground, framing and border treatment are not the cause: the 12 m / 1.5 m
+  ground quads of the earlier runs changed the useful counts of nest and
+  tree by < 1 % (their variant without ground), the new rig keeps the
+  content in every view, and conventional/NR share cameras. A tighter rig (spread 10° instead of 20°,
+  512², 100 views, not the default) narrows the gap: visibility definition
+  NR ≥ peeling on grass and city (10.6k vs 8.5k, 6.3k vs 4.8k) but not on nest
+  (21.9k vs 25.2k) or tree (6.4k vs 8.0k); pixel definition on none. The
+  thesis states no spread for Fig. 8, so we keep 20° rather than pick the
+  value that favours NR.
+* **(d) holds**: NR/conventional 1.16-1.32 and NR/peeling 0.91-1.07 at 1024²
+  with either triangle-id source (llvmpipe, 15 interleaved rounds; Table 7).
+  With 5 rounds one reading (grass, geometry shader) came out at NR/peeling
+  1.34: single ratios on this shared 2-core machine move by ±20 %.
+"""
+
+
+def _yes(ok: bool) -> str:
+    return "yes" if ok else "**no**"
+
+
+def criteria_rows(results: list[dict], run: str) -> list[dict]:
+    """Criteria (a)-(c) per scene and redundancy definition of one run: (a) the
+    NR set has no redundant sample; (b) NR's available samples, average and
+    minimum over the intermediate views, ≥ conventional's and ≥ peeling's; (c) NR
+    holds at least as many useful occluded samples (totals over the 3 images)
+    as peeling."""
+    rows = []
+    for r in results:
+        if r["scene"] not in CRITERIA_SCENES:
+            continue
+        for red in ("pixel", "visibility"):
+            m = r["metrics"]
+            cv, nr, pe = (m[f"{red}/{k}"] for k in METHODS)
+            rows.append({
+                "scene": r["scene"], "run": run, "definition": red,
+                "a_nr_redundant": nr["total"]["redundant"],
+                "a_edge_ties": sum(nr.get("redundant_edge_ties") or [0]),
+                "a": nr["total"]["redundant"] == sum(nr.get("redundant_edge_ties") or [0]),
+                "avail_avg": (nr["available_avg"], cv["available_avg"], pe["available_avg"]),
+                "avail_min": (nr["available_min"], cv["available_min"], pe["available_min"]),
+                "b": (nr["available_avg"] >= max(cv["available_avg"], pe["available_avg"])
+                      and nr["available_min"] >= max(cv["available_min"], pe["available_min"])),
+                "useful": (nr["total"]["useful"], pe["total"]["useful"]),
+                "c": nr["total"]["useful"] >= pe["total"]["useful"],
+                "nr_images": {k: nr[k] for k in ("samples", "occluded", "useful")},
+                "peel_images": {k: pe[k] for k in ("samples", "occluded", "useful")},
+            })
+    return rows
+
+
+def criteria_tables(runs: list[tuple[str, list[dict]]], timing_results: list[dict]) -> tuple[str, dict]:
+    """Markdown for issue 3's criteria over several runs (label, results) and the
+    Table 7 timing, plus a JSON-ready summary."""
+    rows = [row for label, res in runs for row in criteria_rows(res, label)]
+    table = md_table(
+        ["scene", "run", "definition", "(a) NR redundant", "available avg NR / conv / peel [%]",
+         "available min NR / conv / peel [%]", "(b) holds", "useful occluded NR / peel", "(c) holds"],
+        [[r["scene"], r["run"], r["definition"],
+          f"{r['a_nr_redundant']:,}" + (f" ({r['a_edge_ties']:,} ties)" if r["a_edge_ties"] else "")
+          + f" · {_yes(r['a'])}",
+          " / ".join(f"{100 * x:.2f}" for x in r["avail_avg"]), " / ".join(f"{100 * x:.2f}" for x in r["avail_min"]),
+          _yes(r["b"]), f"{r['useful'][0]:,} / {r['useful'][1]:,}", _yes(r["c"])] for r in rows])
+    counts = []
+    summary: dict = {"rows": [{k: v for k, v in r.items() if not k.endswith("_images")} for r in rows]}
+    for label, _ in runs:
+        for red in ("pixel", "visibility"):
+            sel = [r for r in rows if r["run"] == label and r["definition"] == red]
+            nc, nb = sum(r["c"] for r in sel), sum(r["b"] for r in sel)
+            counts.append([label, red, f"{sum(r['a'] for r in sel)} / {len(sel)}", f"{nb} / {len(sel)}",
+                           f"{nc} / {len(sel)} ({'holds' if nc >= 3 else '**fails**'}: needs ≥ 3)"])
+            summary[f"{label}/{red}"] = {"a": sum(r["a"] for r in sel), "b": nb, "c": nc, "scenes": len(sel)}
+    count_table = md_table(["run", "definition", "(a) scenes", "(b) scenes", "(c) scenes"], counts)
+    trows = []
+    for r in timing_results:
+        tm = r.get("timing")
+        if r["scene"] not in CRITERIA_SCENES or not tm:
+            continue
+        for label in ("prim_id", "geom_shader"):
+            if label in tm:
+                t = tm[label]
+                ok = t["nr_over_conventional"] <= MAX_NR_OVER_CONV and t["nr_over_peeling"] <= MAX_NR_OVER_PEEL
+                trows.append([r["scene"], "gl_PrimitiveID" if label == "prim_id" else "geometry shader",
+                              f"{tm['res']}²", f"{t['nr_over_conventional']:.2f}", f"{t['nr_over_peeling']:.2f}",
+                              _yes(ok)])
+                summary.setdefault("d", {})[f"{r['scene']}/{label}"] = ok
+    ttable = md_table(["scene", "triangle id from", "res", "NR / conv (≤ 2.5)", "NR / peel (≤ 1.3)", "(d) holds"],
+                      trows)
+    drows = []
+    for r in rows:
+        n, p = r["nr_images"], r["peel_images"]
+        drows.append([r["scene"], r["run"], r["definition"],
+                      " / ".join(f"{x:,}" for x in n["samples"][1:]), " / ".join(f"{x:,}" for x in n["occluded"][1:]),
+                      " / ".join(f"{x:,}" for x in n["useful"][1:]),
+                      " / ".join(f"{x:,}" for x in p["samples"]), " / ".join(f"{x:,}" for x in p["occluded"]),
+                      " / ".join(f"{x:,}" for x in p["useful"])])
+    dtable = md_table(["scene", "run", "definition", "NR samples I1 / I2", "NR occluded I1 / I2", "NR useful I1 / I2",
+                       "peel samples L0 / L1 / L2", "peel occluded L0 / L1 / L2", "peel useful L0 / L1 / L2"], drows)
+    md = ["Criteria (a)-(c) per scene and redundancy definition; (a) counts the NR set's samples redundant "
+          "with an earlier image of the set, and in parentheses those of them that are texel-edge float ties "
+          "(pixel definition: the projection is within 1e-3 texel of a texel edge, where GL's float32 Alg. 3 "
+          "and the reference's float64 test may pick neighbouring texels; `reference.sampling_metrics`); (a) "
+          "holds when every redundant sample is such a tie. Available samples in percent of the "
+          "intermediate view's samples (average and minimum over the views); useful occluded samples are "
+          "totals over the three images.", "", table, "", count_table, "",
+          "Criterion (d), Table 7 timing (median of interleaved rounds):", "", ttable, "",
+          "Where the useful occluded samples come from (per image; NR I0 = C0 has none by construction; "
+          "peeling layer L0 is the conventional image of the centroid view):", "", dtable, ""]
+    return "\n".join(md), summary
+
+
 def write_report(args, info: dict, results: list[dict], sweep: dict | None, sweep_pngs: list[str],
                  stage_seconds: dict[str, float], wall_s: float, write_json_file: bool = True,
-                 variant: list[dict] | None = None) -> None:
+                 variant: list[dict] | None = None, extra_runs: list[dict] | None = None) -> None:
+    """sampling.md (+ sampling.json): extra_runs are the sampling.json contents of
+    other runs (e.g. 1024²) whose scenes join the issue-3 criteria section."""
     md = ["# Sampling quality of depth-image sets (thesis Ch. 2, Tables 2-7, Figs 13-15)", ""]
     md += ["## What was run", "",
            f"- Command: `{args.command}`",
@@ -470,7 +654,9 @@ def write_report(args, info: dict, results: list[dict], sweep: dict | None, swee
            f"centroid, 3 layers), intermediate views: {args.views} uniform in the triangle V0V1V2 "
            f"(seed {args.seed}), each cast at {args.res}×{args.res} with Embree.",
            f"- Table 7 timing: {args.timing_res}×{args.timing_res}, {args.timing_repeat} interleaved rounds after "
-           f"1 warm-up round, median." if args.timing_res else "- Table 7 timing: skipped.",
+           f"1 warm-up round, median" + (f" (redone by `{args.timing_command}`)."
+                                          if getattr(args, "timing_command", None) else ".")
+           if args.timing_res else "- Table 7 timing: skipped.",
            f"- Ground planes of the built-ins: {getattr(args, 'ground', 'with')} (main tables: as built "
            "unless 'without').",
            f"- Resolution sweep (Figs 13-15): {', '.join(args.sweep_scenes) or 'none'} at "
@@ -494,6 +680,14 @@ def write_report(args, info: dict, results: list[dict], sweep: dict | None, swee
     def gap(d: list[float]) -> str:
         return f"Mean |ours − thesis| over the comparable cells: {np.mean(d):.1f} points." if d else ""
 
+    runs = [(f"{args.res}², {args.views} views", results)]
+    runs += [(f"{e['config']['res']}², {e['config']['views']} views", e["scenes"]) for e in extra_runs or []]
+    crit_md, crit = criteria_tables(runs, results)
+    md += ["## Issue 3, \"Done when\": the criteria, scene by scene", "",
+           "Runs: " + "; ".join(f"{label} ({'this file' if k == 0 else 'see ' + e['_path']})"
+                                for k, ((label, _), e) in enumerate(zip(runs, [{}] + list(extra_runs or []),
+                                                                          strict=True))) + ".", "",
+           crit_md, CRITERIA_NOTES, ""]
     md += ["## Table 2: view-independent metrics, pixel definition [%]", "", t2, "", gap(d2), ""]
     md += ["## Table 4: available samples, pixel definition [%]", "", t4, "", gap(d4), ""]
     md += ["## Table 5: view-independent metrics, visibility definition [%]", "", t5, "", gap(d5), ""]
@@ -546,7 +740,8 @@ def write_report(args, info: dict, results: list[dict], sweep: dict | None, swee
         "command": args.command,
         "config": {k: v for k, v in vars(args).items() if k not in ("out", "command", "report_only")},
         "machine": info, "wall_s": wall_s, "stage_seconds": stage_seconds, "scenes": results,
-        "scenes_without_ground": variant or [], "sweep": sweep,
+        "scenes_without_ground": variant or [], "sweep": sweep, "criteria": crit,
+        "extra_runs": [e["_path"] for e in extra_runs or []],
         "thesis": {"table2": THESIS_T2, "table4": THESIS_T4, "table5": THESIS_T5, "table6": THESIS_T6,
                    "table7": THESIS_T7},
         "mean_abs_gap_points": {"table2": float(np.mean(d2)) if d2 else None, "table4": float(np.mean(d4)) if d4
@@ -562,7 +757,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                     help="comma list of built-in names and/or 'diorama' (skipped when absent)")
     ap.add_argument("--res", type=int, default=512, help="reference image and intermediate view size")
     ap.add_argument("--views", type=int, default=100, help="intermediate views for useful/available samples")
-    ap.add_argument("--distance", type=float, default=1.3, help="rig distance × content diagonal")
+    ap.add_argument("--distance", type=float, default=None,
+                    help="rig distance × content diagonal (default: the content's bounding sphere fills every "
+                         "view of the rig, scenes.rig.fit_distance: 1.39 for fov 45°, spread 20°)")
+    ap.add_argument("--spread", type=float, default=20.0, help="rig spread: degrees between each eye and the axis")
     ap.add_argument("--sweep-scenes", default="nest", help="comma list for the Figs 13-15 sweep ('' = none)")
     ap.add_argument("--sweep-res", default="64,128,256,512,1024", help="comma list of resolutions")
     ap.add_argument("--sweep-views", type=int, default=20)
@@ -576,9 +774,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--quick", action="store_true",
                     help="smoke run: 128² images, 30 views, sweep 64-256 with 10 views, timing at 512, 3 rounds")
     ap.add_argument("--no-progress", dest="progress", action="store_false")
+    ap.add_argument("--timing-only", action="store_true",
+                    help="redo only Table 7 (--timing-res, --timing-repeat) for the scenes of the sampling.json in "
+                         "--out, replace its timing and rewrite sampling.md")
     ap.add_argument("--report-only", action="store_true",
                     help="rewrite sampling.md (and the sweep plots) from the sampling.json in --out, no rendering")
     ap.add_argument("--out", type=Path, default=RESULTS_DIR)
+    ap.add_argument("--extra-json", type=Path, action="append", default=[],
+                    help="sampling.json of another run (e.g. 1024²) to include in the issue-3 criteria section")
     args = ap.parse_args(argv)
     if args.quick:
         args.res, args.views, args.sweep_res, args.sweep_views = 128, 30, "64,128,256", 10
@@ -596,6 +799,19 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return args
 
 
+def load_extra(args: argparse.Namespace) -> list[dict]:
+    """The --extra-json runs, each with "_path" (relative to --out when inside it)."""
+    out = []
+    for p in args.extra_json:
+        data = json.loads(Path(p).read_text())
+        try:
+            data["_path"] = str(Path(p).resolve().relative_to(Path(args.out).resolve()))
+        except ValueError:
+            data["_path"] = str(p)
+        out.append(data)
+    return out
+
+
 def report_only(args: argparse.Namespace) -> int:
     """Rewrite sampling.md from the sampling.json of an earlier run (no rendering)."""
     data = json.loads((args.out / "sampling.json").read_text())
@@ -603,15 +819,49 @@ def report_only(args: argparse.Namespace) -> int:
     sweep = data.get("sweep")
     pngs = sweep_plots(sweep, args.out) if sweep else []
     write_report(cfg, data["machine"], data["scenes"], sweep, pngs, data["stage_seconds"], data["wall_s"],
-                 write_json_file=False, variant=data.get("scenes_without_ground"))
+                 write_json_file=False, variant=data.get("scenes_without_ground"), extra_runs=load_extra(args))
     print(f"rewrote {args.out / 'sampling.md'} from sampling.json", file=sys.stderr)
     return 0
+
+
+def timing_only(args: argparse.Namespace) -> int:
+    """Redo Table 7 for the scenes of an earlier run's sampling.json (same rig)."""
+    from gl_passes.context import create_gl_context
+    from gl_passes.upload import SceneGPU
+
+    path = args.out / "sampling.json"
+    data = json.loads(path.read_text())
+    cfg = data["config"]
+    gl = create_gl_context()
+    for r in data["scenes"]:
+        if r.get("ground_removed"):
+            continue
+        scene = load_named_scene(r["scene"])
+        sg = SceneGPU(gl, scene)
+        try:
+            cams, peel_cam = make_rig(scene, cfg["res"], cfg.get("distance"), cfg.get("spread", 20.0))
+            r["timing"] = time_methods(gl, sg, cams, peel_cam, args.timing_res, args.timing_repeat, args.timing_geom)
+        finally:
+            sg.release()
+        t = r["timing"]["prim_id"]
+        print(f"{r['scene']}: NR/conv {t['nr_over_conventional']:.2f} NR/peel {t['nr_over_peeling']:.2f}",
+              file=sys.stderr)
+    gl.release()
+    data["config"]["timing_command"] = args.command
+    data["config"]["timing_res"], data["config"]["timing_repeat"] = args.timing_res, args.timing_repeat
+    runs = [(f"{cfg['res']}², {cfg['views']} views", data["scenes"])]
+    runs += [(f"{e['config']['res']}², {e['config']['views']} views", e["scenes"]) for e in load_extra(args)]
+    data["criteria"] = criteria_tables(runs, data["scenes"])[1]
+    write_json(path, data)
+    return report_only(args)
 
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     if args.report_only:
         return report_only(args)
+    if args.timing_only:
+        return timing_only(args)
     from gl_passes.context import create_gl_context
 
     t0 = time.perf_counter()
@@ -643,7 +893,8 @@ def main(argv: list[str] | None = None) -> int:
     for name in args.sweep_scenes[:1]:
         sweep = run_sweep(name, gl, args, sw)
         sweep_pngs = sweep_plots(sweep, args.out)
-    write_report(args, info, results, sweep, sweep_pngs, sw.seconds, time.perf_counter() - t0, variant=variant)
+    write_report(args, info, results, sweep, sweep_pngs, sw.seconds, time.perf_counter() - t0, variant=variant,
+                 extra_runs=load_extra(args))
     gl.release()
     print(f"wrote {args.out / 'sampling.md'} ({(time.perf_counter() - t0) / 60:.1f} min)", file=sys.stderr)
     return 0

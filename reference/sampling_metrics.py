@@ -15,7 +15,13 @@ The metrics (per image and for the whole set):
 1. **Redundant samples** (§2.3.2 item 1): samples of I_i redundant with some
    *earlier image of the same set* I_j, j < i. Counted per image, as a fraction
    of I_i's samples. Zero by construction for non-redundant images of the same
-   definition and for depth-peeling layers.
+   definition and for depth-peeling layers. Pixel definition: the samples
+   counted there whose projection lies within ``EDGE_TIE`` texels of a texel
+   edge of every image they are redundant with are also counted apart
+   (``redundant_edge_ties``): GL decides Alg. 3 with float32 positions and
+   matrices, this module with float64, and on a texel edge the two may fall on
+   different texels (a GL non-redundant image then shows a handful of
+   "redundant" samples in hundreds of thousands).
 2. **Occluded samples** (item 2): samples that the *conventional* images C_0..
    C_{n-1} of V_0..V_{n-1} do not capture. "Captured by C_j" is the same
    redundancy test against C_j: pixel — the sample's projection into C_j lands on
@@ -48,6 +54,32 @@ The metrics (per image and for the whole set):
    image resolution, so a surface seen through a one-texel gap still counts).
    For a conventional image this is "x visible from V_i" wherever I_i has a
    sample next to x's projection.
+
+How the metrics treat the methods (checked for bias between NR and peeling):
+
+* Every set is measured against the same conventional images C_0..C_{n-1}
+  (metric 2) and the same intermediate frames, whatever viewpoints the set
+  uses; evaluating sets together or one by one gives the same numbers.
+* Useful (metric 3) counts *samples of the set*: the benchmark compares the
+  totals over the set's images (the number of useful occluded samples, as
+  §2.3.3 compares NR and peeling), not fractions.
+* Image borders: a frame sample outside I_i's frustum is not available from
+  I_i, and a set sample outside C_j's frustum is not captured by C_j. The
+  benchmark's rig (`scenes.rig.fit_distance`) keeps the framed content inside
+  every reference, peeling and intermediate view, so neither decides a
+  comparison there.
+* Pixel definition, inherent to Alg. 3 and kept: a first-layer sample of NR
+  image I_i lies on C_i's own pixel ray and is always captured by C_i, whereas
+  peeling samples come from the centroid and are reprojected into C_j; on
+  triangles of about a pixel or less the reprojected texel often holds a
+  neighbouring triangle, so the pixel definition counts some peeling samples
+  that V_j does see as occluded (the visibility definition does not). Likewise
+  an NR image drops C_i's sample at texel q when C_0's texel at its projection
+  holds the same triangle, but a frame sample on that triangle near q can
+  project to a C_0 texel of another triangle (thin occluders' silhouettes):
+  pixel-definition availability of NR can then fall below conventional's.
+  Both effects shrink as the resolution grows (pixel redundancy converges to
+  visibility redundancy, §2.3.3).
 
 Intermediate frames are Embree primary-ray casts (back faces culled) of the
 given cameras; they are shared by every set evaluated in one call
@@ -95,6 +127,7 @@ class SamplingMetrics:
     useful: list[int]
     available: list[float]
     n_views: int
+    redundant_edge_ties: list[int] | None = None
     occluded_masks: list[np.ndarray] | None = field(default=None, repr=False, compare=False)
     useful_masks: list[np.ndarray] | None = field(default=None, repr=False, compare=False)
 
@@ -148,6 +181,7 @@ class SamplingMetrics:
             "redundancy": self.redundancy,
             "samples": list(self.samples),
             "redundant": list(self.redundant),
+            "redundant_edge_ties": None if self.redundant_edge_ties is None else list(self.redundant_edge_ties),
             "occluded": list(self.occluded),
             "useful": list(self.useful),
             "redundant_frac": self.redundant_frac,
@@ -239,6 +273,35 @@ def _any_redundant(caster: RayCaster, images: Sequence[DepthImage], pts: np.ndar
         r = redundant_with(caster, im, pts[idx], tri[idx], redundancy)
         out[idx[r]] = True
         todo[idx[r]] = False
+    return out
+
+
+#: Pixel definition: a projection closer than this (texels) to a texel edge is a float tie.
+EDGE_TIE = 1e-3
+
+
+def texel_edge_distance(camera: Camera, points: np.ndarray) -> np.ndarray:
+    """(N,) distance, in texels, from each point's projection into `camera` to
+    the nearest texel edge (0.5 at a texel centre)."""
+    xy, _ = camera.project(np.asarray(points, np.float64).reshape(-1, 3))
+    frac = xy - np.floor(xy)
+    return np.minimum(frac, 1.0 - frac).min(axis=1)
+
+
+def pixel_edge_ties(images: Sequence[DepthImage], samples: _Samples, redundant: np.ndarray) -> np.ndarray:
+    """(N,) bool: the pixel-redundant samples (mask `redundant` over `samples`)
+    whose projection is within EDGE_TIE texels of a texel edge in every earlier
+    image they are pixel-redundant with (float rounding ties, see metric 1)."""
+    out = np.zeros(len(samples.tri), bool)
+    for i in range(1, len(images)):
+        idx = np.flatnonzero(redundant & (samples.image == i))
+        if len(idx) == 0:
+            continue
+        robust = np.zeros(len(idx), bool)
+        for im in images[:i]:
+            r = pixel_redundant(im.tri_id, im.camera, samples.position[idx], samples.tri[idx])
+            robust |= r & (texel_edge_distance(im.camera, samples.position[idx]) >= EDGE_TIE)
+        out[idx] = ~robust
     return out
 
 
@@ -406,6 +469,8 @@ def evaluate_sets(scene: Scene, sets: Mapping[str, tuple[Sequence[DepthImage], s
             redundancy=job.redundancy,
             samples=list(s.counts),
             redundant=s.per_image(job.redundant, n),
+            redundant_edge_ties=(s.per_image(pixel_edge_ties(job.images, s, job.redundant), n)
+                                 if job.redundancy == "pixel" else None),
             occluded=s.per_image(job.occluded, n),
             useful=s.per_image(useful, n),
             available=job.available,

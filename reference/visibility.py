@@ -194,7 +194,11 @@ def non_redundant_visibility(scene: Scene, cameras: Sequence[Camera], caster: Ra
             idx = active[hit]
             th = travelled[idx] + h.t[hit]
             ht = h.tri_id[hit]
-            pts = eye + d[idx] * th[:, None]
+            # Test the point the image will store (float32 positions, as
+            # depth_image_from_hits writes them), so that re-testing the stored
+            # samples (reference.sampling_metrics) gives the same answer even for
+            # occlusion rays that graze an edge.
+            pts = (eye + d[idx] * th[:, None]).astype(np.float32).astype(np.float64)
             redundant = ht == last[idx]  # re-hit of the surface we just stepped past
             for j in range(i):
                 cand = ~redundant

@@ -17,8 +17,31 @@ import numpy as np
 from scenes.camera import Camera
 
 
+def fit_distance(fov: float, width: int, height: int, spread_deg: float = 0.0, margin: float = 1.0) -> float:
+    """Eye distance, in units of the box diagonal, at which the box's bounding
+    sphere (radius diag/2) fills the view of every camera of a `fig8_rig`.
+
+    A camera looking at the sphere's centre from distance D sees the sphere
+    within the cone of half-angle asin(r / D); it fits the view when that is at
+    most half the narrower field of view, a = min(fov, horizontal fov) / 2:
+    D = r / sin(a) = diag / (2 sin a). The rig's eyes lie `spread_deg` off its
+    axis at distance d·diag, so the nearest eye of the rig's triangle (its
+    centroid: the depth-peeling eye, also the nearest intermediate view) is at
+    d·diag·cos(spread). Requiring that one to fit too:
+
+        d = margin / (2 · sin(a) · cos(spread)).
+
+    For fov 45°, square images and spread 20°: d = 0.5 / (0.3827 · 0.9397) ≈ 1.39
+    (1.31 for a single camera). Every reference, peeling and intermediate view
+    then holds the whole box: no method loses samples at the image borders."""
+    v = np.radians(fov) / 2
+    h = np.arctan(np.tan(v) * width / height)
+    a = min(v, h)
+    return float(margin / (2.0 * np.sin(a) * np.cos(np.radians(spread_deg))))
+
+
 def fig8_rig(bounds: tuple[np.ndarray, np.ndarray], width: int, height: int, spread_deg: float = 20.0,
-             azimuth: float = 35.0, elevation: float = 25.0, distance: float = 1.6, fov: float = 45.0
+             azimuth: float = 35.0, elevation: float = 25.0, distance: float | None = None, fov: float = 45.0
              ) -> tuple[list[Camera], Camera]:
     """The Fig. 8 rig for the box `bounds` (min, max corners).
 
@@ -28,6 +51,10 @@ def fig8_rig(bounds: tuple[np.ndarray, np.ndarray], width: int, height: int, spr
     axis, at 120° steps around it (V0 above the axis, V1 lower left, V2 lower
     right as seen from the scene). All cameras look at the box centre with the
     given vertical fov and width × height pixels, near/far fitted to the box.
+    distance None (default): `fit_distance`, the box's bounding sphere just
+    fills the view of the nearest camera of the rig (≈ 1.39 for 45°, 20°, square).
+    The thesis (Fig. 8, §2.3.3) gives no angles or distances for its rig: the
+    20° spread is our choice.
 
     Returns (cameras [V0, V1, V2], peeling camera at the eyes' centroid)."""
     if not (0.0 < spread_deg < 90.0):
@@ -35,6 +62,8 @@ def fig8_rig(bounds: tuple[np.ndarray, np.ndarray], width: int, height: int, spr
     lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
     c = (lo + hi) / 2
     diag = float(np.linalg.norm(hi - lo)) or 1.0
+    if distance is None:
+        distance = fit_distance(fov, width, height, spread_deg)
     a, e = np.radians(azimuth), np.radians(elevation)
     axis = np.array([np.cos(e) * np.sin(a), np.sin(e), np.cos(e) * np.cos(a)])
     # Orthonormal frame around the axis: `up` is the world +Y made orthogonal to it.

@@ -141,6 +141,33 @@ def test_ground_faces_up(name: str) -> None:
             assert np.all(face_normals(o.vertices, o.faces)[:, 1] > 0), o.name
 
 
+@pytest.mark.parametrize("name", ["nest", "tree"])
+def test_ground_is_a_modest_base(name: str) -> None:
+    # nest and tree stand on a disc ≈ 1.4 × their footprint (not a plane far larger than the
+    # object), centred under it, flat at y = 0, so views framed on the scene show the object
+    s = built(name)
+    ground = next(o for o in s.objects if o.name == "ground")
+    rest = np.concatenate([o.vertices for o in s.objects if o.name != "ground"]).astype(np.float64)
+    lo, hi = rest.min(0), rest.max(0)
+    footprint = max(hi[0] - lo[0], hi[2] - lo[2])
+    gv = ground.vertices.astype(np.float64)
+    assert np.all(gv[:, 1] == 0.0)
+    width = max(np.ptp(gv[:, 0]), np.ptp(gv[:, 2]))
+    assert 1.3 <= width / footprint <= 1.5, width / footprint
+    np.testing.assert_allclose((gv.min(0) + gv.max(0))[[0, 2]] / 2, ((lo + hi) / 2)[[0, 2]], atol=0.02 * footprint)
+    # the scene's horizontal extent is the ground's
+    np.testing.assert_allclose(np.array(s.bounds)[:, [0, 2]], [gv.min(0)[[0, 2]], gv.max(0)[[0, 2]]], rtol=1e-6)
+
+
+def test_disc() -> None:
+    v, f = g.disc((1.0, 0.5, -2.0), 0.5, 12)
+    assert len(f) == g.disc_triangles(12) == 12 and len(v) == 13
+    assert np.all(face_normals(v, f)[:, 1] > 0)  # faces up
+    np.testing.assert_allclose(np.linalg.norm(v[1:] - [1.0, 0.5, -2.0], axis=1), 0.5)
+    area = np.linalg.norm(face_normals(v, f), axis=1).sum() / 2
+    assert area == pytest.approx(0.5 * 12 * 0.25 * math.sin(2 * math.pi / 12))
+
+
 @pytest.mark.parametrize("name", ["living_room", "bathroom", "cornell"])
 def test_room_walls_face_inward(name: str) -> None:
     s = built(name)

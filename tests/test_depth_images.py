@@ -24,7 +24,7 @@ from gl_passes.upload import SceneGPU
 from reference.raycast import RayCaster
 from scenes import Camera, Material, Scene, SceneObject
 from scenes.depth_image import DepthImage
-from scenes.rig import fig8_rig, intermediate_views
+from scenes.rig import fig8_rig, fit_distance, intermediate_views
 from tests.gl_leaks import live_gl_objects as _live_gl_objects
 
 RES = 160  # reference images of the Fig. 11 scene
@@ -438,6 +438,32 @@ def test_fig8_rig_geometry():
     np.testing.assert_allclose(peel.eye, eyes.mean(axis=0))
     sides = np.linalg.norm(eyes - np.roll(eyes, 1, axis=0), axis=1)
     np.testing.assert_allclose(sides, sides[0])
+
+
+def test_fig8_rig_default_distance_fits_the_box_in_every_view():
+    expected = 0.5 / (np.sin(np.radians(22.5)) * np.cos(np.radians(20)))
+    assert fit_distance(45.0, 512, 512, 20.0) == pytest.approx(expected)
+    assert fit_distance(45.0, 512, 512, 20.0) == pytest.approx(1.3904, abs=1e-4)
+    assert fit_distance(45.0, 512, 512) == pytest.approx(1.3066, abs=1e-4)  # one camera
+    # Wider than tall: the vertical fov limits; taller than wide: the horizontal one.
+    assert fit_distance(45.0, 640, 480) == fit_distance(45.0, 512, 512)
+    assert fit_distance(45.0, 480, 640) > fit_distance(45.0, 512, 512)
+    lo, hi = np.array([-1.0, 0.0, -2.0]), np.array([1.0, 0.5, 2.0])
+    c, diag = (lo + hi) / 2, np.linalg.norm(hi - lo)
+    for w, h in ((64, 64), (64, 40), (40, 64)):
+        cams, peel = fig8_rig((lo, hi), w, h)
+        d = fit_distance(45.0, w, h, 20.0)
+        np.testing.assert_allclose([np.linalg.norm(np.subtract(cam.eye, c)) for cam in cams], d * diag)
+        # the bounding sphere just fits the nearest (peeling) view: tangent to its narrower side
+        views = [*cams, peel, *intermediate_views(cams, 50, seed=3)]
+        half = min(np.radians(22.5), np.arctan(np.tan(np.radians(22.5)) * w / h))
+        assert np.arcsin(0.5 * diag / np.linalg.norm(np.subtract(peel.eye, c))) == pytest.approx(half)
+        # every corner of the box projects inside every view of the rig
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        for v in views:
+            xy, z = v.project(corners)
+            assert np.all(z > 0)
+            assert np.all((xy[:, 0] >= 0) & (xy[:, 0] <= w) & (xy[:, 1] >= 0) & (xy[:, 1] <= h))
 
 
 def test_intermediate_views_are_uniform_in_the_simplex():

@@ -3,11 +3,13 @@ whose numbers can be counted by hand (reference only, no GL unless available).""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from reference.raycast import RayCaster
-from reference.sampling_metrics import evaluate_sets, sampling_metrics
+from reference.sampling_metrics import evaluate_sets, sampling_metrics, texel_edge_distance
 from reference.visibility import conventional_reference, non_redundant_visibility, visible_from
 from scenes.camera import Camera
 from scenes.model import Scene, SceneObject
@@ -109,6 +111,31 @@ def test_single_and_duplicated_images(strip, redundancy):
     assert dup.redundant == [0, 64]
 
 
+def test_pixel_redundancy_edge_ties(strip):
+    # A duplicated image: every sample of the copy reprojects onto a texel centre of
+    # the original (0.5 texel from the edges): redundant, and no tie.
+    scene, rc, _, conv, _ = strip
+    dup = sampling_metrics(scene, [conv[1], conv[1]], conv, [], redundancy="pixel", caster=rc)
+    assert dup.redundant == [0, 64] and dup.redundant_edge_ties == [0, 0]
+    # Shift the copy's samples by half a pixel in x (B: 1.25 units at z = 0, A:
+    # 0.625 at z = 5): each projects onto a texel edge (up to rounding), so it
+    # falls in its own texel or the next one. Where that texel holds the same
+    # triangle (at least B's columns 2-6, landing on B in 2-7) the sample counts
+    # as redundant, but only as an edge tie.
+    im = conv[1]
+    pos = im.position.copy()
+    on_a = pos[..., 2] > 2.5
+    pos[..., 0] += np.where(on_a, 0.625, 1.25)
+    shifted = replace(im, position=pos)
+    m = sampling_metrics(scene, [im, shifted], conv, [], redundancy="pixel", caster=rc)
+    assert m.redundant[0] == 0 and m.redundant[1] >= 5 * 8
+    assert m.redundant_edge_ties == m.redundant
+    assert m.to_dict()["redundant_edge_ties"] == m.redundant
+    d = texel_edge_distance(im.camera, np.array([[6.25, 1.25, 0.0], [7.5, 1.25, 0.0]]))
+    np.testing.assert_allclose(d, [0.5, 0.0], atol=1e-9)
+    assert sampling_metrics(scene, [im, im], conv, [], redundancy="visibility", caster=rc).redundant_edge_ties is None
+
+
 # --- Figs 11-12: boxes A, B, C, D -------------------------------------------------
 #
 # V0 at x = -2 and V1 at x = 2 look down -Z (fov 90°, so V0 sees B); C (x in [-0.5, 0.5], z in [-0.5, 0.5])
@@ -192,6 +219,24 @@ def test_boxes_metrics(boxes):
     assert n.available_avg >= c.available_avg and n.available_min >= c.available_min
     assert n.available_avg > c.available_avg  # the middle views see C
     assert len(n.available) == len(views) and 0.0 < n.available_min <= n.available_avg <= 1.0
+
+
+@pytest.mark.parametrize("redundancy", ["pixel", "visibility"])
+def test_sets_evaluated_together_or_alone_agree(boxes, redundancy):
+    # The benchmark evaluates conventional, NR and peeling sets in one call (shared
+    # intermediate frames, shared layer walks along the reference cameras): sharing
+    # must not change any set's numbers, and every set is measured against the same
+    # conventional images (metric 2), whichever viewpoints the set itself uses.
+    scene, rc, cams, conv, nr, views = boxes
+    mid = Camera((0.0, 0.0, 10.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 90.0, 64, 64)
+    other = conventional_reference(scene, [mid, cams[1]], rc)  # a set from another viewpoint, like peeling
+    sets = {"conv": (conv, redundancy), "nr": (nr, redundancy), "other": (other, redundancy)}
+    joint = evaluate_sets(scene, sets, conv, views, caster=rc)
+    for name, (images, red) in sets.items():
+        alone = sampling_metrics(scene, images, conv, views, redundancy=red, caster=rc)
+        assert joint[name].to_dict() == alone.to_dict(), name
+    # the midpoint view sees C, which no conventional image holds: occluded and useful
+    assert joint["other"].occluded[0] > 0 and joint["other"].useful[0] == joint["other"].occluded[0]
 
 
 def test_bad_redundancy(strip):

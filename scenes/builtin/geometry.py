@@ -143,6 +143,32 @@ def quad(origin: Sequence[float], u: Sequence[float], v: Sequence[float]) -> Mes
     return grid(origin, u, v, 1, 1)
 
 
+def disc_triangles(segments: int) -> int:
+    return segments
+
+
+def disc(center: Sequence[float], radius: float, segments: int = 48) -> Mesh:
+    """A flat horizontal disc (regular ``segments``-gon) at height center[1], a fan
+    of ``segments`` triangles around its centre; single-sided, facing up (+Y)."""
+    c = np.asarray(center, dtype=np.float64)
+    a = 2.0 * np.pi * np.arange(segments) / segments
+    rim = c + radius * np.stack([np.cos(a), np.zeros(segments), np.sin(a)], 1)
+    k = np.arange(segments)
+    # (centre, rim[k+1], rim[k]): counter-clockwise seen from above, so u × v points up
+    faces = np.stack([np.zeros(segments, np.int64), 1 + (k + 1) % segments, 1 + k], 1)
+    return _mesh(np.concatenate([c[None], rim]), faces)
+
+
+def footprint_disc(meshes: Sequence[Mesh], scale: float = 1.4, segments: int = 48, y: float = 0.0) -> Mesh:
+    """A modest ground under an object: `disc` at height y centred on the
+    horizontal (x, z) bounding-box centre of `meshes`, its diameter ``scale`` × the
+    larger horizontal extent of that box (the object's footprint)."""
+    lo, hi = scene_bounds(meshes)
+    c = (lo + hi) / 2
+    ext = float(max(hi[0] - lo[0], hi[2] - lo[2]))
+    return disc((float(c[0]), y, float(c[2])), 0.5 * scale * ext, segments)
+
+
 def _axis_coords(lo: float, hi: float, n: int) -> np.ndarray:
     c = lo + (hi - lo) * np.linspace(0.0, 1.0, n + 1)
     c[0], c[-1] = lo, hi  # exact endpoints: shared box edges get identical coordinates

@@ -1,11 +1,14 @@
-"""Bird's nest: a bowl of tangled thin twigs on a ground quad.
+"""Bird's nest: a bowl of tangled thin twigs on a modest ground disc.
 
 Stands in for the thesis's nest scene (§2.3.3, Fig. 8–9, Tables 2–7: 6.7 万 = 67k
 triangles), the scene with the most intricate occlusion. Every twig is a thin closed
 5-sided prism bent along 3 segments (36 triangles, ``geometry.tubes``); twig centres
-fill a flattened bowl-shaped shell (outer diameter ≈ 0.65 m, height ≈ 0.3 m) and the
-twigs run mostly around the bowl, following its curvature; the ground quad is 1.5 m wide. The number of twigs is
-proportional to detail (1860 at detail 1), so triangles ≈ 67k × detail.
+fill a flattened bowl-shaped shell (outer diameter ≈ 0.7 m, height ≈ 0.37 m) and the
+twigs run mostly around the bowl, following its curvature. The nest sits on a modest
+ground disc (``geometry.footprint_disc``: diameter 1.4 × the nest's footprint, ≈ 1.0 m,
+48 triangles) so that, as in the thesis's Fig. 8/9, the nest and not a ground plane fills
+views framed on the scene. The number of twigs is proportional to detail (1860 at
+detail 1), so triangles ≈ 67k × detail.
 """
 
 from __future__ import annotations
@@ -20,7 +23,8 @@ DESCRIPTION = "bird's nest: ~1.9k thin bent twig prisms woven into a bowl (thesi
 TWIGS_PER_DETAIL = 1860
 SIDES = 5
 SEGMENTS = 3
-GROUND_HALF = 0.75  # m
+GROUND_SCALE = 1.4  # ground disc diameter / nest footprint
+GROUND_SEGMENTS = 48
 
 _BARK = Material(albedo=(0.32, 0.22, 0.13))
 _STRAW = Material(albedo=(0.55, 0.45, 0.28))
@@ -28,7 +32,8 @@ _GROUND = Material(albedo=(0.35, 0.32, 0.25))
 
 
 def estimate_triangles(detail: float) -> int:
-    return g.scaled_count(TWIGS_PER_DETAIL, detail) * g.tube_triangles(SEGMENTS, SIDES) + 2
+    twigs = g.scaled_count(TWIGS_PER_DETAIL, detail) * g.tube_triangles(SEGMENTS, SIDES)
+    return twigs + g.disc_triangles(GROUND_SEGMENTS)
 
 
 def _twig_paths(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -66,7 +71,7 @@ def build(detail: float, rng: np.random.Generator) -> Scene:
     light = rng.random(n) < 0.3  # 30 % pale straw-like twigs
     twigs_dark = g.tubes(paths[~light], radii[~light], SIDES)
     twigs_light = g.tubes(paths[light], radii[light], SIDES)
-    ground = g.quad((-GROUND_HALF, 0.0, -GROUND_HALF), (0.0, 0.0, 2 * GROUND_HALF), (2 * GROUND_HALF, 0.0, 0.0))
+    ground = g.footprint_disc([twigs_dark, twigs_light], GROUND_SCALE, GROUND_SEGMENTS)
     objects = [g.make_object("ground", ground, _GROUND)]
     for name, mesh, mat in (("twigs_dark", twigs_dark, _BARK), ("twigs_light", twigs_light, _STRAW)):
         if len(mesh[1]):

@@ -7,7 +7,9 @@ capped tube (``geometry.tubes``; 12, 10, 8, 6, 4 sides) starting inside its pare
 Leaves are two-sided diamond quads (4 triangles, 10–17 cm long) on the shoots and twigs.
 Twigs (600) and leaves (22 800) are proportional to detail; the three upper skeleton
 levels are fixed, so triangles ≈ 10k + 103k × detail. The tree is about 7.3 m tall
-with a crown about 5–6 m across, on a 12 m ground quad.
+with a crown about 5–6 m across, on a modest ground disc (``geometry.footprint_disc``:
+diameter 1.4 × the tree's footprint, ≈ 8 m, 48 triangles) so that the tree and not a
+ground plane fills views framed on the scene (thesis Fig. 8/9).
 """
 
 from __future__ import annotations
@@ -24,7 +26,8 @@ DESCRIPTION = "tree: 5-level branching skeleton of closed cylinders with ~23k tw
 # (count or count per detail, segments, sides) per level; level 4 (twigs) scales with detail
 _LEVELS = ((1, 8, 12), (6, 6, 10), (30, 4, 8), (150, 3, 6), (600, 2, 4))
 LEAVES_PER_DETAIL = 22800
-GROUND_HALF = 6.0
+GROUND_SCALE = 1.4  # ground disc diameter / tree footprint
+GROUND_SEGMENTS = 48
 
 _BARK = Material(albedo=(0.30, 0.22, 0.16))
 _LEAF_A = Material(albedo=(0.13, 0.36, 0.08))
@@ -38,7 +41,7 @@ def _level_counts(detail: float) -> list[int]:
 
 def estimate_triangles(detail: float) -> int:
     branches = sum(n * g.tube_triangles(k, s) for n, (_, k, s) in zip(_level_counts(detail), _LEVELS, strict=True))
-    return branches + 4 * g.scaled_count(LEAVES_PER_DETAIL, detail) + 2
+    return branches + 4 * g.scaled_count(LEAVES_PER_DETAIL, detail) + g.disc_triangles(GROUND_SEGMENTS)
 
 
 @dataclass
@@ -156,14 +159,14 @@ def build(detail: float, rng: np.random.Generator) -> Scene:
     size = rng.uniform(0.10, 0.17, n_leaves)
     scales = np.column_stack([0.5 * size, size, np.ones(n_leaves)])
     shade = rng.random(n_leaves) < 0.5
-    ground = g.quad((-GROUND_HALF, 0.0, -GROUND_HALF), (0.0, 0.0, 2 * GROUND_HALF), (2 * GROUND_HALF, 0.0, 0.0))
-    objects = [g.make_object("ground", ground, _GROUND), g.make_object("branches", bark, _BARK)]
-    leaf_meshes = []
+    leaves = []
     for name, mask, mat in (("leaves_dark", ~shade, _LEAF_A), ("leaves_light", shade, _LEAF_B)):
         if np.any(mask):
-            mesh = g.instances(_LEAF, pts[mask], frames[mask], scales[mask])
-            leaf_meshes.append(mesh)
-            objects.append(g.make_object(name, mesh, mat, double_sided=True))
+            leaves.append((name, g.instances(_LEAF, pts[mask], frames[mask], scales[mask]), mat))
+    leaf_meshes = [mesh for _, mesh, _ in leaves]
+    ground = g.footprint_disc([bark, *leaf_meshes], GROUND_SCALE, GROUND_SEGMENTS)
+    objects = [g.make_object("ground", ground, _GROUND), g.make_object("branches", bark, _BARK)]
+    objects += [g.make_object(name, mesh, mat, double_sided=True) for name, mesh, mat in leaves]
     lo, hi = g.scene_bounds([ground, bark, *leaf_meshes])
     return Scene(objects=objects, sun_direction=(0.35, 0.8, 0.45),
                  area_light=g.overhead_area_light(lo, hi, fraction=0.25), name="tree")
