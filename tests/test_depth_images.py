@@ -10,7 +10,6 @@ midpoint, the peeling viewpoint; an intermediate viewpoint sees it.
 from __future__ import annotations
 
 import sys
-import threading
 
 import numpy as np
 import pytest
@@ -18,14 +17,13 @@ import trimesh
 from scipy.ndimage import binary_erosion
 
 from gl_passes import depth_images as di
-from gl_passes.context import create_gl_context
 from gl_passes.gbuffer import GBufferPass
 from gl_passes.upload import SceneGPU
 from reference.raycast import RayCaster
 from scenes import Camera, Material, Scene, SceneObject
 from scenes.depth_image import DepthImage
 from scenes.rig import fig8_rig, fit_distance, intermediate_views
-from tests.gl_leaks import live_gl_objects as _live_gl_objects
+from tests.gl_leaks import gl_object_growth
 
 RES = 160  # reference images of the Fig. 11 scene
 A, B, C, D = 1, 2, 3, 4  # object ids in figure11_scene()
@@ -389,34 +387,23 @@ def test_peeling_layers(which, request, gl):
 # --- resources ---------------------------------------------------------------------------
 
 def test_non_redundant_20_times_does_not_grow_gl_objects():
-    """A fresh context on its own thread (as in test_gl_core): live GL objects
-    are unchanged after 20 more non_redundant + peeling calls."""
-    result: dict = {}
+    """A fresh context: live GL objects are unchanged after 20 more
+    non_redundant + peeling calls at varying sizes."""
+    cams = [fig11_camera(-3.0, 24), fig11_camera(3.0, 24), fig11_camera(0.0, 24)]
 
-    def run() -> None:
-        gl = create_gl_context("egl")
-        scene = figure11_scene()
-        sg = SceneGPU(gl, scene)
-        cams = [fig11_camera(-3.0, 24), fig11_camera(3.0, 24), fig11_camera(0.0, 24)]
+    def setup(gl):
+        sg = SceneGPU(gl, figure11_scene())
         di.non_redundant(gl, sg, cams)
         di.depth_peeling(gl, sg, cams[2], 2)
-        probe = gl.ctx.texture((1, 1), 1)
-        result["before"] = _live_gl_objects(probe.glo + 64)
-        probe.release()
-        for k in range(20):
-            di.non_redundant(gl, sg, cams, res=16 + 4 * (k % 3))
-            di.depth_peeling(gl, sg, cams[2], 2)
-        probe = gl.ctx.texture((1, 1), 1)
-        result["after"] = _live_gl_objects(probe.glo + 64)
-        probe.release()
-        sg.release()
-        gl.release()
+        return sg
 
-    t = threading.Thread(target=run)
-    t.start()
-    t.join()
-    assert result["before"] > 0
-    assert result["after"] == result["before"]
+    def frame(sg, k):
+        di.non_redundant(sg.gl, sg, cams, res=16 + 4 * (k % 3))
+        di.depth_peeling(sg.gl, sg, cams[2], 2)
+
+    before, after = gl_object_growth(setup, frame, 20)
+    assert before > 0
+    assert after == before
 
 
 # --- the Fig. 8 rig ------------------------------------------------------------------------
