@@ -7,7 +7,11 @@ Sampling. Output pixel (x, y) of `camera` is covered by supersample² primary ra
 through the centres of an ss×ss grid of cells inside the pixel, i.e. image-plane
 points (x + (i + ½)/ss, y + (j + ½)/ss). These are exactly the pixel centres of
 the same camera rendered at ss·W × ss·H, which is what the GL G-buffer does for
-ss = 2 (points x + 0.25, x + 0.75). Every primary and reflected ray culls back faces.
+ss = 2 (points x + 0.25, x + 0.75). Every primary and reflected ray culls back faces;
+primary rays, which all start at the eye, use the exact per-viewpoint culling of
+RayCaster.cast_from (a back face coplanar with a front face, e.g. a wall behind a
+tile seen from outside the room, cannot hide that front face; restarting past
+back faces would skip it).
 
 Per sample (primary hit with material albedo, s, g):
   * diffuse  = local shading of the hit (scenes.shading.local_shade with the
@@ -164,8 +168,10 @@ def _render(scene: Scene, camera: Camera, supersample: int, glossy_rays: int, tr
     for start in range(0, n_samples, chunk):
         sl = slice(start, min(start + chunk, n_samples))
         d = dirs[sl]
-        o = np.broadcast_to(eye, d.shape)
-        hits = caster.intersect(o, d)
+        # Primary rays all start at the eye: exact back-face culling with the
+        # per-viewpoint BVH (as the G-buffer's rasteriser; restarting past back faces
+        # would let a coplanar back face hide a front face, e.g. tiles on a wall).
+        hits = caster.cast_from(eye, d)
         diff, n_shade = caster.shade_hits(hits, d)
         diffuse[sl] = diff
         color[sl] = diff

@@ -370,3 +370,24 @@ def test_occlusion_error_of_envmap_vs_reference(mirror_box_scene, mirror_box_res
     np.testing.assert_array_equal(m, ref.reflective & np.isfinite(ref.ray_length))
     assert 0 < occlusion_error_percentage(m, ref.reflective) < 100
     assert not occlusion_error_mask(ref.ray_length, ref.ray_length, ref.reflective).any()
+
+
+def test_primary_rays_cull_exactly_under_coplanar_back_faces():
+    """A tile (thin box) on a wall, seen from behind the wall: the wall's back face
+    is culled, the tile's wall-side face (coplanar with the wall, facing the eye) is
+    what a back-face-culling rasteriser shows. Restarting past the wall's back face
+    would skip the coplanar tile face and see the mirror behind it."""
+    wall = quad("wall", [(-1, 0, 0), (1, 0, 0), (1, 2, 0), (-1, 2, 0)], (0, 0, 1), Material((0.8, 0.8, 0.8)))
+    # tile box between z = 0 (on the wall) and z = 0.02, fronts outward
+    lo, hi = np.array([-0.5, 0.5, 0.0]), np.array([0.5, 1.5, 0.02])
+    faces = [quad(f"tile{k}", c, n, Material((0.2, 0.6, 0.7))) for k, (c, n) in enumerate([
+        ([(lo[0], lo[1], lo[2]), (hi[0], lo[1], lo[2]), (hi[0], hi[1], lo[2]), (lo[0], hi[1], lo[2])], (0, 0, -1)),
+        ([(lo[0], lo[1], hi[2]), (hi[0], lo[1], hi[2]), (hi[0], hi[1], hi[2]), (lo[0], hi[1], hi[2])], (0, 0, 1))])]
+    mirror = quad("mirror", [(-2, 0, 1), (2, 0, 1), (2, 2, 1), (-2, 2, 1)], (0, 0, -1), Material((0.9, 0.9, 0.9), 1.0))
+    scene = Scene([wall, *faces, mirror], sun_direction=SUN)
+    cam = Camera(eye=(0.0, 1.0, -2.0), target=(0.0, 1.0, 0.0), fov=20.0, width=16, height=16)
+    res = raytrace_reflections(scene, cam, supersample=1)
+    # the centre of the image is the tile's back face (diffuse), not the mirror
+    assert not res.reflective[6:10, 6:10].any()
+    np.testing.assert_allclose(res.color[8, 8], local_shade(np.array([0.2, 0.6, 0.7]), np.array([0, 0, -1.0]),
+                                                             np.asarray(SUN)), atol=1e-5)

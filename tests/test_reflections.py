@@ -272,3 +272,18 @@ def test_scene_without_reflectors_is_the_diffuse_image(gl, refl):
     assert ours.n_clusters == 0 and not ours.reflective.any()
     assert mean_abs_error(ours.color, ref.color) < 0.2 / 255
     assert np.allclose(ours.color, ours.diffuse)
+
+
+def test_crossing_rule_option_keeps_mirror_exact_and_curved_bounds(gl):
+    """The optional crossing rule (continuity > 0, compiled in only then) keeps the
+    planar mirror exact and the curved bounds."""
+    r = ClusterReflections(gl, continuity=0.1)
+    try:
+        scene = planar_mirror_scene()
+        cam = default_camera(96)
+        ours = _render(gl, r, scene, cam)
+        ref = raytrace_reflections(scene, cam)
+        assert int(occlusion_error_mask(ours.ray_length, ref.ray_length, ref.reflective).sum()) == 0
+        _check_curved(gl, r, mirror_object_scene(sphere_mesh(), "sphere"))
+    finally:
+        r.release()

@@ -6,6 +6,10 @@
 // and (stage 1) the mean projected spacing of neighbouring samples.
 // Stage 0: c = e0, frame = fitting plane basis (d_n, d_f of eq. 6);
 // stage 1: c = e_c, frame = the cluster camera (image rectangle, far, resolution).
+// Reduction: each invocation first reduces its own rays (1, or 9 for glossy) in
+// registers, then one set of atomics into the workgroup's shared record (or the
+// global one for samples of another cluster), then one per workgroup into the
+// global record — atomics, not arithmetic, dominate this pass on llvmpipe.
 layout(local_size_x = 16, local_size_y = 16) in;
 #include "reflect_common.glsl"
 uniform usampler2D u_bins;
@@ -30,12 +34,17 @@ void add64(uint k, uint v) {
     else { uint o = atomicAdd(ext[g_base + k], v); if (o + v < o) atomicAdd(ext[g_base + k + 1u], 1u); }
 }
 
-void accum_point(vec3 X, uint slot, ClusterFrame F) {
+// Per-invocation extents, reduced in registers over the sample's rays and flushed
+// with one set of atomics (atomics are the cost of this pass on a CPU rasteriser).
+vec4 g_box[2];   // (umin, vmin, umax, vmax) of start / end points
+vec2 g_z;        // (min clipped start depth, max clipped end depth)
+bool g_any;
+
+void accum_point(vec3 X, int slot, ClusterFrame F) {
     vec3 q = X - F.c_near.xyz;
     float z = max(dot(q, F.fwd_half.xyz), 1e-30);
     vec2 uv = clamp(vec2(dot(q, F.right_far.xyz), dot(q, F.up_len.xyz)) / z, -MAXTAN, MAXTAN);
-    amin(slot, f2o(uv.x)); amin(slot + 1u, f2o(uv.y));
-    amax(slot + 2u, f2o(uv.x)); amax(slot + 3u, f2o(uv.y));
+    g_box[slot] = vec4(min(g_box[slot].xy, uv), max(g_box[slot].zw, uv));
 }
 
 // Clip P + t·d, t in [0, len], to the clip plane and to depth >= near. False if empty.
@@ -54,11 +63,24 @@ void accum_ray(vec3 P, vec3 d, ClusterFrame F, bool with_start) {
     float t0, t1;
     if (!clip_ray(P, d, F, t0, t1)) return;
     vec3 S = P + t0 * d, E = P + t1 * d;
-    if (with_start) accum_point(S, 0u, F);
-    accum_point(E, 4u, F);
+    if (with_start) accum_point(S, 0, F);
+    accum_point(E, 1, F);
     vec3 Z = F.fwd_half.xyz, c = F.c_near.xyz;
-    amin(10u, f2o(dot(S - c, Z)));
-    amax(11u, f2o(max(dot(E - c, Z), dot(S - c, Z))));
+    g_z = vec2(min(g_z.x, dot(S - c, Z)), max(g_z.y, max(dot(E - c, Z), dot(S - c, Z))));
+    g_any = true;
+}
+
+void flush_rays() {
+    if (!g_any) return;
+    for (int b = 0; b < 2; ++b) {
+        uint slot = uint(4 * b);
+        if (g_box[b].x <= g_box[b].z) {
+            amin(slot, f2o(g_box[b].x)); amin(slot + 1u, f2o(g_box[b].y));
+            amax(slot + 2u, f2o(g_box[b].z)); amax(slot + 3u, f2o(g_box[b].w));
+        }
+    }
+    amin(10u, f2o(g_z.x));
+    amax(11u, f2o(g_z.y));
 }
 
 vec2 project_uv(vec3 X, ClusterFrame F) {
@@ -92,6 +114,9 @@ void main() {
         vec3 r = mirror_dir(normalize(P - u_eye), n, ng);
         float zp = dot(P - F.c_near.xyz, F.fwd_half.xyz);
         amin(8u, f2o(zp)); amax(9u, f2o(zp));
+        g_box[0] = g_box[1] = vec4(3.0e38, 3.0e38, -3.0e38, -3.0e38);
+        g_z = vec2(3.0e38, -3.0e38);
+        g_any = false;
         accum_ray(P, r, F, true);
         float half_angle = F.fwd_half.w;
         if (half_angle > 0.0) {
@@ -100,8 +125,10 @@ void main() {
                 accum_ray(P, lift_above(lobe_dir(r, half_angle, vec2(cos(a), sin(a))), ng), F, true);
             }
         }
+        flush_rays();
         if (u_stage == 1 && zp > 0.0) {
             vec2 uv = project_uv(P, F);
+            uint n_pairs = 0u;
             for (int k = 0; k < 2; ++k) {
                 ivec2 q = p + (k == 0 ? ivec2(1, 0) : ivec2(0, 1));
                 if (any(greaterThanEqual(q, size)) || texelFetch(u_bins, q, 0).r != bin) continue;
@@ -109,7 +136,10 @@ void main() {
                 if (dot(Pq - F.c_near.xyz, F.fwd_half.xyz) <= 0.0) continue;
                 float dist = min(length(project_uv(Pq, F) - uv), 15.0);
                 add64(12u, uint(dist * SPACING_FIXED + 0.5));
-                if (g_local) atomicAdd(s_ext[14], 1u); else atomicAdd(ext[g_base + 14u], 1u);
+                n_pairs += 1u;
+            }
+            if (n_pairs > 0u) {
+                if (g_local) atomicAdd(s_ext[14], n_pairs); else atomicAdd(ext[g_base + 14u], n_pairs);
             }
         }
     }

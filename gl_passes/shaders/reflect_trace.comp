@@ -8,7 +8,11 @@
 // depth. Two layers per cluster image: other objects / the cluster's own reflector. Miss -> sky (mirror) or the diffuse
 // colour (glossy: a miss within far contributes diffuse, §4.6 / reference).
 // u_mode 1 = environment map baseline (no intersection).
-layout(local_size_x = 8, local_size_y = 8) in;
+// With CROSSING defined, also a hit where the ray goes from in front of a layer's
+// surface (previous step) to behind it (this step) while that surface's depth jumps
+// by at most u_continuity of itself between the two texels (steep surface, not a
+// silhouette); the hit point is where the inverse depths cross between the steps.
+layout(local_size_x = TRACE_GX, local_size_y = TRACE_GY) in;
 #include "common.glsl"
 #include "reflect_common.glsl"
 uniform usampler2D u_bins;
@@ -36,6 +40,7 @@ uniform int u_mode;
 uniform int u_rays;
 uniform vec2 u_lobe[MAX_RAYS];
 uniform float u_thickness;
+uniform float u_continuity;  // crossing rule: max relative depth jump of a continuous surface
 layout(rgba32f, binding = 1) writeonly uniform image2D u_out;  // reflected rgb, mirror-ray length
 
 float f_inf() { return uintBitsToFloat(0x7f800000u); }
@@ -118,6 +123,10 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
     // point (e.g. the reflector's own far side seen from e_c).
     float zfirst = ie2 < is2 ? (1.0 + 1e-4) / is2 : 0.0;
     vec2 delta = (e2 - s2) / float(steps);
+    // Previous step (crossing rule): stored depths and the ray's depth at its centre.
+    vec3 prev_d = vec3(0.0);
+    float prev_z = 0.0, prev_a = 0.0;
+    bool prev_ok = false;
     for (int k = 0; k <= steps; ++k) {
         float ac = float(k) / float(steps);
         vec2 pix = mix(s2, e2, ac);
@@ -134,7 +143,11 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
             if (last > k) {
                 float aa = max(0.0, (float(k) - 0.5) / float(steps)), ab = min(1.0, (float(last) + 0.5) / float(steps));
                 float zmax = max(1.0 / mix(is2, ie2, aa), 1.0 / mix(is2, ie2, ab));
-                if (texelFetch(u_coarse, cb, 0).r > zmax * (1.0 + 1e-5)) { k = last; continue; }
+                if (texelFetch(u_coarse, cb, 0).r > zmax * (1.0 + 1e-5)) {
+                    k = last;  // the ray stays in front of every surface up to step `last`
+                    prev_ok = false;
+                    continue;
+                }
             }
         }
 #endif
@@ -142,6 +155,11 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
         float za = 1.0 / mix(is2, ie2, alo), zb = 1.0 / mix(is2, ie2, ahi);
         float zlo = min(za, zb), zhi = max(za, zb);
         vec3 pk = texelFetch(u_pack, org + tx, 0).xyz;  // depth: other objects, reflector, reflector 2nd
+        float zc = 1.0 / mix(is2, ie2, ac);
+        vec3 pd = prev_d;
+        float pz = prev_z, pa = prev_a;
+        bool pok = prev_ok;
+        prev_d = pk; prev_z = zc; prev_a = ac; prev_ok = true;
         // Fast reject (the common case): every stored surface behind the ray here.
         if (min(pk.x, pk.y) > zhi * (1.0 + 1e-5)) continue;
         float tol = u_thickness * (zhi - zlo) + 1e-4 * zhi;
@@ -149,6 +167,20 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
         bool h0 = layer_hit(pk.x, zhi, lower);
         bool h1 = layer_hit(pk.y, zhi, lower);
         bool h2 = layer_hit(pk.z, zhi, lower);
+        // Crossing rule: the ray was in front of a layer's surface at the previous
+        // step and is behind it now, and that surface is continuous between the two
+        // texels (depth jump <= u_continuity of its depth): a steep surface (seen at
+        // a grazing angle from e_c) crossed within one step, not a silhouette the ray
+        // passes behind.
+        bvec3 xing = bvec3(false);
+#ifdef CROSSING
+        if (pok) {
+            xing = bvec3(vec3(greaterThan(pd, vec3(pz))) * vec3(lessThan(pk, vec3(zc)))
+                         * vec3(greaterThanEqual(pk, vec3(zfirst)))
+                         * vec3(lessThanEqual(abs(pk - pd), u_continuity * min(pk, pd))));
+            h0 = h0 || xing.x; h1 = h1 || xing.y; h2 = h2 || xing.z;
+        }
+#endif
         if (!(h0 || h1 || h2)) continue;
         // The sample's own triangle is never a hit (checked only on candidate hits).
         if (h1) h1 = texelFetch(u_atlas_self_tri, org + tx, 0).r != g_own_tri;
@@ -164,6 +196,21 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
             if (h && (layer < 0 || (away ? Dl < D : Dl > D))) { layer = l; D = Dl; }
         }
         float dtol = max(2.0 * tol, 5e-3 * D);
+        if (xing[layer] && !(D <= zhi * (1.0 + 1e-5) && D >= lower)) {
+            // Crossed between the previous step's centre and this one: the crossing of
+            // the ray's and the surface's inverse depths, both linear between them.
+            float gp = 1.0 / pz - 1.0 / pd[layer], gk = 1.0 / zc - 1.0 / D;
+            float ax = gp > gk ? pa + (ac - pa) * clamp(gp / (gp - gk), 0.0, 1.0) : ac;
+            ac = ax; pix = mix(s2, e2, ax); D = 1.0 / mix(is2, ie2, ax);
+            dtol = max(dtol, u_continuity * D);
+            col = (layer == 0 ? surface_at(u_atlas, org, top, pix, D, dtol)
+                   : (layer == 1 ? surface_at(u_atlas_self, org, top, pix, D, dtol)
+                                 : surface_at(u_atlas_peel, org, top, pix, D, dtol))).rgb;
+            float ao = mix(a0, a1, ac);
+            if (abs(ze - zs) > 1e-5 * zs) t_hit = t0 + (t1 - t0) * clamp((D - zs) / (ze - zs), 0.0, 1.0);
+            else t_hit = t0 + (t1 - t0) * ao * ie / mix(is, ie, ao);
+            return true;
+        }
         float ar = layer == 0 ? refine(u_atlas, org, top, s2, e2, is2, ie2, alo, ahi, D, dtol)
                  : (layer == 1 ? refine(u_atlas_self, org, top, s2, e2, is2, ie2, alo, ahi, D, dtol)
                                : refine(u_atlas_peel, org, top, s2, e2, is2, ie2, alo, ahi, D, dtol));
