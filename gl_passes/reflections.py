@@ -64,6 +64,7 @@ from gl_passes.readback import read_texture
 from gl_passes.shaders import compute_program, program
 from gl_passes.uniforms import set_uniform
 from gl_passes.upload import SceneGPU
+from scenes.buffers import ReflectionBuffers
 from scenes.camera import Camera
 from scenes.glossy import FADE_FRACTION, lobe_offsets
 
@@ -78,20 +79,12 @@ STEPS = ("gbuffer", "clustering", "cluster_cameras", "depth_images", "intersecti
 
 
 @dataclass
-class ClusterReflectionResult:
-    """Output-resolution arrays (same rules as reference.reflections.ReflectionResult):
-    color, reflected, diffuse (H,W,3) float32; specular (H,W) float32 mean s;
-    reflective (H,W) bool; ray_length (H,W) float64 mean mirror-ray length (+inf if a
-    sample missed, NaN where no sample is reflective). cameras: the cluster cameras;
-    timings_ms: per step (STEPS) plus "total"; atlas_size: (w, h) texels;
-    drawn_chunks: triangle chunks drawn into the cluster images (after culling)."""
+class ClusterReflectionResult(ReflectionBuffers):
+    """ReflectionBuffers (same aggregation rules as the reference) plus: cameras:
+    the cluster cameras; timings_ms: per step (STEPS) plus "total"; atlas_size:
+    (w, h) texels; drawn_chunks: triangle chunks drawn into the cluster images
+    (after culling)."""
 
-    color: np.ndarray
-    reflected: np.ndarray
-    diffuse: np.ndarray
-    specular: np.ndarray
-    reflective: np.ndarray
-    ray_length: np.ndarray
     method: str = "clusters"
     supersample: int = 2
     n_clusters: int = 0

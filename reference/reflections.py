@@ -64,6 +64,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from reference.raycast import Hits, RayCaster
+from scenes.buffers import ReflectionBuffers
 from scenes.camera import Camera
 from scenes.glossy import fade_weight, glossy_far, lobe_directions
 from scenes.model import Scene
@@ -76,19 +77,11 @@ DEFAULT_CHUNK = 1 << 15
 
 
 @dataclass
-class ReflectionResult:
-    """All (H,W) arrays at OUTPUT resolution (after the ss×ss averaging described in
-    the module docstring). color, reflected, diffuse (H,W,3) float32 linear RGB;
-    specular (H,W) float32 mean s; reflective (H,W) bool; ray_length (H,W) float64
-    mirror-ray length (+inf miss, NaN non-reflective). ray_length_samples and
-    reflective_samples are the same at sample resolution (ss·H, ss·W)."""
+class ReflectionResult(ReflectionBuffers):
+    """ReflectionBuffers (after the ss×ss averaging described in the module
+    docstring) plus ray_length_samples and reflective_samples, the same at sample
+    resolution (ss·H, ss·W)."""
 
-    color: np.ndarray
-    reflected: np.ndarray
-    diffuse: np.ndarray
-    specular: np.ndarray
-    reflective: np.ndarray
-    ray_length: np.ndarray
     supersample: int = 1
     ray_length_samples: np.ndarray | None = None
     reflective_samples: np.ndarray | None = None

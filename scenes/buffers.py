@@ -28,3 +28,19 @@ class FrameBuffers:
     def mask(self) -> np.ndarray:
         """(H,W) bool: pixel covered by geometry."""
         return self.tri_id > 0
+
+
+@dataclass
+class ReflectionBuffers:
+    """Reflection output at OUTPUT resolution, shared by the GL cluster method and
+    the Embree reference (thesis Ch. 4): color, reflected, diffuse (H,W,3) float32
+    linear RGB; specular (H,W) float32 mean s; reflective (H,W) bool; ray_length
+    (H,W) float64 mean mirror-ray length (+inf if a sample missed, NaN where no
+    sample is reflective)."""
+
+    color: np.ndarray
+    reflected: np.ndarray
+    diffuse: np.ndarray
+    specular: np.ndarray
+    reflective: np.ndarray
+    ray_length: np.ndarray
