@@ -44,6 +44,13 @@ class Hits:
 RayBuffers = FrameBuffers
 
 
+def _ray_limits(tmax: np.ndarray | float | None, n: int) -> np.ndarray:
+    """(n,) float64 maximum ray distances: tmax broadcast (None = unbounded),
+    capped at 1e30 so Embree's float32 tfar stays finite."""
+    limit = np.inf if tmax is None else np.asarray(tmax, np.float64)
+    return np.minimum(np.broadcast_to(limit, (n,)), 1e30)
+
+
 def _embree_scene(vertices: np.ndarray, faces: np.ndarray) -> object:
     emb = rtcore_scene.EmbreeScene()
     mesh_construction.TriangleMesh(emb, np.ascontiguousarray(vertices, np.float32),
@@ -117,7 +124,7 @@ class RayCaster:
         eye = np.asarray(eye, np.float64)
         d = np.asarray(directions, np.float64).reshape(-1, 3)
         n = len(d)
-        limit = np.minimum(np.broadcast_to(np.inf if tmax is None else np.asarray(tmax, np.float64), (n,)), 1e30)
+        limit = _ray_limits(tmax, n)
         emb, faces = self._viewpoint_scene(eye)
         t = np.full(n, np.inf)
         tri = np.zeros(n, np.uint32)
@@ -144,9 +151,7 @@ class RayCaster:
         o = np.asarray(origins, np.float64).reshape(-1, 3)
         d = np.asarray(directions, np.float64).reshape(-1, 3)
         n = len(o)
-        limit = np.full(n, np.inf if tmax is None else 0.0) if tmax is None else np.broadcast_to(
-            np.asarray(tmax, np.float64), (n,)).copy()
-        limit = np.minimum(limit, 1e30)
+        limit = _ray_limits(tmax, n)
         t = np.full(n, np.inf)
         tri = np.zeros(n, np.uint32)
         u = np.zeros(n)
