@@ -35,6 +35,8 @@ class GLContext:
     renderer: str
     version: str
     owner_thread: int = field(default_factory=threading.get_ident)
+    #: Compiled programs keyed by shader files and defines (gl_passes.shaders).
+    programs: dict = field(default_factory=dict)
     _release_hook: object | None = None
 
     @property

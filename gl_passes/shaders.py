@@ -47,7 +47,7 @@ def program(gl: GLContext, vertex: str, fragment: str | None = None, geometry: s
     """Compiled program for the named shader files, cached on `gl`."""
     gl.check_thread()
     key = (vertex, fragment, geometry, tuple(sorted((defines or {}).items())), varyings)
-    cache: dict = gl.__dict__.setdefault("_programs", {})
+    cache = gl.programs
     if key not in cache:
         cache[key] = gl.ctx.program(
             vertex_shader=shader_source(vertex, defines),
@@ -62,7 +62,7 @@ def compute_program(gl: GLContext, name: str, defines: dict[str, str] | None = N
     """Compiled compute shader, cached on `gl`."""
     gl.check_thread()
     key = ("compute", name, tuple(sorted((defines or {}).items())))
-    cache: dict = gl.__dict__.setdefault("_programs", {})
+    cache = gl.programs
     if key not in cache:
         cache[key] = gl.ctx.compute_shader(shader_source(name, defines))
     return cache[key]
