@@ -48,7 +48,8 @@ def raytrace(scene: Scene, camera: Camera, glossy_rays: int) -> Any:
 
 def encode_reflections(result: Any, fmt: str) -> bytes:
     """PNG (sRGB final colour) or EXR (linear RGB final colour, "reflected" RGB,
-    "diffuse" RGB, "specular" s and the mirror-ray length "ray_length", +inf on a miss)."""
+    "diffuse" RGB, "specular" s and the mirror-ray length "ray_length": +inf on a
+    miss, 0 on pixels that reflect nothing, where the result holds NaN)."""
     if fmt == "png":
         return image_io.encode_png(result.color)
     if fmt == "exr":
