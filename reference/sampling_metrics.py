@@ -26,13 +26,27 @@ The metrics (per image and for the whole set):
    C_{n-1} of V_0..V_{n-1} do not capture. "Captured by C_j" is the same
    redundancy test against C_j: pixel — the sample's projection into C_j lands on
    a texel of the same triangle; visibility — the sample is visible from V_j in
-   C_j's frustum. All n conventional images are used, for every image of the
-   set, as the thesis's introduction ("occluded to V0, V1 and V2") and its
-   peeling rule say. (Its item 2 says j < i for NR images; read literally, every
-   sample of NR I_1 would be occluded, being non-redundant with I_0 = C_0 by
-   construction, which contradicts its 62-88 % figures.) Zero by construction
-   for the conventional images themselves. Fraction of I_i's samples.
-3. **Useful samples** (item 3): occluded samples needed by at least one
+   C_j's frustum. Two readings are computed side by side:
+
+   * ``occluded`` ("all" reading, the issue's wording "not captured by the
+     conventional images of V_0..V_{n-1}"): every image of every set is tested
+     against all n conventional images.
+   * ``occluded_earlier`` (the thesis's item 2 read literally): an image taken
+     from reference viewpoint V_i, i ≥ 1 (an NR image I_i) is tested against
+     C_0..C_{i-1} only; an image from V_0 against C_0 (a set's first image is
+     conventional); an image from any other viewpoint (a peeling layer)
+     against all n; a conventional image is tested against itself too (0 by
+     definition, as the thesis states). Every sample of a pixel-NR I_i is then occluded by
+     construction, so the thesis's 62-88 % for NR I_1/I_2 cannot be fractions
+     of I_i's own samples; they fit fractions of the view's scene samples
+     (C_i's sample count): e.g. its tree row, conventional I_1 23 % redundant
+     but NR I_1 84 % occluded, is impossible under the "all" reading, where
+     NR I_1's first-layer samples (≥ 77 % of C_1's pixels) are captured by C_1.
+
+   Zero by construction for the conventional images themselves. Fractions in
+   `occluded_frac` are of I_i's samples.
+3. **Useful samples** (item 3): occluded samples (either reading:
+   ``useful`` / ``useful_earlier``) needed by at least one
    intermediate output frame, i.e. redundant with that frame under the same
    definition: pixel — projected into the frame's Embree-cast triangle-id buffer
    the texel holds the sample's triangle; visibility — the sample is visible from
@@ -128,6 +142,8 @@ class SamplingMetrics:
     available: list[float]
     n_views: int
     redundant_edge_ties: list[int] | None = None
+    occluded_earlier: list[int] | None = None
+    useful_earlier: list[int] | None = None
     occluded_masks: list[np.ndarray] | None = field(default=None, repr=False, compare=False)
     useful_masks: list[np.ndarray] | None = field(default=None, repr=False, compare=False)
 
@@ -184,6 +200,8 @@ class SamplingMetrics:
             "redundant_edge_ties": None if self.redundant_edge_ties is None else list(self.redundant_edge_ties),
             "occluded": list(self.occluded),
             "useful": list(self.useful),
+            "occluded_earlier": None if self.occluded_earlier is None else list(self.occluded_earlier),
+            "useful_earlier": None if self.useful_earlier is None else list(self.useful_earlier),
             "redundant_frac": self.redundant_frac,
             "occluded_frac": self.occluded_frac,
             "useful_frac_of_occluded": self.useful_frac,
@@ -192,6 +210,8 @@ class SamplingMetrics:
                 "redundant": self.total_redundant,
                 "occluded": self.total_occluded,
                 "useful": self.total_useful,
+                "occluded_earlier": None if self.occluded_earlier is None else int(sum(self.occluded_earlier)),
+                "useful_earlier": None if self.useful_earlier is None else int(sum(self.useful_earlier)),
                 "redundant_frac": self.total_redundant / tot if tot else 0.0,
                 "occluded_frac": self.total_occluded / tot if tot else 0.0,
                 "useful_frac_of_occluded": self.total_useful / self.total_occluded if self.total_occluded else 0.0,
@@ -341,6 +361,21 @@ def _layer_match(layers: np.ndarray, camera: Camera, points: np.ndarray, k: np.n
     return out
 
 
+def earlier_conventional(image: DepthImage, conventional_images: Sequence[DepthImage]) -> list[DepthImage]:
+    """The conventional images an image is tested against under the thesis's
+    literal item 2 (module docstring, ``occluded_earlier``): C_0..C_{i-1} for an
+    image from V_i's viewpoint, all of them for an image from another viewpoint
+    (peeling). C_0 for an image from V_0: the first image of a set is a
+    conventional image (Alg. 1 has no earlier image to test against there), and
+    C_i itself is included when the image is C_i (0 by definition)."""
+    eye = np.asarray(image.camera.eye, np.float64)
+    for i, c in enumerate(conventional_images):
+        if np.array_equal(np.asarray(c.camera.eye, np.float64), eye):
+            same = i == 0 or c is image or np.array_equal(c.tri_id, image.tri_id)
+            return list(conventional_images[: i + 1 if same else i])
+    return list(conventional_images)
+
+
 @dataclass
 class _View:
     """One intermediate frame: camera, triangle-id buffer (H,W), and its hit
@@ -371,6 +406,7 @@ class _Job:
     samples: _Samples
     redundant: np.ndarray
     occluded: np.ndarray
+    occluded_earlier: np.ndarray
     needed: np.ndarray
     available: list[float]
     layers: list[np.ndarray] | None
@@ -394,8 +430,14 @@ def evaluate_sets(scene: Scene, sets: Mapping[str, tuple[Sequence[DepthImage], s
         s = _Samples.of(images)
         red = redundant_samples(rc, images, redundancy)
         captured = _any_redundant(rc, conventional_images, s.position, s.tri, redundancy)
+        earlier = np.zeros(len(s.tri), bool)
+        for i, im in enumerate(images):
+            sel = np.flatnonzero(s.image == i)
+            refs = earlier_conventional(im, conventional_images)
+            earlier[sel] = ~_any_redundant(rc, refs, s.position[sel], s.tri[sel], redundancy)
         layers = [layer_map(rc, im) for im in images] if redundancy == "visibility" else None
-        jobs.append(_Job(name, images, redundancy, s, red, ~captured, np.zeros(len(s.tri), bool), [], layers))
+        jobs.append(_Job(name, images, redundancy, s, red, ~captured, earlier, np.zeros(len(s.tri), bool), [],
+                         layers))
 
     # Reference cameras of the visibility jobs, each with the 3×3-max of its
     # images' layer maps (how deep a frame sample's walk along it must go).
@@ -437,8 +479,8 @@ def evaluate_sets(scene: Scene, sets: Mapping[str, tuple[Sequence[DepthImage], s
 
         for job in jobs:
             s = job.samples
-            # Metric 3: occluded samples needed by this frame.
-            todo = np.flatnonzero(job.occluded & ~job.needed)
+            # Metric 3: occluded samples (either reading) needed by this frame.
+            todo = np.flatnonzero((job.occluded | job.occluded_earlier) & ~job.needed)
             if len(todo):
                 if job.redundancy == "pixel":
                     need = pixel_redundant(view.tri_buffer, cam, s.position[todo], s.tri[todo])
@@ -465,6 +507,7 @@ def evaluate_sets(scene: Scene, sets: Mapping[str, tuple[Sequence[DepthImage], s
         n = len(job.images)
         s = job.samples
         useful = job.occluded & job.needed
+        useful_earlier = job.occluded_earlier & job.needed
         out[job.name] = SamplingMetrics(
             redundancy=job.redundancy,
             samples=list(s.counts),
@@ -473,6 +516,8 @@ def evaluate_sets(scene: Scene, sets: Mapping[str, tuple[Sequence[DepthImage], s
                                  if job.redundancy == "pixel" else None),
             occluded=s.per_image(job.occluded, n),
             useful=s.per_image(useful, n),
+            occluded_earlier=s.per_image(job.occluded_earlier, n),
+            useful_earlier=s.per_image(useful_earlier, n),
             available=job.available,
             n_views=len(views),
             occluded_masks=s.to_masks(job.occluded, job.images) if keep_masks else None,

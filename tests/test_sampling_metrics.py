@@ -90,6 +90,11 @@ def test_strip_metrics_exact(strip, redundancy):
     assert c.samples == [64, 64] and c.redundant == [0, 32] and c.occluded == [0, 0] and c.useful == [0, 0]
     assert n.samples == [64, 48] and n.redundant == [0, 0] and n.occluded == [0, 16] and n.useful == [0, 16]
     assert c.redundant_frac == [0.0, 0.5] and n.useful_frac == [0.0, 1.0]
+    # Thesis item 2 read literally: NR I_1 against C_0 only. Columns 0, 1 (hidden
+    # from V0), 2, 3 (V0 sees A there) and 6, 7 (outside V0's image) are all not
+    # captured by C_0: 48 occluded, of which the side view needs columns 0, 1.
+    assert n.occluded_earlier == [0, 48] and n.useful_earlier == [0, 16]
+    assert c.occluded_earlier == [0, 0] and c.useful_earlier == [0, 0]  # conventional: 0 by definition
     # Availability in the side view: its columns see B at -13.75, -11.25 (outside
     # both reference images), B at -8.75, -6.25 (V0: B), B at -3.75, -1.25 (hidden
     # from V0 and V1, held by NR I_1) and A at -1.875, -0.625 (V0: A).
@@ -100,6 +105,14 @@ def test_strip_metrics_exact(strip, redundancy):
     assert not m.useful_masks[1].any()
     d = m.to_dict()
     assert d["total"]["samples"] == 112 and d["total"]["occluded"] == 16 and d["n_views"] == 1
+    # The midpoint view sees B at 3.75 and 11.25 (its columns 4, 7): NR I_1's
+    # columns 3 and 6, occluded under the literal reading only.
+    assert d["total"]["occluded_earlier"] == 48 and d["total"]["useful_earlier"] == 16
+    # An image from another viewpoint (as a peeling layer) is tested against all
+    # conventional images under both readings.
+    mid_img = conventional_reference(scene, mid, rc)
+    o = sampling_metrics(scene, mid_img, conv, side, redundancy=redundancy, caster=rc)
+    assert o.occluded_earlier == o.occluded and o.useful_earlier == o.useful
 
 
 @pytest.mark.parametrize("redundancy", ["pixel", "visibility"])
