@@ -12,10 +12,12 @@ _DTYPES = {"f1": np.uint8, "f2": np.float16, "f4": np.float32, "u1": np.uint8, "
 def read_texture(tex: moderngl.Texture, viewport: tuple[int, int, int, int] | None = None) -> np.ndarray:
     """Texture (or a viewport x, y, w, h of it, GL bottom-left origin) → numpy
     array (H,W) or (H,W,C), row 0 = top of the image."""
-    w, h = (viewport[2], viewport[3]) if viewport else tex.size
+    w, h = tex.size
     dtype = _DTYPES[tex.dtype]
-    data = tex.read(viewport=viewport) if viewport else tex.read()
-    arr = np.frombuffer(data, dtype=dtype).reshape(h, w, tex.components)
+    arr = np.frombuffer(tex.read(), dtype=dtype).reshape(h, w, tex.components)  # row 0 = GL bottom
+    if viewport:  # moderngl's Texture.read takes no viewport: crop the GL-oriented rows, then flip
+        x, y, vw, vh = (int(v) for v in viewport)
+        arr = arr[y:y + vh, x:x + vw]
     arr = arr[::-1]
     return np.ascontiguousarray(arr[..., 0] if tex.components == 1 else arr)
 

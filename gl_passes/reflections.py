@@ -45,6 +45,9 @@ statistics and per-cluster extents (a few dozen uints each) and the final images
 `method="envmap"` is the environment-map baseline (reflected = sky(r), lobe mean
 for glossy samples, ray length +inf). Results follow reference.reflections'
 ReflectionResult layout, plus the cluster cameras and per-step timings.
+render(..., diagnostics=True) also reads back, after the timed steps, each sample's
+cluster and the cluster images' stored depths (ClusterDiagnostics), for the
+thesis's occlusion-error test (§4.7.1, reference.occlusion.captured_mask).
 """
 
 from __future__ import annotations
@@ -57,7 +60,7 @@ import numpy as np
 
 from gl_passes import cluster_camera as cc
 from gl_passes.cluster_camera import ClusterCamera, ClusterExtentPass
-from gl_passes.clustering import ClusteringPass
+from gl_passes.clustering import ClusteringPass, ClusterStats
 from gl_passes.context import GLContext
 from gl_passes.gbuffer import GBufferPass
 from gl_passes.readback import read_texture
@@ -79,11 +82,39 @@ STEPS = ("gbuffer", "clustering", "cluster_cameras", "depth_images", "intersecti
 
 
 @dataclass
+class ClusterDiagnostics:
+    """What the cluster depth images hold, for the thesis's occlusion-error test
+    (§4.4 / §4.7.1: a reflected ray meets an object the cluster image did not
+    sample; reference.occlusion.captured_mask). Arrays are numpy, row 0 = top.
+
+    cluster_of_sample (ss·H, ss·W) int32: each sample's cluster (index into the
+    result's cameras and the arrays below), −1 for non-reflective samples;
+    layer_depths (3, Ha, Wa) float32: the used atlas area of the three layers (other
+    objects; the cluster's reflector; the reflector's second surface), each texel
+    the linear depth along its cluster camera's axis (= clip w of view_proj;
+    BACKGROUND_DEPTH where empty); viewports (K, 4) int64 (x, y, w, h) of each
+    cluster image in layer_depths with y its TOP row (w = h = 0: no image, invalid
+    camera); view_proj (K, 4, 4) float64; near, far (K,) float64; valid (K,) bool;
+    clip_planes (K, 4) float64 (n, c): the image holds only n·X ≥ c (the fitting
+    plane clip)."""
+
+    cluster_of_sample: np.ndarray
+    layer_depths: np.ndarray
+    viewports: np.ndarray
+    view_proj: np.ndarray
+    near: np.ndarray
+    far: np.ndarray
+    valid: np.ndarray
+    clip_planes: np.ndarray
+
+
+@dataclass
 class ClusterReflectionResult(ReflectionBuffers):
     """ReflectionBuffers (same aggregation rules as the reference) plus: cameras:
     the cluster cameras; timings_ms: per step (STEPS) plus "total"; atlas_size:
     (w, h) texels; drawn_chunks: triangle chunks drawn into the cluster images
-    (after culling)."""
+    (after culling); diagnostics: ClusterDiagnostics when render(diagnostics=True),
+    else None."""
 
     method: str = "clusters"
     supersample: int = 2
@@ -92,6 +123,7 @@ class ClusterReflectionResult(ReflectionBuffers):
     timings_ms: dict[str, float] = field(default_factory=dict)
     atlas_size: tuple[int, int] = (0, 0)
     drawn_chunks: int = 0
+    diagnostics: ClusterDiagnostics | None = None
 
 
 class ClusterReflections:
@@ -206,9 +238,12 @@ class ClusterReflections:
 
     # --- the technique -------------------------------------------------------------
     def render(self, scene_gpu: SceneGPU, camera: Camera, glossy_rays: int = 8, supersample: int = 2,
-               method: str = "clusters", sync_timings: bool = True) -> ClusterReflectionResult:
+               method: str = "clusters", sync_timings: bool = True,
+               diagnostics: bool = False) -> ClusterReflectionResult:
         """Reflections for `camera` (near/far fitted to the scene when absent).
-        method: "clusters" (Alg. 6) or "envmap" (baseline)."""
+        method: "clusters" (Alg. 6) or "envmap" (baseline). diagnostics=True also
+        reads back what the cluster images hold (result.diagnostics,
+        ClusterDiagnostics; after the timed steps, not in timings_ms)."""
         self.gl.check_thread()
         if method not in ("clusters", "envmap"):
             raise ValueError(f"method must be 'clusters' or 'envmap', got {method!r}")
@@ -320,11 +355,38 @@ class ClusterReflections:
         dif = read_texture(out["out_diffuse"])
         lap("resolve")
         timings["total"] = (time.perf_counter() - t_start) * 1e3
+        diag = self._diagnostics(stats, cams, layers, atlas_size) if diagnostics else None
         return ClusterReflectionResult(
             color=col[..., :3].copy(), reflected=ref[..., :3].copy(), diffuse=dif[..., :3].copy(),
             specular=col[..., 3].copy(), reflective=dif[..., 3] > 0, ray_length=ref[..., 3].astype(np.float64),
             method=method, supersample=ss, n_clusters=len(cams), cameras=cams, timings_ms=timings,
-            atlas_size=atlas_size, drawn_chunks=drawn)
+            atlas_size=atlas_size, drawn_chunks=drawn, diagnostics=diag)
+
+    def _diagnostics(self, stats: ClusterStats, cams: list[ClusterCamera], layers: list,
+                     atlas_size: tuple[int, int]) -> ClusterDiagnostics:
+        """Read back the sample → cluster map and the cluster images' stored depths
+        (ClusterDiagnostics) of the frame just rendered."""
+        raw = read_texture(self.clustering.bins_tex).astype(np.int64)  # raw bin + 1, 0 = not reflective
+        remap = np.full(int(max(raw.max(initial=0), np.max(stats.bin, initial=-1) + 1)) + 1, -1, np.int32)
+        remap[np.asarray(stats.bin, np.int64)] = np.arange(stats.n, dtype=np.int32)  # as the remap SSBO
+        cluster = np.where(raw > 0, remap[np.maximum(raw - 1, 0)], -1).astype(np.int32)
+        aw, ah = (int(atlas_size[0]), int(atlas_size[1])) if atlas_size[0] > 0 else (0, 0)
+        if aw > 0 and ah > 0:
+            depths = np.stack([read_texture(layer[0], (0, 0, aw, ah))[..., 3] for layer in layers])
+        else:
+            depths = np.full((3, 1, 1), BACKGROUND_DEPTH, np.float32)
+        k = len(cams)
+        vps = np.zeros((k, 4), np.int64)
+        for i, c in enumerate(cams):
+            x, y, w, h = (int(v) for v in c.atlas)
+            if c.valid and w > 0 and h > 0 and aw > 0:
+                vps[i] = (x, ah - (y + h), w, h)  # GL bottom-left → top row of the flipped read-back
+        return ClusterDiagnostics(
+            cluster_of_sample=cluster, layer_depths=depths.astype(np.float32), viewports=vps,
+            view_proj=np.asarray([c.view_projection() for c in cams], np.float64).reshape(k, 4, 4),
+            near=np.asarray([c.near for c in cams], np.float64), far=np.asarray([c.far for c in cams], np.float64),
+            valid=np.asarray([c.valid for c in cams], bool),
+            clip_planes=np.asarray([[*c.plane_normal, c.clip_offset] for c in cams], np.float64).reshape(k, 4))
 
     def render_envmap(self, scene_gpu: SceneGPU, camera: Camera, glossy_rays: int = 8,
                       supersample: int = 2) -> ClusterReflectionResult:

@@ -50,7 +50,8 @@ Averaging to output resolution (ss×ss blocks; sums in float64, then float32):
   none); ray_length: mean over the block's reflective samples, +inf if any of them
   missed, NaN where none is reflective (`aggregate_ray_length`, reusable on GL
   buffers rendered at ss·W × ss·H). The sample-resolution ray lengths and reflective
-  mask are kept in the result too.
+  mask are kept in the result too, with each mirror ray's hit point and hit-triangle
+  normal (for the thesis's occlusion-error test, reference.occlusion).
 
 Environment-map baseline: identical, except that no reflected ray is intersected:
 reflected = sky(r) for mirrors, the lobe mean of sky(dir) for glossy samples (the
@@ -80,11 +81,18 @@ DEFAULT_CHUNK = 1 << 15
 class ReflectionResult(ReflectionBuffers):
     """ReflectionBuffers (after the ss×ss averaging described in the module
     docstring) plus ray_length_samples and reflective_samples, the same at sample
-    resolution (ss·H, ss·W)."""
+    resolution (ss·H, ss·W); hit_points_samples (ss·H, ss·W, 3) float64 world-space
+    point where the mirror ray (the lobe axis for glossy samples, within the same far
+    limit as ray_length) first hits, NaN where the sample is not reflective or the ray
+    missed, and hit_normals_samples (ss·H, ss·W, 3) float32 the unit geometric normal
+    of the hit triangle there (NaN likewise); both are for the thesis's occlusion-error
+    test (reference.occlusion, §4.7.1). The environment-map baseline leaves them NaN."""
 
     supersample: int = 1
     ray_length_samples: np.ndarray | None = None
     reflective_samples: np.ndarray | None = None
+    hit_points_samples: np.ndarray | None = None
+    hit_normals_samples: np.ndarray | None = None
 
 
 def reflect(d: np.ndarray, n: np.ndarray) -> np.ndarray:
@@ -157,6 +165,8 @@ def _render(scene: Scene, camera: Camera, supersample: int, glossy_rays: int, tr
     spec = np.zeros(n_samples, np.float32)
     reflective = np.zeros(n_samples, bool)
     length = np.full(n_samples, np.nan)
+    hit_points = np.full((n_samples, 3), np.nan)
+    hit_normals = np.full((n_samples, 3), np.nan, np.float32)
 
     for start in range(0, n_samples, chunk):
         sl = slice(start, min(start + chunk, n_samples))
@@ -194,6 +204,9 @@ def _render(scene: Scene, camera: Camera, supersample: int, glossy_rays: int, tr
             far = glossy_far(diag, gs)
             axis = caster.intersect(origin, r, far)
             length[gi] = axis.t
+            ok = axis.hit
+            hit_points[gi[ok]] = origin[ok] + r[ok] * axis.t[ok, None]
+            hit_normals[gi[ok]] = face_n[axis.tri_id[ok].astype(np.int64) - 1]
             if np.any(mir):
                 col, _ = caster.shade_hits(_subset(axis, mir), r[mir])  # local shade on hit, sky on miss
                 out[mir] = col
@@ -241,6 +254,8 @@ def _render(scene: Scene, camera: Camera, supersample: int, glossy_rays: int, tr
         supersample=ss,
         ray_length_samples=len_img,
         reflective_samples=refl_img,
+        hit_points_samples=hit_points.reshape(*shape2, 3),
+        hit_normals_samples=hit_normals.reshape(*shape2, 3),
     )
 
 

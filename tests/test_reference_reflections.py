@@ -183,6 +183,14 @@ def test_planar_mirror_ray_length_matches_geometry(mirror_box_scene):
     sel = on & (key >= 0) & safe
     assert sel.sum() > 10
     np.testing.assert_allclose(res.ray_length.reshape(-1)[sel], t[sel], rtol=1e-4)
+    # hit point and hit-triangle normal per sample (the thesis's occlusion test): Q = P + t·r
+    # on a box face that faces the ray; NaN exactly where the ray misses or no sample reflects
+    hp = res.hit_points_samples.reshape(-1, 3)
+    np.testing.assert_allclose(hp[sel], p[sel] + r[sel] * t[sel, None], atol=1e-4)
+    assert np.array_equal(np.isfinite(hp).all(axis=1), np.isfinite(res.ray_length_samples.reshape(-1)))
+    hn = res.hit_normals_samples.reshape(-1, 3)[sel].astype(np.float64)
+    np.testing.assert_allclose(np.linalg.norm(hn, axis=1), 1.0, atol=1e-5)
+    assert np.all(np.sum(hn * r[sel], axis=1) < 0)
 
 
 def test_half_specular_is_exact_average(mirror_box_scene, mirror_box_result):
@@ -232,6 +240,7 @@ def test_envmap_baseline_is_sky_of_mirror_direction(mirror_box_scene):
     np.testing.assert_allclose(res.color[inner], expect[inner], atol=1e-6)
     assert np.all(np.isinf(res.ray_length[res.reflective]))
     assert np.all(np.isnan(res.ray_length[~res.reflective]))
+    assert np.isnan(res.hit_points_samples).all() and np.isnan(res.hit_normals_samples).all()
 
 
 def test_supersample_equals_block_average_of_double_resolution(mirror_box_scene):
