@@ -194,13 +194,37 @@ def uncaptured_error_mask(reflective_samples: np.ndarray, hit_points_samples: np
     """(H,W) bool occlusion-error pixels of the thesis's definition from sample
     resolution (ss·H, ss·W) inputs: a pixel is one when a reflective sample of its
     ss×ss block has a true hit (finite hit point) that is not `captured`."""
+    bad = uncaptured_sample_mask(reflective_samples, hit_points_samples, captured)
+    if bad.shape[0] % ss or bad.shape[1] % ss:
+        raise ValueError(f"sample image {bad.shape} is not a multiple of ss = {ss}")
+    h, w = bad.shape[0] // ss, bad.shape[1] // ss
+    return bad.reshape(h, ss, w, ss).any(axis=(1, 3))
+
+
+def uncaptured_sample_mask(reflective_samples: np.ndarray, hit_points_samples: np.ndarray,
+                           captured: np.ndarray) -> np.ndarray:
+    """(ss·H, ss·W) bool: reflective samples whose mirror ray has a true hit
+    (finite hit point) that its cluster image does not hold."""
     refl = np.asarray(reflective_samples, bool)
     pts = np.asarray(hit_points_samples)
     cap = np.asarray(captured, bool)
     if not (refl.shape == cap.shape == pts.shape[:-1]):
         raise ValueError(f"shapes differ: {refl.shape}, {pts.shape}, {cap.shape}")
-    if refl.shape[0] % ss or refl.shape[1] % ss:
-        raise ValueError(f"sample image {refl.shape} is not a multiple of ss = {ss}")
-    bad = refl & np.all(np.isfinite(pts), axis=-1) & ~cap
-    h, w = refl.shape[0] // ss, refl.shape[1] // ss
-    return bad.reshape(h, ss, w, ss).any(axis=(1, 3))
+    return refl & np.all(np.isfinite(pts), axis=-1) & ~cap
+
+
+def uncaptured_ray_percentage(reflective_samples: np.ndarray, hit_points_samples: np.ndarray,
+                              captured: np.ndarray) -> float:
+    """The thesis's occlusion error per reflected ray: 100 · (uncaptured reflective
+    samples) / (reflective samples); 0 without reflective samples. The thesis's
+    "reflective pixels" are those of its first pass (§4.7: "generates the
+    reflective pixels in the first rendering pass"), which runs at the 2×2
+    supersampled resolution (512² output = 1024² first-pass pixels, §4.7.1), each
+    with one mirror ray ("the reflected ray of each reflective pixel of the
+    cluster", §4.2) — i.e. our samples. `uncaptured_error_mask` counts an output
+    pixel instead, when any of its ss×ss rays is an error (the stricter count)."""
+    refl = np.asarray(reflective_samples, bool)
+    n = int(refl.sum())
+    if n == 0:
+        return 0.0
+    return 100.0 * float(uncaptured_sample_mask(refl, hit_points_samples, captured).sum()) / n

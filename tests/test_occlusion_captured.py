@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from reference.occlusion import EMPTY_DEPTH, captured_mask, uncaptured_error_mask
+from reference.occlusion import EMPTY_DEPTH, captured_mask, uncaptured_error_mask, uncaptured_ray_percentage
 
 EMPTY = 1e30
 N_FRONT = np.array([0.0, 0.0, 1.0])  # a surface facing the camera (which looks down −z)
@@ -170,6 +170,9 @@ def test_uncaptured_pixels_aggregate_like_the_strict_metric():
     assert uncaptured_error_mask(refl, pts, cap, 2).tolist() == [[True, False]]
     with pytest.raises(ValueError):
         uncaptured_error_mask(refl, pts, cap, 3)
+    # Per reflected ray: 1 uncaptured true hit among 4 reflective samples.
+    assert uncaptured_ray_percentage(refl, pts, cap) == 25.0
+    assert uncaptured_ray_percentage(np.zeros((2, 4), bool), pts, cap) == 0.0
 
 
 # --- GL diagnostics ----------------------------------------------------------------
