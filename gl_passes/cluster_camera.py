@@ -261,9 +261,11 @@ def finish_cameras(cams: list[ClusterCamera], ext: np.ndarray, camera: Camera, s
 
 
 def pack_atlas(cams: list[ClusterCamera], max_size: int = 8192, budget: float | None = None) -> tuple[int, int]:
-    """Shelf-pack the cluster images (tallest first). All of them shrink uniformly
-    when their total area exceeds `budget` texels or the atlas would exceed
-    max_size² (reported via each camera's resolution and spacing).
+    """Shelf-pack the cluster images (tallest first). When their total area exceeds
+    `budget` texels the non-planar images shrink uniformly; planar clusters keep
+    their texel = sample grid (exact intersections, one texel per sample, so they
+    cost little), unless they alone exceed the budget. All shrink uniformly when the
+    atlas would exceed max_size² (reported via each camera's resolution and spacing).
     Returns the atlas (width, height)."""
     live = [c for c in cams if c.valid]
     for c in cams:
@@ -272,9 +274,16 @@ def pack_atlas(cams: list[ClusterCamera], max_size: int = 8192, budget: float | 
     if not live:
         return 1, 1
     total = float(sum(c.resolution[0] * c.resolution[1] for c in live))
-    scale = min(1.0, float(np.sqrt(budget / total))) if budget else 1.0
+    fixed = float(sum(c.resolution[0] * c.resolution[1] for c in live if c.planar))
+    scale = fscale = 1.0
+    if budget and total > budget:
+        if fixed < 0.5 * budget and total > fixed:
+            scale = float(np.sqrt((budget - fixed) / (total - fixed)))
+        else:
+            scale = fscale = float(np.sqrt(budget / total))
     for _ in range(20):
-        res = {c.index: (max(1, int(np.ceil(c.resolution[0] * scale))), max(1, int(np.ceil(c.resolution[1] * scale))))
+        res = {c.index: (max(1, int(np.ceil(c.resolution[0] * (fscale if c.planar else scale)))),
+                         max(1, int(np.ceil(c.resolution[1] * (fscale if c.planar else scale)))))
                for c in live}
         area = sum(w * h for w, h in res.values())
         width = int(min(max_size, max(max(w for w, _ in res.values()), np.ceil(np.sqrt(area * 1.15)))))
@@ -289,7 +298,8 @@ def pack_atlas(cams: list[ClusterCamera], max_size: int = 8192, budget: float | 
         height = y + shelf
         if height <= max_size and width <= max_size:
             break
-        scale *= 0.9 * np.sqrt(max_size * max_size / (width * max(height, 1)))
+        shrink = 0.9 * np.sqrt(max_size * max_size / (width * max(height, 1)))
+        scale, fscale = scale * shrink, fscale * shrink
     for c in live:
         x, y, w, h = place[c.index]
         if (w, h) != c.resolution:  # shrunk to fit: widen the texel spacing accordingly

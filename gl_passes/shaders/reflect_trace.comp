@@ -5,13 +5,21 @@
 // [z_lo, z_hi] first reaches the stored depth D (D <= z_hi) and the surface is not
 // in front of the span by more than u_thickness·(z_hi - z_lo) (else the ray passes
 // behind a thin surface and marching goes on), and never in front of the ray's entry
-// depth. Two layers per cluster image: other objects / the cluster's own reflector. Miss -> sky (mirror) or the diffuse
+// depth. Three layers per cluster image: other objects / the cluster's own reflector /
+// its second surface. Miss -> sky (mirror) or the diffuse
 // colour (glossy: a miss within far contributes diffuse, §4.6 / reference).
 // u_mode 1 = environment map baseline (no intersection).
 // With CROSSING defined, also a hit where the ray goes from in front of a layer's
 // surface (previous step) to behind it (this step) while that surface's depth jumps
 // by at most u_continuity of itself between the two texels (steep surface, not a
 // silhouette); the hit point is where the inverse depths cross between the steps.
+// With SURFACE_CROSSING defined (u_slope > 0), also a hit where the ray goes from in
+// front of a layer's surface interpolated at the ray's exact image point (bilinear in
+// 1/z over the 2×2 texels around it) to behind it between two steps, both footprints
+// continuous (depths within 1 + 1.5·u_slope·texel angle); with NEAR_CROSSING
+// (u_near_steps > 0), in the ray's first u_near_steps texels a thin-surface hit
+// counts only where the ray crosses the interpolated surface inside the step (the
+// ray starts on its reflector, within the thin-surface tolerance of its texels).
 layout(local_size_x = TRACE_GX, local_size_y = TRACE_GY) in;
 #include "common.glsl"
 #include "reflect_common.glsl"
@@ -41,6 +49,9 @@ uniform int u_rays;
 uniform vec2 u_lobe[MAX_RAYS];
 uniform float u_thickness;
 uniform float u_continuity;  // crossing rule: max relative depth jump of a continuous surface
+#ifdef NEAR_CROSSING
+uniform int u_near_steps;
+#endif
 layout(rgba32f, binding = 1) writeonly uniform image2D u_out;  // reflected rgb, mirror-ray length
 
 float f_inf() { return uintBitsToFloat(0x7f800000u); }
@@ -86,6 +97,27 @@ vec4 surface_at(sampler2D atlas, ivec2 org, ivec2 top, vec2 pix, float D, float 
     return wsum > 1e-6 ? acc / wsum : vec4(texelFetch(atlas, org + clamp(ivec2(floor(pix)), ivec2(0), top), 0).rgb, D);
 }
 
+#ifdef SURFACE_CROSSING
+uniform float u_slope;  // steepest surface (tan of its angle to the view ray) treated as continuous
+// Per layer (other objects, reflector, reflector 2nd) inverse depth of the stored
+// surface at image point pix: bilinear over the 2×2 texels around pix in inverse
+// depth (exact on planes); ok[l] where those four depths lie within the relative
+// span `rel` (one continuous surface, not a silhouette or the background).
+vec3 surface_inv(ivec2 org, ivec2 top, vec2 pix, float rel, out bvec3 ok) {
+    vec2 f = pix - 0.5;
+    ivec2 b = ivec2(floor(f));
+    vec2 w = f - floor(f);
+    vec3 acc = vec3(0.0), lo = vec3(3.0e38), hi = vec3(0.0);
+    for (int j = 0; j < 2; ++j) for (int i = 0; i < 2; ++i) {
+        vec3 d = texelFetch(u_pack, org + clamp(b + ivec2(i, j), ivec2(0), top), 0).xyz;
+        acc += (i == 1 ? w.x : 1.0 - w.x) * (j == 1 ? w.y : 1.0 - w.y) / d;
+        lo = min(lo, d); hi = max(hi, d);
+    }
+    ok = lessThanEqual(hi, lo * (1.0 + rel));
+    return acc;
+}
+#endif
+
 // Hit refinement inside the step [alo, ahi]: where the ray's depth crosses the
 // bilinearly interpolated surface depth. Returns the image
 // parameter of the crossing, or -1 when the ray does not cross there.
@@ -127,6 +159,14 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
     vec3 prev_d = vec3(0.0);
     float prev_z = 0.0, prev_a = 0.0;
     bool prev_ok = false;
+#ifdef SURFACE_CROSSING
+    // Surface crossing: the ray's inverse depth minus the interpolated surface's at
+    // the previous step (valid when sc_ok), per layer.
+    vec3 sc_g = vec3(0.0);
+    bvec3 sc_c = bvec3(false);
+    bool sc_ok = false;
+    float sc_rel = u_slope * 1.5 * max((F.rect.z - F.rect.x) / wh.x, (F.rect.w - F.rect.y) / wh.y);
+#endif
     for (int k = 0; k <= steps; ++k) {
         float ac = float(k) / float(steps);
         vec2 pix = mix(s2, e2, ac);
@@ -146,6 +186,9 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
                 if (texelFetch(u_coarse, cb, 0).r > zmax * (1.0 + 1e-5)) {
                     k = last;  // the ray stays in front of every surface up to step `last`
                     prev_ok = false;
+#ifdef SURFACE_CROSSING
+                    sc_ok = false;
+#endif
                     continue;
                 }
             }
@@ -161,7 +204,11 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
         bool pok = prev_ok;
         prev_d = pk; prev_z = zc; prev_a = ac; prev_ok = true;
         // Fast reject (the common case): every stored surface behind the ray here.
+#ifdef SURFACE_CROSSING
+        if (min(pk.x, pk.y) > zhi * (1.0 + 1e-5)) { sc_ok = false; continue; }
+#else
         if (min(pk.x, pk.y) > zhi * (1.0 + 1e-5)) continue;
+#endif
         float tol = u_thickness * (zhi - zlo) + 1e-4 * zhi;
         float lower = max(zlo - tol, zfirst);
         bool h0 = layer_hit(pk.x, zhi, lower);
@@ -181,11 +228,57 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
             h0 = h0 || xing.x; h1 = h1 || xing.y; h2 = h2 || xing.z;
         }
 #endif
+#ifdef SURFACE_CROSSING
+        // Surface crossing: the ray is in front of a layer's interpolated surface at
+        // the previous step and behind it now, that surface continuous around both
+        // points: a steep surface crossed between texel centres.
+        bvec3 sx = bvec3(false);
+        vec3 sxa = vec3(0.0);
+        // Cheap pre-test on the nearest texels (a continuous 2×2 footprint spans at
+        // most a factor 1 + sc_rel): the ray not far behind the previous texel's
+        // surface and not far in front of this one's.
+        bvec3 cand = bvec3(vec3(lessThanEqual(pk, vec3(zc * (1.0 + sc_rel))))
+                           * (pok ? vec3(greaterThanEqual(pd * (1.0 + sc_rel), vec3(pz))) : vec3(1.0)));
+        if (k > 0 && any(cand)) {
+            bvec3 ck;
+            vec3 gk = vec3(mix(is2, ie2, ac)) - surface_inv(org, top, pix, sc_rel, ck);
+            float ap = float(k - 1) / float(steps);
+            if (!sc_ok) sc_g = vec3(mix(is2, ie2, ap)) - surface_inv(org, top, mix(s2, e2, ap), sc_rel, sc_c);
+            sx = bvec3(vec3(cand) * vec3(sc_c) * vec3(ck) * vec3(greaterThanEqual(sc_g, vec3(0.0)))
+                       * vec3(lessThan(gk, vec3(0.0))));
+            sxa = ap + (ac - ap) * sc_g / max(sc_g - gk, vec3(1e-30));
+            sc_g = gk; sc_c = ck; sc_ok = true;
+        } else sc_ok = false;
+        h0 = h0 || sx.x; h1 = h1 || sx.y; h2 = h2 || sx.z;
+#endif
         if (!(h0 || h1 || h2)) continue;
         // The sample's own triangle is never a hit (checked only on candidate hits).
         if (h1) h1 = texelFetch(u_atlas_self_tri, org + tx, 0).r != g_own_tri;
         if (h2) h2 = texelFetch(u_atlas_peel_tri, org + tx, 0).r != g_own_tri;
         if (!(h0 || h1 || h2)) continue;
+        float dtol;
+        vec3 ars = vec3(-2.0);  // refined crossings, computed here only near the origin
+#ifdef NEAR_CROSSING
+        // Near the ray's origin (its first u_near_steps texels) the ray lies on or
+        // next to its reflector, whose texels (and those of surfaces touching it) are
+        // within the thin-surface tolerance of the ray: there a hit needs the ray to
+        // cross the interpolated surface inside the step (a refined crossing).
+        if (a0 <= 0.0 && k <= u_near_steps) {
+            for (int l = 0; l < 3; ++l) {
+                bool h = l == 0 ? h0 : (l == 1 ? h1 : h2);
+#ifdef SURFACE_CROSSING
+                if (sx[l]) continue;
+#endif
+                if (!h || xing[l]) continue;
+                dtol = max(2.0 * tol, 5e-3 * pk[l]);
+                ars[l] = l == 0 ? refine(u_atlas, org, top, s2, e2, is2, ie2, alo, ahi, pk[l], dtol)
+                         : (l == 1 ? refine(u_atlas_self, org, top, s2, e2, is2, ie2, alo, ahi, pk[l], dtol)
+                                   : refine(u_atlas_peel, org, top, s2, e2, is2, ie2, alo, ahi, pk[l], dtol));
+                if (ars[l] < 0.0) { if (l == 0) h0 = false; else if (l == 1) h1 = false; else h2 = false; }
+            }
+            if (!(h0 || h1 || h2)) continue;
+        }
+#endif
         // Several layers hit in this step: the surface met first along the ray.
         bool away = ie2 < is2;  // depth grows along the ray
         int layer = -1;
@@ -193,9 +286,25 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
         for (int l = 0; l < 3; ++l) {
             bool h = l == 0 ? h0 : (l == 1 ? h1 : h2);
             float Dl = pk[l];
+#ifdef SURFACE_CROSSING
+            if (sx[l]) Dl = 1.0 / mix(is2, ie2, sxa[l]);
+#endif
             if (h && (layer < 0 || (away ? Dl < D : Dl > D))) { layer = l; D = Dl; }
         }
-        float dtol = max(2.0 * tol, 5e-3 * D);
+        dtol = max(2.0 * tol, 5e-3 * D);
+#ifdef SURFACE_CROSSING
+        if (sx[layer]) {
+            ac = sxa[layer]; pix = mix(s2, e2, ac);
+            dtol = max(5e-3 * D, sc_rel * D);
+            col = (layer == 0 ? surface_at(u_atlas, org, top, pix, D, dtol)
+                   : (layer == 1 ? surface_at(u_atlas_self, org, top, pix, D, dtol)
+                                 : surface_at(u_atlas_peel, org, top, pix, D, dtol))).rgb;
+            float ao = mix(a0, a1, ac);
+            if (abs(ze - zs) > 1e-5 * zs) t_hit = t0 + (t1 - t0) * clamp((D - zs) / (ze - zs), 0.0, 1.0);
+            else t_hit = t0 + (t1 - t0) * ao * ie / mix(is, ie, ao);
+            return true;
+        }
+#endif
         if (xing[layer] && !(D <= zhi * (1.0 + 1e-5) && D >= lower)) {
             // Crossed between the previous step's centre and this one: the crossing of
             // the ray's and the surface's inverse depths, both linear between them.
@@ -211,7 +320,7 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
             else t_hit = t0 + (t1 - t0) * ao * ie / mix(is, ie, ao);
             return true;
         }
-        float ar = layer == 0 ? refine(u_atlas, org, top, s2, e2, is2, ie2, alo, ahi, D, dtol)
+        float ar = ars[layer] > -2.0 ? ars[layer] : layer == 0 ? refine(u_atlas, org, top, s2, e2, is2, ie2, alo, ahi, D, dtol)
                  : (layer == 1 ? refine(u_atlas_self, org, top, s2, e2, is2, ie2, alo, ahi, D, dtol)
                                : refine(u_atlas_peel, org, top, s2, e2, is2, ie2, alo, ahi, D, dtol));
         if (ar >= 0.0) { ac = ar; pix = mix(s2, e2, ar); D = 1.0 / mix(is2, ie2, ar); }
