@@ -258,7 +258,10 @@ def done_when(quality: list[dict], timings: list[dict], paths: list[dict]) -> li
 
 
 def write_report(out: Path, info: dict, quality: list[dict], timings: list[dict], paths: list[dict],
-                 res: int, frames: int, path_res: int) -> None:
+                 res: int, frames: int, path_res: int, sweeps: list[dict] | None = None) -> None:
+    """reflections.md; sweeps: Tables 15–18, 20 from bench/reflection_sweeps.py."""
+    from bench.reflection_sweeps import sweeps_markdown
+
     def f(x, d=1):
         return f"{x:.{d}f}"
 
@@ -311,6 +314,7 @@ def write_report(out: Path, info: dict, quality: list[dict], timings: list[dict]
                           mm(p, "strict_not_captured_pct"),
                           mm(p, "strict_captured_pct"), f"{p['clusters_max']} / {f(p['clusters_mean'])}"]
                          for p in paths]), ""]
+    md += sweeps_markdown(sweeps or [])
     write_text(out.with_suffix(".md"), "\n".join(md))
 
 
@@ -332,7 +336,7 @@ def main(argv: list[str] | None = None) -> None:
         for q in data["quality"]:
             q.setdefault("triangles", int(len(load_named_scene(q["scene"]).faces)))
         write_report(out, data["machine"], data["quality"], data["timings"], data["paths"], args.res,
-                     args.frames, args.path_res)
+                     args.frames, args.path_res, data.get("sweeps"))
         print(out.with_suffix(".md").read_text())
         return
 
@@ -354,8 +358,11 @@ def main(argv: list[str] | None = None) -> None:
             print("paths", paths[-2:], flush=True)
         sg.release()
     info = machine_info(gl)
-    write_json(out.with_suffix(".json"), {"machine": info, "quality": quality, "timings": timings, "paths": paths})
-    write_report(out, info, quality, timings, paths, args.res, args.frames, args.path_res)
+    old = json.loads(out.with_suffix(".json").read_text()) if out.with_suffix(".json").exists() else {}
+    sweeps = old.get("sweeps")  # Tables 15–18, 20 come from bench/reflection_sweeps.py
+    write_json(out.with_suffix(".json"), {"machine": info, "quality": quality, "timings": timings, "paths": paths,
+                                          **({"sweeps": sweeps} if sweeps else {})})
+    write_report(out, info, quality, timings, paths, args.res, args.frames, args.path_res, sweeps)
     refl.release()
     print(out.with_suffix(".md").read_text())
 
