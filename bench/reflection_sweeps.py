@@ -67,8 +67,15 @@ def _embree(scene, cam, **kw):
     return ref, (time.perf_counter() - t0) * 1e3
 
 
-def _occlusion_ray_pct(scene, sg, refl, cam, ref) -> float:
-    return occlusion_metrics(refl.render(sg, cam, diagnostics=True), ref)[0]["occlusion_thesis_ray_pct"]
+def _config_row(gl, sg: SceneGPU, cam, ref, repeat: int, **options) -> dict:
+    """fps, cluster count and thesis occlusion error per ray of ClusterReflections(**options)."""
+    refl = ClusterReflections(gl, **options)
+    try:
+        r, total, _ = _ours(refl, sg, cam, repeat)
+        occ = occlusion_metrics(refl.render(sg, cam, diagnostics=True), ref)[0]["occlusion_thesis_ray_pct"]
+    finally:
+        refl.release()
+    return {"clusters": r.n_clusters, "fps": 1e3 / total, "occlusion_thesis_ray_pct": occ}
 
 
 def sweep_scene(gl, name: str, res: int, repeat: int, tables: set[str]) -> dict:
@@ -78,16 +85,14 @@ def sweep_scene(gl, name: str, res: int, repeat: int, tables: set[str]) -> dict:
     out: dict = {"scene": name, "res": res}
     try:
         ref, _ = _embree(scene, cam)
-        if "15" in tables:
-            rows = []
-            for bs in BIN_SCALES:
-                refl = ClusterReflections(gl, bin_scale=bs)
-                r, total, _ = _ours(refl, sg, cam, repeat)
-                rows.append({"bin_scale": bs, "clusters": r.n_clusters, "fps": 1e3 / total,
-                             "occlusion_thesis_ray_pct": _occlusion_ray_pct(scene, sg, refl, cam, ref)})
-                refl.release()
-                print(name, "T15", rows[-1], flush=True)
-            out["table15"] = rows
+        # Tables 15 and 17: one ClusterReflections option swept (row key, option name, values).
+        for table, key, option, values in (("15", "bin_scale", "bin_scale", BIN_SCALES),
+                                           ("17", "scale", "resolution_scale", IMAGE_SCALES)):
+            if table in tables:
+                out[f"table{table}"] = rows = []
+                for v in values:
+                    rows.append({key: v, **_config_row(gl, sg, cam, ref, repeat, **{option: v})})
+                    print(name, f"T{table}", rows[-1], flush=True)
         refl = ClusterReflections(gl)
         try:
             if "16" in tables:
@@ -111,16 +116,6 @@ def sweep_scene(gl, name: str, res: int, repeat: int, tables: set[str]) -> dict:
                 out["table20"] = rows
         finally:
             refl.release()
-        if "17" in tables:
-            rows = []
-            for sc in IMAGE_SCALES:
-                refl = ClusterReflections(gl, resolution_scale=sc)
-                _, total, _ = _ours(refl, sg, cam, repeat)
-                rows.append({"scale": sc, "fps": 1e3 / total,
-                             "occlusion_thesis_ray_pct": _occlusion_ray_pct(scene, sg, refl, cam, ref)})
-                refl.release()
-                print(name, "T17", rows[-1], flush=True)
-            out["table17"] = rows
     finally:
         sg.release()
     if "18" in tables:

@@ -274,26 +274,13 @@ def test_scene_without_reflectors_is_the_diffuse_image(gl, refl):
     assert np.allclose(ours.color, ours.diffuse)
 
 
-def test_crossing_rule_option_keeps_mirror_exact_and_curved_bounds(gl):
-    """The optional crossing rule (continuity > 0, compiled in only then) keeps the
-    planar mirror exact and the curved bounds."""
-    r = ClusterReflections(gl, continuity=0.1)
-    try:
-        scene = planar_mirror_scene()
-        cam = default_camera(96)
-        ours = _render(gl, r, scene, cam)
-        ref = raytrace_reflections(scene, cam)
-        assert int(occlusion_error_mask(ours.ray_length, ref.ray_length, ref.reflective).sum()) == 0
-        _check_curved(gl, r, mirror_object_scene(sphere_mesh(), "sphere"))
-    finally:
-        r.release()
-
-
-@pytest.mark.parametrize("slope, near_steps", [(0.0, 0), (10.0, 4)])
-def test_hit_rule_options_keep_mirror_exact_and_curved_bounds(gl, slope, near_steps):
-    """Surface-crossing and near-origin rules compiled out (plain thin-surface rule)
-    or both on: the planar mirror stays exact and the curved bounds hold."""
-    r = ClusterReflections(gl, slope=slope, near_steps=near_steps)
+@pytest.mark.parametrize("options", [{"continuity": 0.1}, {"slope": 0.0, "near_steps": 0},
+                                     {"slope": 10.0, "near_steps": 4}])
+def test_hit_rule_options_keep_mirror_exact_and_curved_bounds(gl, options):
+    """The optional hit rules (crossing rule `continuity`, surface crossing `slope`,
+    near-origin `near_steps`; each compiled in only when on) and the plain
+    thin-surface rule keep the planar mirror exact and the curved bounds."""
+    r = ClusterReflections(gl, **options)
     try:
         scene = planar_mirror_scene()
         cam = default_camera(96)
