@@ -287,8 +287,9 @@ def sweep_plots(sweep: dict, out_dir: Path) -> list[str]:
     res = sweep["res"]
     figs = [
         ("13", "redundant samples of conventional images", "conventional", "redundant_frac"),
-        ("14", "occluded samples of non-redundant images", "non_redundant", "occluded_frac"),
-        ("15", "useful share of occluded samples (non-redundant)", "non_redundant", "useful_frac_of_occluded"),
+        ("14", "occluded samples of non-redundant images (issue reading)", "non_redundant", "occluded_frac"),
+        ("15", "useful share of occluded samples (non-redundant, issue reading)", "non_redundant",
+         "useful_frac_of_occluded"),
     ]
     names = []
     for num, title, method, key in figs:
