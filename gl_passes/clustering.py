@@ -36,6 +36,7 @@ import moderngl
 import numpy as np
 
 from gl_passes.context import GLContext
+from gl_passes.readback import read_texture
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
 
@@ -100,6 +101,7 @@ class ClusteringPass:
         self.count_prog = compute_program(gl, "cluster_count.comp")
         self.assign_prog = compute_program(gl, "cluster_assign.comp")
         self.bins_tex: moderngl.Texture | None = None
+        self._remap = np.full(1, -1, np.int32)  # raw bin → cluster index of the last run (−1: empty bin)
         self._buffers: dict[str, moderngl.Buffer] = {}
 
     def buffer(self, name: str, data: bytes) -> moderngl.Buffer:
@@ -176,10 +178,17 @@ class ClusteringPass:
         owner = objs[np.searchsorted(base[objs], nonempty, side="right") - 1] if len(nonempty) else objs[:0]
         remap = np.full(max(n_bins, 1), -1, np.int32)
         remap[nonempty] = np.arange(len(nonempty), dtype=np.int32)
+        self._remap = remap
         self.buffer("remap", remap.tobytes()).bind_to_storage_buffer(3)
         return ClusterStats(object_id=owner, bin=nonempty, count=count, mean_position=mean_pos,
                             mean_normal=unit_n, normal_sum_length=length, bins_per_object=bins,
                             object_samples=obj_samples)
+
+    def cluster_of_samples(self) -> np.ndarray:
+        """(H,W) int32 cluster index (into the last run's ClusterStats) of each
+        G-buffer sample, −1 for non-reflective samples (a read-back: diagnostics only)."""
+        raw = read_texture(self.bins_tex).astype(np.int64)  # raw bin + 1, 0 = not reflective
+        return np.where(raw > 0, self._remap[np.maximum(raw - 1, 0)], -1).astype(np.int32)
 
     def release(self) -> None:
         self.gl.check_thread()

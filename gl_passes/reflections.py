@@ -73,7 +73,7 @@ import numpy as np
 
 from gl_passes import cluster_camera as cc
 from gl_passes.cluster_camera import ClusterCamera, ClusterExtentPass
-from gl_passes.clustering import ClusteringPass, ClusterStats
+from gl_passes.clustering import ClusteringPass
 from gl_passes.context import GLContext
 from gl_passes.gbuffer import GBufferPass
 from gl_passes.readback import read_texture
@@ -109,7 +109,7 @@ class ClusterDiagnostics:
     the linear depth along its cluster camera's axis (= clip w of view_proj;
     BACKGROUND_DEPTH where empty); viewports (K, 4) int64 (x, y, w, h) of each
     cluster image in layer_depths with y its TOP row (w = h = 0: no image, invalid
-    camera); view_proj (K, 4, 4) float64; near, far (K,) float64; valid (K,) bool;
+    camera); view_proj (K, 4, 4) float64 (its NDC z bounds near/far);
     clip_planes (K, 4) float64 (n, c): the image holds only n·X ≥ c (the fitting
     plane clip)."""
 
@@ -117,9 +117,6 @@ class ClusterDiagnostics:
     layer_depths: np.ndarray
     viewports: np.ndarray
     view_proj: np.ndarray
-    near: np.ndarray
-    far: np.ndarray
-    valid: np.ndarray
     clip_planes: np.ndarray
 
 
@@ -382,21 +379,17 @@ class ClusterReflections:
         dif = read_texture(out["out_diffuse"])
         lap("resolve")
         timings["total"] = (time.perf_counter() - t_start) * 1e3
-        diag = self._diagnostics(stats, cams, layers, atlas_size) if diagnostics else None
+        diag = self._diagnostics(cams, layers, atlas_size) if diagnostics else None
         return ClusterReflectionResult(
             color=col[..., :3].copy(), reflected=ref[..., :3].copy(), diffuse=dif[..., :3].copy(),
             specular=col[..., 3].copy(), reflective=dif[..., 3] > 0, ray_length=ref[..., 3].astype(np.float64),
             method=method, supersample=ss, n_clusters=len(cams), cameras=cams, timings_ms=timings,
             atlas_size=atlas_size, drawn_chunks=drawn, diagnostics=diag)
 
-    def _diagnostics(self, stats: ClusterStats, cams: list[ClusterCamera], layers: list,
+    def _diagnostics(self, cams: list[ClusterCamera], layers: list,
                      atlas_size: tuple[int, int]) -> ClusterDiagnostics:
         """Read back the sample → cluster map and the cluster images' stored depths
         (ClusterDiagnostics) of the frame just rendered."""
-        raw = read_texture(self.clustering.bins_tex).astype(np.int64)  # raw bin + 1, 0 = not reflective
-        remap = np.full(int(max(raw.max(initial=0), np.max(stats.bin, initial=-1) + 1)) + 1, -1, np.int32)
-        remap[np.asarray(stats.bin, np.int64)] = np.arange(stats.n, dtype=np.int32)  # as the remap SSBO
-        cluster = np.where(raw > 0, remap[np.maximum(raw - 1, 0)], -1).astype(np.int32)
         aw, ah = (int(atlas_size[0]), int(atlas_size[1])) if atlas_size[0] > 0 else (0, 0)
         if aw > 0 and ah > 0:
             depths = np.stack([read_texture(layer[0], (0, 0, aw, ah))[..., 3] for layer in layers])
@@ -409,10 +402,8 @@ class ClusterReflections:
             if c.valid and w > 0 and h > 0 and aw > 0:
                 vps[i] = (x, ah - (y + h), w, h)  # GL bottom-left → top row of the flipped read-back
         return ClusterDiagnostics(
-            cluster_of_sample=cluster, layer_depths=depths.astype(np.float32), viewports=vps,
-            view_proj=np.asarray([c.view_projection() for c in cams], np.float64).reshape(k, 4, 4),
-            near=np.asarray([c.near for c in cams], np.float64), far=np.asarray([c.far for c in cams], np.float64),
-            valid=np.asarray([c.valid for c in cams], bool),
+            cluster_of_sample=self.clustering.cluster_of_samples(), layer_depths=depths.astype(np.float32),
+            viewports=vps, view_proj=np.asarray([c.view_projection() for c in cams], np.float64).reshape(k, 4, 4),
             clip_planes=np.asarray([[*c.plane_normal, c.clip_offset] for c in cams], np.float64).reshape(k, 4))
 
     def render_envmap(self, scene_gpu: SceneGPU, camera: Camera, glossy_rays: int = 8,

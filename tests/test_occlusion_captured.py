@@ -217,7 +217,8 @@ def test_planar_mirror_has_no_thesis_occlusion_error(gl, refl):
     assert set(np.unique(d.cluster_of_sample).tolist()) == {-1, 0}
     # the G-buffer's reflective samples are the reference's (up to a silhouette sample)
     assert np.sum((d.cluster_of_sample >= 0) != ref.reflective_samples) <= 2
-    assert d.layer_depths.shape[0] == 3 and d.viewports.shape == (1, 4) and d.valid.tolist() == [True]
+    # one cluster, its camera valid (a non-empty image)
+    assert d.layer_depths.shape[0] == 3 and d.viewports.shape == (1, 4) and np.all(d.viewports[:, 2:] > 0)
     cap = _captured(ours, ref)
     hits = ref.reflective_samples & np.isfinite(ref.hit_points_samples[..., 0]) & (d.cluster_of_sample >= 0)
     assert hits.sum() > 1000 and cap[hits].all()
