@@ -360,26 +360,24 @@ def view_independent_table(results: list[dict], red: str, thesis: dict) -> tuple
             if t:
                 diffs["all"].append(abs(100 * conv[i] - t["conv"][i]))
         rows.append([r["scene"], "conventional: redundant", *cells])
+        nr, pe = m[f"{red}/non_redundant"], m[f"{red}/peeling"]
+        # (row label, thesis key, gap lists: "all" over I0-I2, "nr_*" over I1-I2, occluded, useful)
+        variants = [("non-redundant: occluded (useful), issue reading", "nr", ("all", "nr_all"),
+                     nr["occluded_frac"], nr["useful_frac_of_occluded"])]
         lit = _earlier_fracs(m, red)
-        variants = [("non_redundant", "nr", "all", None), ("peeling", "peel", None, None)]
         if lit is not None:
-            variants.insert(1, ("non_redundant", "nr", "earlier", lit))
-        for method, key, reading, fr in variants:
-            mm = m[f"{red}/{method}"]
-            occ, use = fr if fr is not None else (mm["occluded_frac"], mm["useful_frac_of_occluded"])
+            variants.append(("non-redundant: occluded (useful), thesis reading ¹", "nr", ("nr_earlier",), *lit))
+        variants.append(("depth peeling: occluded (useful)", "peel", ("all",), pe["occluded_frac"],
+                         pe["useful_frac_of_occluded"]))
+        for label, key, gap_keys, occ, use in variants:
             cells = []
             for i in range(3):
                 th = t[key][i] if t else None
                 cells.append(_pair(occ[i], use[i], th))
                 if th:
-                    gap = [abs(100 * occ[i] - th[0]), abs(100 * use[i] - th[1])]
-                    if reading != "earlier":
-                        diffs["all"] += gap
-                    if reading and i > 0:
-                        diffs[f"nr_{reading}"] += gap
-            label = {"all": "non-redundant: occluded (useful), issue reading",
-                     "earlier": "non-redundant: occluded (useful), thesis reading ¹"}.get(reading or "",
-                                                                                    "depth peeling: occluded (useful)")
+                    for k in gap_keys:
+                        if k == "all" or i > 0:
+                            diffs[k] += [abs(100 * occ[i] - th[0]), abs(100 * use[i] - th[1])]
             rows.append([r["scene"], label, *cells])
     return md_table(["scene", "metric [%]", "I0 (V0 / peel layer 0)", "I1", "I2"], rows), diffs
 

@@ -142,8 +142,8 @@ class SamplingMetrics:
     available: list[float]
     n_views: int
     redundant_edge_ties: list[int] | None = None
-    occluded_earlier: list[int] | None = None
-    useful_earlier: list[int] | None = None
+    occluded_earlier: list[int] = field(default_factory=list)
+    useful_earlier: list[int] = field(default_factory=list)
     occluded_masks: list[np.ndarray] | None = field(default=None, repr=False, compare=False)
     useful_masks: list[np.ndarray] | None = field(default=None, repr=False, compare=False)
 
@@ -200,8 +200,8 @@ class SamplingMetrics:
             "redundant_edge_ties": None if self.redundant_edge_ties is None else list(self.redundant_edge_ties),
             "occluded": list(self.occluded),
             "useful": list(self.useful),
-            "occluded_earlier": None if self.occluded_earlier is None else list(self.occluded_earlier),
-            "useful_earlier": None if self.useful_earlier is None else list(self.useful_earlier),
+            "occluded_earlier": list(self.occluded_earlier),
+            "useful_earlier": list(self.useful_earlier),
             "redundant_frac": self.redundant_frac,
             "occluded_frac": self.occluded_frac,
             "useful_frac_of_occluded": self.useful_frac,
@@ -210,8 +210,8 @@ class SamplingMetrics:
                 "redundant": self.total_redundant,
                 "occluded": self.total_occluded,
                 "useful": self.total_useful,
-                "occluded_earlier": None if self.occluded_earlier is None else int(sum(self.occluded_earlier)),
-                "useful_earlier": None if self.useful_earlier is None else int(sum(self.useful_earlier)),
+                "occluded_earlier": int(sum(self.occluded_earlier)),
+                "useful_earlier": int(sum(self.useful_earlier)),
                 "redundant_frac": self.total_redundant / tot if tot else 0.0,
                 "occluded_frac": self.total_occluded / tot if tot else 0.0,
                 "useful_frac_of_occluded": self.total_useful / self.total_occluded if self.total_occluded else 0.0,
@@ -430,11 +430,12 @@ def evaluate_sets(scene: Scene, sets: Mapping[str, tuple[Sequence[DepthImage], s
         s = _Samples.of(images)
         red = redundant_samples(rc, images, redundancy)
         captured = _any_redundant(rc, conventional_images, s.position, s.tri, redundancy)
-        earlier = np.zeros(len(s.tri), bool)
+        earlier = ~captured  # images tested against all conventional images (peeling) share the answer
         for i, im in enumerate(images):
-            sel = np.flatnonzero(s.image == i)
             refs = earlier_conventional(im, conventional_images)
-            earlier[sel] = ~_any_redundant(rc, refs, s.position[sel], s.tri[sel], redundancy)
+            if len(refs) < len(conventional_images):
+                sel = np.flatnonzero(s.image == i)
+                earlier[sel] = ~_any_redundant(rc, refs, s.position[sel], s.tri[sel], redundancy)
         layers = [layer_map(rc, im) for im in images] if redundancy == "visibility" else None
         jobs.append(_Job(name, images, redundancy, s, red, ~captured, earlier, np.zeros(len(s.tri), bool), [],
                          layers))
