@@ -167,95 +167,117 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
     bool sc_ok = false;
     float sc_rel = u_slope * 1.5 * max((F.rect.z - F.rect.x) / wh.x, (F.rect.w - F.rect.y) / wh.y);
 #endif
-    for (int k = 0; k <= steps; ++k) {
-        float ac = float(k) / float(steps);
-        vec2 pix = mix(s2, e2, ac);
-        ivec2 tx = clamp(ivec2(floor(pix)), ivec2(0), top);
-        // Block skip: the steps that stay in this coarse block cannot hit when the
-        // block's nearest stored depth is behind the ray's deepest point there.
-#ifndef NO_BLOCK_SKIP
-        if (all(equal(tx, ivec2(floor(pix))))) {
-            ivec2 cb = (org + tx) / BLOCK;
-            vec2 b0 = vec2(cb * BLOCK - org), b1 = b0 + float(BLOCK);
-            float ex = delta.x > 0.0 ? (b1.x - pix.x) / delta.x : (delta.x < 0.0 ? (pix.x - b0.x) / -delta.x : 1e9);
-            float ey = delta.y > 0.0 ? (b1.y - pix.y) / delta.y : (delta.y < 0.0 ? (pix.y - b0.y) / -delta.y : 1e9);
-            int last = min(k + int(max(floor(min(ex, ey) - 1e-4), 0.0)), steps);
-            if (last > k) {
-                float aa = max(0.0, (float(k) - 0.5) / float(steps)), ab = min(1.0, (float(last) + 0.5) / float(steps));
-                float zmax = max(1.0 / mix(is2, ie2, aa), 1.0 / mix(is2, ie2, ab));
-                if (texelFetch(u_coarse, cb, 0).r > zmax * (1.0 + 1e-5)) {
-                    k = last;  // the ray stays in front of every surface up to step `last`
-                    prev_ok = false;
+    // The march (per step: a few fetches and compares) and the hit processing
+    // (refinement and colour: many fetches) are separate loops: llvmpipe runs both
+    // sides of a branch under a lane mask, so hit code inside the per-step loop would
+    // cost every step (measured: about 4x the intersection time).
+    int k = 0;
+    // The candidate step the march hands to the hit processing.
+    vec3 pk = vec3(0.0), pd = vec3(0.0);
+    float ac = 0.0, alo = 0.0, ahi = 0.0, zlo = 0.0, zhi = 0.0, zc = 0.0, pz = 0.0, pa = 0.0, tol = 0.0, lower = 0.0;
+    vec2 pix = vec2(0.0);
+    ivec2 tx = ivec2(0);
+    bool h0 = false, h1 = false, h2 = false;
+    bvec3 xing = bvec3(false);
 #ifdef SURFACE_CROSSING
-                    sc_ok = false;
+    bvec3 sx = bvec3(false);
+    vec3 sxa = vec3(0.0);
 #endif
-                    continue;
+    for (;;) {
+        bool found = false;
+        for (; k <= steps; ++k) {
+            ac = float(k) / float(steps);
+            pix = mix(s2, e2, ac);
+            tx = clamp(ivec2(floor(pix)), ivec2(0), top);
+            // Block skip: the steps that stay in this coarse block cannot hit when the
+            // block's nearest stored depth is behind the ray's deepest point there.
+#ifndef NO_BLOCK_SKIP
+            if (all(equal(tx, ivec2(floor(pix))))) {
+                ivec2 cb = (org + tx) / BLOCK;
+                vec2 b0 = vec2(cb * BLOCK - org), b1 = b0 + float(BLOCK);
+                float ex = delta.x > 0.0 ? (b1.x - pix.x) / delta.x : (delta.x < 0.0 ? (pix.x - b0.x) / -delta.x : 1e9);
+                float ey = delta.y > 0.0 ? (b1.y - pix.y) / delta.y : (delta.y < 0.0 ? (pix.y - b0.y) / -delta.y : 1e9);
+                int last = min(k + int(max(floor(min(ex, ey) - 1e-4), 0.0)), steps);
+                if (last > k) {
+                    float aa = max(0.0, (float(k) - 0.5) / float(steps)), ab = min(1.0, (float(last) + 0.5) / float(steps));
+                    float zmax = max(1.0 / mix(is2, ie2, aa), 1.0 / mix(is2, ie2, ab));
+                    if (texelFetch(u_coarse, cb, 0).r > zmax * (1.0 + 1e-5)) {
+                        k = last;  // the ray stays in front of every surface up to step `last`
+                        prev_ok = false;
+#ifdef SURFACE_CROSSING
+                        sc_ok = false;
+#endif
+                        continue;
+                    }
                 }
             }
-        }
 #endif
-        float alo = max(0.0, (float(k) - 0.5) / float(steps)), ahi = min(1.0, (float(k) + 0.5) / float(steps));
-        float za = 1.0 / mix(is2, ie2, alo), zb = 1.0 / mix(is2, ie2, ahi);
-        float zlo = min(za, zb), zhi = max(za, zb);
-        vec3 pk = texelFetch(u_pack, org + tx, 0).xyz;  // depth: other objects, reflector, reflector 2nd
-        float zc = 1.0 / mix(is2, ie2, ac);
-        vec3 pd = prev_d;
-        float pz = prev_z, pa = prev_a;
-        bool pok = prev_ok;
-        prev_d = pk; prev_z = zc; prev_a = ac; prev_ok = true;
-        // Fast reject (the common case): every stored surface behind the ray here.
+            alo = max(0.0, (float(k) - 0.5) / float(steps));
+            ahi = min(1.0, (float(k) + 0.5) / float(steps));
+            float za = 1.0 / mix(is2, ie2, alo), zb = 1.0 / mix(is2, ie2, ahi);
+            zlo = min(za, zb); zhi = max(za, zb);
+            pk = texelFetch(u_pack, org + tx, 0).xyz;  // depth: other objects, reflector, reflector 2nd
+            zc = 1.0 / mix(is2, ie2, ac);
+            pd = prev_d; pz = prev_z; pa = prev_a;
+            bool pok = prev_ok;
+            prev_d = pk; prev_z = zc; prev_a = ac; prev_ok = true;
+            // Fast reject (the common case): every stored surface behind the ray here.
 #ifdef SURFACE_CROSSING
-        if (min(pk.x, pk.y) > zhi * (1.0 + 1e-5)) { sc_ok = false; continue; }
+            if (min(pk.x, pk.y) > zhi * (1.0 + 1e-5)) { sc_ok = false; continue; }
 #else
-        if (min(pk.x, pk.y) > zhi * (1.0 + 1e-5)) continue;
+            if (min(pk.x, pk.y) > zhi * (1.0 + 1e-5)) continue;
 #endif
-        float tol = u_thickness * (zhi - zlo) + 1e-4 * zhi;
-        float lower = max(zlo - tol, zfirst);
-        bool h0 = layer_hit(pk.x, zhi, lower);
-        bool h1 = layer_hit(pk.y, zhi, lower);
-        bool h2 = layer_hit(pk.z, zhi, lower);
-        // Crossing rule: the ray was in front of a layer's surface at the previous
-        // step and is behind it now, and that surface is continuous between the two
-        // texels (depth jump <= u_continuity of its depth): a steep surface (seen at
-        // a grazing angle from e_c) crossed within one step, not a silhouette the ray
-        // passes behind.
-        bvec3 xing = bvec3(false);
+            tol = u_thickness * (zhi - zlo) + 1e-4 * zhi;
+            lower = max(zlo - tol, zfirst);
+            h0 = layer_hit(pk.x, zhi, lower);
+            h1 = layer_hit(pk.y, zhi, lower);
+            h2 = layer_hit(pk.z, zhi, lower);
+            // Crossing rule: the ray was in front of a layer's surface at the previous
+            // step and is behind it now, and that surface is continuous between the two
+            // texels (depth jump <= u_continuity of its depth): a steep surface (seen at
+            // a grazing angle from e_c) crossed within one step, not a silhouette the ray
+            // passes behind.
+            xing = bvec3(false);
 #ifdef CROSSING
-        if (pok) {
-            xing = bvec3(vec3(greaterThan(pd, vec3(pz))) * vec3(lessThan(pk, vec3(zc)))
-                         * vec3(greaterThanEqual(pk, vec3(zfirst)))
-                         * vec3(lessThanEqual(abs(pk - pd), u_continuity * min(pk, pd))));
-            h0 = h0 || xing.x; h1 = h1 || xing.y; h2 = h2 || xing.z;
-        }
+            if (pok) {
+                xing = bvec3(vec3(greaterThan(pd, vec3(pz))) * vec3(lessThan(pk, vec3(zc)))
+                             * vec3(greaterThanEqual(pk, vec3(zfirst)))
+                             * vec3(lessThanEqual(abs(pk - pd), u_continuity * min(pk, pd))));
+                h0 = h0 || xing.x; h1 = h1 || xing.y; h2 = h2 || xing.z;
+            }
 #endif
 #ifdef SURFACE_CROSSING
-        // Surface crossing: the ray is in front of a layer's interpolated surface at
-        // the previous step and behind it now, that surface continuous around both
-        // points: a steep surface crossed between texel centres.
-        bvec3 sx = bvec3(false);
-        vec3 sxa = vec3(0.0);
-        // Cheap pre-test on the nearest texels (a continuous 2×2 footprint spans at
-        // most a factor 1 + sc_rel): the ray not far behind the previous texel's
-        // surface and not far in front of this one's.
-        bvec3 cand = bvec3(vec3(lessThanEqual(pk, vec3(zc * (1.0 + sc_rel))))
-                           * (pok ? vec3(greaterThanEqual(pd * (1.0 + sc_rel), vec3(pz))) : vec3(1.0)));
-        if (k > 0 && any(cand)) {
-            bvec3 ck;
-            vec3 gk = vec3(mix(is2, ie2, ac)) - surface_inv(org, top, pix, sc_rel, ck);
-            float ap = float(k - 1) / float(steps);
-            if (!sc_ok) sc_g = vec3(mix(is2, ie2, ap)) - surface_inv(org, top, mix(s2, e2, ap), sc_rel, sc_c);
-            sx = bvec3(vec3(cand) * vec3(sc_c) * vec3(ck) * vec3(greaterThanEqual(sc_g, vec3(0.0)))
-                       * vec3(lessThan(gk, vec3(0.0))));
-            sxa = ap + (ac - ap) * sc_g / max(sc_g - gk, vec3(1e-30));
-            sc_g = gk; sc_c = ck; sc_ok = true;
-        } else sc_ok = false;
-        h0 = h0 || sx.x; h1 = h1 || sx.y; h2 = h2 || sx.z;
+            // Surface crossing: the ray is in front of a layer's interpolated surface at
+            // the previous step and behind it now, that surface continuous around both
+            // points: a steep surface crossed between texel centres.
+            sx = bvec3(false);
+            sxa = vec3(0.0);
+            // Cheap pre-test on the nearest texels (a continuous 2×2 footprint spans at
+            // most a factor 1 + sc_rel): the ray not far behind the previous texel's
+            // surface and not far in front of this one's.
+            bvec3 cand = bvec3(vec3(lessThanEqual(pk, vec3(zc * (1.0 + sc_rel))))
+                               * (pok ? vec3(greaterThanEqual(pd * (1.0 + sc_rel), vec3(pz))) : vec3(1.0)));
+            if (k > 0 && any(cand)) {
+                bvec3 ck;
+                vec3 gk = vec3(mix(is2, ie2, ac)) - surface_inv(org, top, pix, sc_rel, ck);
+                float ap = float(k - 1) / float(steps);
+                if (!sc_ok) sc_g = vec3(mix(is2, ie2, ap)) - surface_inv(org, top, mix(s2, e2, ap), sc_rel, sc_c);
+                sx = bvec3(vec3(cand) * vec3(sc_c) * vec3(ck) * vec3(greaterThanEqual(sc_g, vec3(0.0)))
+                           * vec3(lessThan(gk, vec3(0.0))));
+                sxa = ap + (ac - ap) * sc_g / max(sc_g - gk, vec3(1e-30));
+                sc_g = gk; sc_c = ck; sc_ok = true;
+            } else sc_ok = false;
+            h0 = h0 || sx.x; h1 = h1 || sx.y; h2 = h2 || sx.z;
 #endif
-        if (!(h0 || h1 || h2)) continue;
-        // The sample's own triangle is never a hit (checked only on candidate hits).
-        if (h1) h1 = texelFetch(u_atlas_self_tri, org + tx, 0).r != g_own_tri;
-        if (h2) h2 = texelFetch(u_atlas_peel_tri, org + tx, 0).r != g_own_tri;
-        if (!(h0 || h1 || h2)) continue;
+            if (!(h0 || h1 || h2)) continue;
+            // The sample's own triangle is never a hit (checked only on candidate hits).
+            if (h1) h1 = texelFetch(u_atlas_self_tri, org + tx, 0).r != g_own_tri;
+            if (h2) h2 = texelFetch(u_atlas_peel_tri, org + tx, 0).r != g_own_tri;
+            if (!(h0 || h1 || h2)) continue;
+            found = true;
+            break;
+        }
+        if (!found) return false;
         float dtol;
         vec3 ars = vec3(-2.0);  // refined crossings, computed here only near the origin
 #ifdef NEAR_CROSSING
@@ -276,7 +298,7 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
                                    : refine(u_atlas_peel, org, top, s2, e2, is2, ie2, alo, ahi, pk[l], dtol));
                 if (ars[l] < 0.0) { if (l == 0) h0 = false; else if (l == 1) h1 = false; else h2 = false; }
             }
-            if (!(h0 || h1 || h2)) continue;
+            if (!(h0 || h1 || h2)) { ++k; continue; }
         }
 #endif
         // Several layers hit in this step: the surface met first along the ray.
@@ -332,7 +354,7 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
         if (abs(ze - zs) > 1e-5 * zs) t_hit = t0 + (t1 - t0) * clamp((D - zs) / (ze - zs), 0.0, 1.0);
         else t_hit = t0 + (t1 - t0) * ao * ie / mix(is, ie, ao);
         return true;
-    }
+        }
     return false;
 }
 
