@@ -38,10 +38,12 @@ uniform usampler2D u_atlas_self_tri;  // triangle id per texel of the reflector 
 // the reflector's nearest surface can still meet the one behind it.
 uniform sampler2D u_atlas_peel;
 uniform usampler2D u_atlas_peel_tri;
-// Both layers' depths packed (cluster_pack.comp): one fetch per step; their
-// BLOCK×BLOCK minimum (cluster_mindepth.comp) for skipping empty stretches.
+// The layers' depths packed (cluster_pack.comp): one fetch per step; per
+// BLOCK×BLOCK block and layer their min and max stored depth
+// (cluster_block_depth.comp) for skipping stretches without a possible hit.
 uniform sampler2D u_pack;
-uniform sampler2D u_coarse;
+uniform sampler2D u_block_min;
+uniform sampler2D u_block_max;
 uint g_own_tri;  // the sample's own triangle: never a hit (it faces away from its reflected rays)
 uniform vec3 u_eye;
 uniform int u_mode;
@@ -189,8 +191,11 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
             ac = float(k) / float(steps);
             pix = mix(s2, e2, ac);
             tx = clamp(ivec2(floor(pix)), ivec2(0), top);
-            // Block skip: the steps that stay in this coarse block cannot hit when the
-            // block's nearest stored depth is behind the ray's deepest point there.
+            // Block skip: the steps that stay in this block cannot hit when, in every
+            // layer, the block's surfaces all lie behind the ray's deepest point there
+            // (min depth) or all in front of the lowest depth a hit may have there
+            // (max depth below min over those steps of `lower`: the ray passes behind
+            // them or they are in front of its entry point).
 #ifndef NO_BLOCK_SKIP
             if (all(equal(tx, ivec2(floor(pix))))) {
                 ivec2 cb = (org + tx) / BLOCK;
@@ -200,9 +205,19 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
                 int last = min(k + int(max(floor(min(ex, ey) - 1e-4), 0.0)), steps);
                 if (last > k) {
                     float aa = max(0.0, (float(k) - 0.5) / float(steps)), ab = min(1.0, (float(last) + 0.5) / float(steps));
-                    float zmax = max(1.0 / mix(is2, ie2, aa), 1.0 / mix(is2, ie2, ab));
-                    if (texelFetch(u_coarse, cb, 0).r > zmax * (1.0 + 1e-5)) {
-                        k = last;  // the ray stays in front of every surface up to step `last`
+                    float zaa = 1.0 / mix(is2, ie2, aa), zab = 1.0 / mix(is2, ie2, ab);
+                    float zmax = max(zaa, zab);
+                    bvec3 clear = greaterThan(texelFetch(u_block_min, cb, 0).xyz, vec3(zmax * (1.0 + 1e-5)));
+#if !defined(CROSSING) && !defined(SURFACE_CROSSING)
+                    // Every step's tolerance is at most that of the deepest one (the
+                    // ray's depth span per step grows with z²); the crossing rules can
+                    // hit surfaces in front of `lower`, so they keep the min test only.
+                    float tmax = u_thickness * zmax * zmax * abs(ie2 - is2) / float(steps) + 1e-4 * zmax;
+                    float lmin = max(min(zaa, zab) - tmax, zfirst) * (1.0 - 1e-5);
+                    clear = bvec3(vec3(clear) + vec3(lessThan(texelFetch(u_block_max, cb, 0).xyz, vec3(lmin))));
+#endif
+                    if (all(clear)) {
+                        k = last;  // no hit possible up to step `last`
                         prev_ok = false;
 #ifdef SURFACE_CROSSING
                         sc_ok = false;
