@@ -148,13 +148,14 @@ class ClusterReflections:
     uniformly, planar ones keep their exact texel = sample grid, cluster_camera.pack_atlas);
     continuity > 0 enables the crossing rule; slope > 0 the surface-crossing rule
     (continuous surfaces up to that tan of their angle to the view ray); near_steps > 0
-    the near-origin rule (module docstring, step 5)."""
+    the near-origin rule (module docstring, step 5); block_skip False marches every
+    texel (the block skip changes no hit; for tests)."""
 
     def __init__(self, gl: GLContext, max_resolution: int = 1024, resolution_scale: float = 1.0,
                  bin_scale: float = 1.0, thickness: float = 1.0, atlas_max: int = 4096,
                  max_shift: float = cc.MAX_SHIFT, bin_rule: str = "relative",
                  atlas_budget: float | None = 16.0, continuity: float = CONTINUITY, slope: float = SLOPE,
-                 near_steps: int = NEAR_STEPS) -> None:
+                 near_steps: int = NEAR_STEPS, block_skip: bool = True) -> None:
         gl.check_thread()
         self.gl = gl
         self.max_resolution = int(max_resolution)
@@ -179,6 +180,8 @@ class ClusterReflections:
             defines["SURFACE_CROSSING"] = "1"
         if self.near_steps > 0:
             defines["NEAR_CROSSING"] = "1"
+        if not block_skip:  # exact either way (tests compare the two)
+            defines["NO_BLOCK_SKIP"] = "1"
         self.depth_prog = program(gl, "cluster_depth.vert", "cluster_depth.frag")
         self.peel_prog = program(gl, "cluster_depth.vert", "cluster_peel.frag")
         self.trace_prog = compute_program(gl, "reflect_trace.comp", defines)

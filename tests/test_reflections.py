@@ -27,6 +27,8 @@ from reference.image_metrics import mean_abs_error, occlusion_error_mask, occlus
 from reference.raycast import RayCaster
 from reference.reflections import envmap_reflections, raytrace_reflections
 from scenes import Camera, Material, Scene, SceneObject
+from scenes.builtin import make_builtin
+from scenes.camera import flythrough_path
 from scenes.glossy import glossy_far
 from tests.conftest import shared_scene
 
@@ -290,3 +292,19 @@ def test_hit_rule_options_keep_mirror_exact_and_curved_bounds(gl, options):
         _check_curved(gl, r, mirror_object_scene(sphere_mesh(), "sphere"))
     finally:
         r.release()
+
+
+def test_block_skip_changes_no_hit(gl, refl):
+    """Skipping blocks by their per-layer depth bounds (cluster_block_depth.comp)
+    gives bit-identical frames to marching every texel, on both bench rooms."""
+    plain = ClusterReflections(gl, block_skip=False)
+    try:
+        for name in ("living_room", "bathroom"):
+            scene = make_builtin(name)
+            cam = flythrough_path(scene.bounds, 8, width=48, height=48)[1]
+            fast, slow = _render(gl, refl, scene, cam), _render(gl, plain, scene, cam)
+            assert fast.reflective.mean() > 0.05
+            assert np.array_equal(fast.color, slow.color)
+            assert np.array_equal(fast.ray_length, slow.ray_length, equal_nan=True)
+    finally:
+        plain.release()
