@@ -1,6 +1,6 @@
 #version 430 core
 // Depth bounds of the packed cluster images per BLOCK×BLOCK atlas texels, per layer
-// (other objects, reflector, reflector 2nd): the nearest depth (u_block_min) and
+// (other objects, reflector, reflector 2nd, others 2nd): the nearest depth (u_block_min) and
 // the farthest depth of a stored surface (u_block_max; 0 when the layer is empty
 // there). The intersection march skips a whole block when, in every layer, each
 // surface lies either behind the ray's deepest point there or in front of its
@@ -8,7 +8,7 @@
 // Blocks may straddle two cluster viewports: the bounds then only widen, i.e. the
 // skip stays conservative.
 layout(local_size_x = 8, local_size_y = 8) in;
-uniform sampler2D u_pack;   // (depth other, self, self 2nd)
+uniform sampler2D u_pack;   // (depth other, self, self 2nd, other 2nd)
 uniform ivec2 u_size;       // used atlas area (fine texels)
 layout(rgba32f, binding = 6) writeonly uniform image2D u_block_min;
 layout(rgba32f, binding = 7) writeonly uniform image2D u_block_max;
@@ -17,15 +17,15 @@ void main() {
     ivec2 c = ivec2(gl_GlobalInvocationID.xy);
     ivec2 base = c * BLOCK;
     if (any(greaterThanEqual(base, u_size))) return;
-    vec3 lo = vec3(3.0e38), hi = vec3(0.0);
+    vec4 lo = vec4(3.0e38), hi = vec4(0.0);
     for (int j = 0; j < BLOCK; ++j) for (int i = 0; i < BLOCK; ++i) {
         ivec2 p = base + ivec2(i, j);
         if (all(lessThan(p, u_size))) {
-            vec3 d = texelFetch(u_pack, p, 0).xyz;
+            vec4 d = texelFetch(u_pack, p, 0);
             lo = min(lo, d);
-            hi = max(hi, mix(d, vec3(0.0), greaterThanEqual(d, vec3(0.5 * BACKGROUND_DEPTH))));
+            hi = max(hi, mix(d, vec4(0.0), greaterThanEqual(d, vec4(0.5 * BACKGROUND_DEPTH))));
         }
     }
-    imageStore(u_block_min, c, vec4(lo, 0.0));
-    imageStore(u_block_max, c, vec4(hi, 0.0));
+    imageStore(u_block_min, c, lo);
+    imageStore(u_block_max, c, hi);
 }

@@ -5,8 +5,8 @@
 // [z_lo, z_hi] first reaches the stored depth D (D <= z_hi) and the surface is not
 // in front of the span by more than u_thickness·(z_hi - z_lo) (else the ray passes
 // behind a thin surface and marching goes on), and never in front of the ray's entry
-// depth. Three layers per cluster image: other objects / the cluster's own reflector /
-// its second surface. Miss -> sky (mirror) or the diffuse
+// depth. Four layers per cluster image: other objects / the cluster's own reflector /
+// its second surface / the other objects' second surface. Miss -> sky (mirror) or the diffuse
 // colour (glossy: a miss within far contributes diffuse, §4.6 / reference).
 // u_mode 1 = environment map baseline (no intersection).
 // With CROSSING defined, also a hit where the ray goes from in front of a layer's
@@ -38,6 +38,9 @@ uniform usampler2D u_atlas_self_tri;  // triangle id per texel of the reflector 
 // the reflector's nearest surface can still meet the one behind it.
 uniform sampler2D u_atlas_peel;
 uniform usampler2D u_atlas_peel_tri;
+// Fourth layer: the other objects' second surface (depth peel; non-planar clusters),
+// what the first layer hides from e_c but the reflected rays may see.
+uniform sampler2D u_atlas_peel_other;
 // The layers' depths packed (cluster_pack.comp): one fetch per step; per
 // BLOCK×BLOCK block and layer their min and max stored depth
 // (cluster_block_depth.comp) for skipping stretches without a possible hit.
@@ -101,17 +104,17 @@ vec4 surface_at(sampler2D atlas, ivec2 org, ivec2 top, vec2 pix, float D, float 
 
 #ifdef SURFACE_CROSSING
 uniform float u_slope;  // steepest surface (tan of its angle to the view ray) treated as continuous
-// Per layer (other objects, reflector, reflector 2nd) inverse depth of the stored
+// Per layer (other objects, reflector, reflector 2nd, others 2nd) inverse depth of the stored
 // surface at image point pix: bilinear over the 2×2 texels around pix in inverse
 // depth (exact on planes); ok[l] where those four depths lie within the relative
 // span `rel` (one continuous surface, not a silhouette or the background).
-vec3 surface_inv(ivec2 org, ivec2 top, vec2 pix, float rel, out bvec3 ok) {
+vec4 surface_inv(ivec2 org, ivec2 top, vec2 pix, float rel, out bvec4 ok) {
     vec2 f = pix - 0.5;
     ivec2 b = ivec2(floor(f));
     vec2 w = f - floor(f);
-    vec3 acc = vec3(0.0), lo = vec3(3.0e38), hi = vec3(0.0);
+    vec4 acc = vec4(0.0), lo = vec4(3.0e38), hi = vec4(0.0);
     for (int j = 0; j < 2; ++j) for (int i = 0; i < 2; ++i) {
-        vec3 d = texelFetch(u_pack, org + clamp(b + ivec2(i, j), ivec2(0), top), 0).xyz;
+        vec4 d = texelFetch(u_pack, org + clamp(b + ivec2(i, j), ivec2(0), top), 0);
         acc += (i == 1 ? w.x : 1.0 - w.x) * (j == 1 ? w.y : 1.0 - w.y) / d;
         lo = min(lo, d); hi = max(hi, d);
     }
@@ -120,16 +123,33 @@ vec3 surface_inv(ivec2 org, ivec2 top, vec2 pix, float rel, out bvec3 ok) {
 }
 #endif
 
-// Hit refinement inside the step [alo, ahi]: where the ray's depth crosses the
-// bilinearly interpolated surface depth. Returns the image
+// surface_at on layer l's image (0 other objects, 1 reflector, 2 reflector 2nd,
+// 3 others 2nd).
+vec4 layer_surface(int l, ivec2 org, ivec2 top, vec2 pix, float D, float dtol) {
+    if (l == 0) return surface_at(u_atlas, org, top, pix, D, dtol);
+    if (l == 1) return surface_at(u_atlas_self, org, top, pix, D, dtol);
+    if (l == 2) return surface_at(u_atlas_peel, org, top, pix, D, dtol);
+    return surface_at(u_atlas_peel_other, org, top, pix, D, dtol);
+}
+
+// Hit refinement inside the step [alo, ahi]: where the ray's depth crosses layer
+// l's bilinearly interpolated surface depth. Returns the image
 // parameter of the crossing, or -1 when the ray does not cross there.
-float refine(sampler2D atlas, ivec2 org, ivec2 top, vec2 s2, vec2 e2, float is2, float ie2, float alo,
+float refine(int l, ivec2 org, ivec2 top, vec2 s2, vec2 e2, float is2, float ie2, float alo,
              float ahi, float D, float dtol) {
     // In inverse depth both the ray and a planar surface are linear in the image.
-    float glo = mix(is2, ie2, alo) - 1.0 / surface_at(atlas, org, top, mix(s2, e2, alo), D, dtol).a;
-    float ghi = mix(is2, ie2, ahi) - 1.0 / surface_at(atlas, org, top, mix(s2, e2, ahi), D, dtol).a;
+    float glo = mix(is2, ie2, alo) - 1.0 / layer_surface(l, org, top, mix(s2, e2, alo), D, dtol).a;
+    float ghi = mix(is2, ie2, ahi) - 1.0 / layer_surface(l, org, top, mix(s2, e2, ahi), D, dtol).a;
     if (glo >= 0.0 && ghi <= 0.0 && glo > ghi) return alo + (ahi - alo) * glo / (glo - ghi);
     return -1.0;
+}
+
+// Distance along the ray of the hit at image parameter ac (of [a0, a1]) and depth D;
+// zs, ze: depths at the clipped ray's ends t0, t1.
+float hit_distance(float t0, float t1, float zs, float ze, float a0, float a1, float ac, float D) {
+    if (abs(ze - zs) > 1e-5 * zs) return t0 + (t1 - t0) * clamp((D - zs) / (ze - zs), 0.0, 1.0);
+    float ao = mix(a0, a1, ac);  // nearly constant depth: the image parameter, made perspective-correct
+    return t0 + (t1 - t0) * ao * (1.0 / ze) / mix(1.0 / zs, 1.0 / ze, ao);
 }
 
 bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
@@ -158,14 +178,14 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
     float zfirst = ie2 < is2 ? (1.0 + 1e-4) / is2 : 0.0;
     vec2 delta = (e2 - s2) / float(steps);
     // Previous step (crossing rule): stored depths and the ray's depth at its centre.
-    vec3 prev_d = vec3(0.0);
+    vec4 prev_d = vec4(0.0);
     float prev_z = 0.0, prev_a = 0.0;
     bool prev_ok = false;
 #ifdef SURFACE_CROSSING
     // Surface crossing: the ray's inverse depth minus the interpolated surface's at
     // the previous step (valid when sc_ok), per layer.
-    vec3 sc_g = vec3(0.0);
-    bvec3 sc_c = bvec3(false);
+    vec4 sc_g = vec4(0.0);
+    bvec4 sc_c = bvec4(false);
     bool sc_ok = false;
     float sc_rel = u_slope * 1.5 * max((F.rect.z - F.rect.x) / wh.x, (F.rect.w - F.rect.y) / wh.y);
 #endif
@@ -175,15 +195,14 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
     // cost every step (measured: about 4x the intersection time).
     int k = 0;
     // The candidate step the march hands to the hit processing.
-    vec3 pk = vec3(0.0), pd = vec3(0.0);
+    vec4 pk = vec4(0.0), pd = vec4(0.0);
     float ac = 0.0, alo = 0.0, ahi = 0.0, zlo = 0.0, zhi = 0.0, zc = 0.0, pz = 0.0, pa = 0.0, tol = 0.0, lower = 0.0;
     vec2 pix = vec2(0.0);
     ivec2 tx = ivec2(0);
-    bool h0 = false, h1 = false, h2 = false;
-    bvec3 xing = bvec3(false);
+    bvec4 h = bvec4(false), xing = bvec4(false);  // per layer: candidate hit, crossing-rule hit
 #ifdef SURFACE_CROSSING
-    bvec3 sx = bvec3(false);
-    vec3 sxa = vec3(0.0);
+    bvec4 sx = bvec4(false);
+    vec4 sxa = vec4(0.0);
 #endif
     for (;;) {
         bool found = false;
@@ -207,14 +226,14 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
                     float aa = max(0.0, (float(k) - 0.5) / float(steps)), ab = min(1.0, (float(last) + 0.5) / float(steps));
                     float zaa = 1.0 / mix(is2, ie2, aa), zab = 1.0 / mix(is2, ie2, ab);
                     float zmax = max(zaa, zab);
-                    bvec3 clear = greaterThan(texelFetch(u_block_min, cb, 0).xyz, vec3(zmax * (1.0 + 1e-5)));
+                    bvec4 clear = greaterThan(texelFetch(u_block_min, cb, 0), vec4(zmax * (1.0 + 1e-5)));
 #if !defined(CROSSING) && !defined(SURFACE_CROSSING)
                     // Every step's tolerance is at most that of the deepest one (the
                     // ray's depth span per step grows with z²); the crossing rules can
                     // hit surfaces in front of `lower`, so they keep the min test only.
                     float tmax = u_thickness * zmax * zmax * abs(ie2 - is2) / float(steps) + 1e-4 * zmax;
                     float lmin = max(min(zaa, zab) - tmax, zfirst) * (1.0 - 1e-5);
-                    clear = bvec3(vec3(clear) + vec3(lessThan(texelFetch(u_block_max, cb, 0).xyz, vec3(lmin))));
+                    clear = bvec4(vec4(clear) + vec4(lessThan(texelFetch(u_block_max, cb, 0), vec4(lmin))));
 #endif
                     if (all(clear)) {
                         k = last;  // no hit possible up to step `last`
@@ -231,12 +250,13 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
             ahi = min(1.0, (float(k) + 0.5) / float(steps));
             float za = 1.0 / mix(is2, ie2, alo), zb = 1.0 / mix(is2, ie2, ahi);
             zlo = min(za, zb); zhi = max(za, zb);
-            pk = texelFetch(u_pack, org + tx, 0).xyz;  // depth: other objects, reflector, reflector 2nd
+            pk = texelFetch(u_pack, org + tx, 0);  // depth: other objects, reflector, reflector 2nd, others 2nd
             zc = 1.0 / mix(is2, ie2, ac);
             pd = prev_d; pz = prev_z; pa = prev_a;
             bool pok = prev_ok;
             prev_d = pk; prev_z = zc; prev_a = ac; prev_ok = true;
-            // Fast reject (the common case): every stored surface behind the ray here.
+            // Fast reject (the common case): every stored surface behind the ray here
+            // (a second surface lies behind its layer's first).
 #ifdef SURFACE_CROSSING
             if (min(pk.x, pk.y) > zhi * (1.0 + 1e-5)) { sc_ok = false; continue; }
 #else
@@ -244,101 +264,92 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
 #endif
             tol = u_thickness * (zhi - zlo) + 1e-4 * zhi;
             lower = max(zlo - tol, zfirst);
-            h0 = layer_hit(pk.x, zhi, lower);
-            h1 = layer_hit(pk.y, zhi, lower);
-            h2 = layer_hit(pk.z, zhi, lower);
+            h = bvec4(layer_hit(pk.x, zhi, lower), layer_hit(pk.y, zhi, lower), layer_hit(pk.z, zhi, lower),
+                      layer_hit(pk.w, zhi, lower));
             // Crossing rule: the ray was in front of a layer's surface at the previous
             // step and is behind it now, and that surface is continuous between the two
             // texels (depth jump <= u_continuity of its depth): a steep surface (seen at
             // a grazing angle from e_c) crossed within one step, not a silhouette the ray
             // passes behind.
-            xing = bvec3(false);
+            xing = bvec4(false);
 #ifdef CROSSING
             if (pok) {
-                xing = bvec3(vec3(greaterThan(pd, vec3(pz))) * vec3(lessThan(pk, vec3(zc)))
-                             * vec3(greaterThanEqual(pk, vec3(zfirst)))
-                             * vec3(lessThanEqual(abs(pk - pd), u_continuity * min(pk, pd))));
-                h0 = h0 || xing.x; h1 = h1 || xing.y; h2 = h2 || xing.z;
+                xing = bvec4(vec4(greaterThan(pd, vec4(pz))) * vec4(lessThan(pk, vec4(zc)))
+                             * vec4(greaterThanEqual(pk, vec4(zfirst)))
+                             * vec4(lessThanEqual(abs(pk - pd), u_continuity * min(pk, pd))));
+                h = bvec4(vec4(h) + vec4(xing));
             }
 #endif
 #ifdef SURFACE_CROSSING
             // Surface crossing: the ray is in front of a layer's interpolated surface at
             // the previous step and behind it now, that surface continuous around both
             // points: a steep surface crossed between texel centres.
-            sx = bvec3(false);
-            sxa = vec3(0.0);
+            sx = bvec4(false);
+            sxa = vec4(0.0);
             // Cheap pre-test on the nearest texels (a continuous 2×2 footprint spans at
             // most a factor 1 + sc_rel): the ray not far behind the previous texel's
             // surface and not far in front of this one's.
-            bvec3 cand = bvec3(vec3(lessThanEqual(pk, vec3(zc * (1.0 + sc_rel))))
-                               * (pok ? vec3(greaterThanEqual(pd * (1.0 + sc_rel), vec3(pz))) : vec3(1.0)));
+            bvec4 cand = bvec4(vec4(lessThanEqual(pk, vec4(zc * (1.0 + sc_rel))))
+                               * (pok ? vec4(greaterThanEqual(pd * (1.0 + sc_rel), vec4(pz))) : vec4(1.0)));
             if (k > 0 && any(cand)) {
-                bvec3 ck;
-                vec3 gk = vec3(mix(is2, ie2, ac)) - surface_inv(org, top, pix, sc_rel, ck);
+                bvec4 ck;
+                vec4 gk = vec4(mix(is2, ie2, ac)) - surface_inv(org, top, pix, sc_rel, ck);
                 float ap = float(k - 1) / float(steps);
-                if (!sc_ok) sc_g = vec3(mix(is2, ie2, ap)) - surface_inv(org, top, mix(s2, e2, ap), sc_rel, sc_c);
-                sx = bvec3(vec3(cand) * vec3(sc_c) * vec3(ck) * vec3(greaterThanEqual(sc_g, vec3(0.0)))
-                           * vec3(lessThan(gk, vec3(0.0))));
-                sxa = ap + (ac - ap) * sc_g / max(sc_g - gk, vec3(1e-30));
+                if (!sc_ok) sc_g = vec4(mix(is2, ie2, ap)) - surface_inv(org, top, mix(s2, e2, ap), sc_rel, sc_c);
+                sx = bvec4(vec4(cand) * vec4(sc_c) * vec4(ck) * vec4(greaterThanEqual(sc_g, vec4(0.0)))
+                           * vec4(lessThan(gk, vec4(0.0))));
+                sxa = ap + (ac - ap) * sc_g / max(sc_g - gk, vec4(1e-30));
                 sc_g = gk; sc_c = ck; sc_ok = true;
             } else sc_ok = false;
-            h0 = h0 || sx.x; h1 = h1 || sx.y; h2 = h2 || sx.z;
+            h = bvec4(vec4(h) + vec4(sx));
 #endif
-            if (!(h0 || h1 || h2)) continue;
+            if (!any(h)) continue;
             // The sample's own triangle is never a hit (checked only on candidate hits).
-            if (h1) h1 = texelFetch(u_atlas_self_tri, org + tx, 0).r != g_own_tri;
-            if (h2) h2 = texelFetch(u_atlas_peel_tri, org + tx, 0).r != g_own_tri;
-            if (!(h0 || h1 || h2)) continue;
+            if (h.y) h.y = texelFetch(u_atlas_self_tri, org + tx, 0).r != g_own_tri;
+            if (h.z) h.z = texelFetch(u_atlas_peel_tri, org + tx, 0).r != g_own_tri;
+            if (!any(h)) continue;
             found = true;
             break;
         }
         if (!found) return false;
         float dtol;
-        vec3 ars = vec3(-2.0);  // refined crossings, computed here only near the origin
+        vec4 ars = vec4(-2.0);  // refined crossings, computed here only near the origin
 #ifdef NEAR_CROSSING
         // Near the ray's origin (its first u_near_steps texels) the ray lies on or
         // next to its reflector, whose texels (and those of surfaces touching it) are
         // within the thin-surface tolerance of the ray: there a hit needs the ray to
         // cross the interpolated surface inside the step (a refined crossing).
         if (a0 <= 0.0 && k <= u_near_steps) {
-            for (int l = 0; l < 3; ++l) {
-                bool h = l == 0 ? h0 : (l == 1 ? h1 : h2);
+            for (int l = 0; l < 4; ++l) {
 #ifdef SURFACE_CROSSING
                 if (sx[l]) continue;
 #endif
-                if (!h || xing[l]) continue;
+                if (!h[l] || xing[l]) continue;
                 dtol = max(2.0 * tol, 5e-3 * pk[l]);
-                ars[l] = l == 0 ? refine(u_atlas, org, top, s2, e2, is2, ie2, alo, ahi, pk[l], dtol)
-                         : (l == 1 ? refine(u_atlas_self, org, top, s2, e2, is2, ie2, alo, ahi, pk[l], dtol)
-                                   : refine(u_atlas_peel, org, top, s2, e2, is2, ie2, alo, ahi, pk[l], dtol));
-                if (ars[l] < 0.0) { if (l == 0) h0 = false; else if (l == 1) h1 = false; else h2 = false; }
+                ars[l] = refine(l, org, top, s2, e2, is2, ie2, alo, ahi, pk[l], dtol);
+                if (ars[l] < 0.0) h[l] = false;
             }
-            if (!(h0 || h1 || h2)) { ++k; continue; }
+            if (!any(h)) { ++k; continue; }
         }
 #endif
         // Several layers hit in this step: the surface met first along the ray.
         bool away = ie2 < is2;  // depth grows along the ray
         int layer = -1;
         float D = 0.0;
-        for (int l = 0; l < 3; ++l) {
-            bool h = l == 0 ? h0 : (l == 1 ? h1 : h2);
+        for (int l = 0; l < 4; ++l) {
             float Dl = pk[l];
 #ifdef SURFACE_CROSSING
             if (sx[l]) Dl = 1.0 / mix(is2, ie2, sxa[l]);
 #endif
-            if (h && (layer < 0 || (away ? Dl < D : Dl > D))) { layer = l; D = Dl; }
+            if (h[l] && (layer < 0 || (away ? Dl < D : Dl > D))) { layer = l; D = Dl; }
         }
         dtol = max(2.0 * tol, 5e-3 * D);
 #ifdef SURFACE_CROSSING
         if (sx[layer]) {
             ac = sxa[layer]; pix = mix(s2, e2, ac);
             dtol = max(5e-3 * D, sc_rel * D);
-            col = (layer == 0 ? surface_at(u_atlas, org, top, pix, D, dtol)
-                   : (layer == 1 ? surface_at(u_atlas_self, org, top, pix, D, dtol)
-                                 : surface_at(u_atlas_peel, org, top, pix, D, dtol))).rgb;
-            float ao = mix(a0, a1, ac);
-            if (abs(ze - zs) > 1e-5 * zs) t_hit = t0 + (t1 - t0) * clamp((D - zs) / (ze - zs), 0.0, 1.0);
-            else t_hit = t0 + (t1 - t0) * ao * ie / mix(is, ie, ao);
+            col = layer_surface(layer, org, top, pix, D, dtol).rgb;
+            t_hit = hit_distance(t0, t1, zs, ze, a0, a1, ac, D);
             return true;
         }
 #endif
@@ -349,25 +360,14 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
             float ax = gp > gk ? pa + (ac - pa) * clamp(gp / (gp - gk), 0.0, 1.0) : ac;
             ac = ax; pix = mix(s2, e2, ax); D = 1.0 / mix(is2, ie2, ax);
             dtol = max(dtol, u_continuity * D);
-            col = (layer == 0 ? surface_at(u_atlas, org, top, pix, D, dtol)
-                   : (layer == 1 ? surface_at(u_atlas_self, org, top, pix, D, dtol)
-                                 : surface_at(u_atlas_peel, org, top, pix, D, dtol))).rgb;
-            float ao = mix(a0, a1, ac);
-            if (abs(ze - zs) > 1e-5 * zs) t_hit = t0 + (t1 - t0) * clamp((D - zs) / (ze - zs), 0.0, 1.0);
-            else t_hit = t0 + (t1 - t0) * ao * ie / mix(is, ie, ao);
+            col = layer_surface(layer, org, top, pix, D, dtol).rgb;
+            t_hit = hit_distance(t0, t1, zs, ze, a0, a1, ac, D);
             return true;
         }
-        float ar = ars[layer] > -2.0 ? ars[layer] : layer == 0 ? refine(u_atlas, org, top, s2, e2, is2, ie2, alo, ahi, D, dtol)
-                 : (layer == 1 ? refine(u_atlas_self, org, top, s2, e2, is2, ie2, alo, ahi, D, dtol)
-                               : refine(u_atlas_peel, org, top, s2, e2, is2, ie2, alo, ahi, D, dtol));
+        float ar = ars[layer] > -2.0 ? ars[layer] : refine(layer, org, top, s2, e2, is2, ie2, alo, ahi, D, dtol);
         if (ar >= 0.0) { ac = ar; pix = mix(s2, e2, ar); D = 1.0 / mix(is2, ie2, ar); }
-        col = (layer == 0 ? surface_at(u_atlas, org, top, pix, D, dtol)
-               : (layer == 1 ? surface_at(u_atlas_self, org, top, pix, D, dtol)
-                             : surface_at(u_atlas_peel, org, top, pix, D, dtol))).rgb;
-        // Hit distance along the ray from the hit depth.
-        float ao = mix(a0, a1, ac);
-        if (abs(ze - zs) > 1e-5 * zs) t_hit = t0 + (t1 - t0) * clamp((D - zs) / (ze - zs), 0.0, 1.0);
-        else t_hit = t0 + (t1 - t0) * ao * ie / mix(is, ie, ao);
+        col = layer_surface(layer, org, top, pix, D, dtol).rgb;
+        t_hit = hit_distance(t0, t1, zs, ze, a0, a1, ac, D);
         return true;
         }
     return false;
