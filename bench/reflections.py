@@ -29,11 +29,11 @@ Occlusion error, two metrics (percentages of the reflective pixels):
 
 The thesis measured 900–1000 frames per path on a GTX 570; here everything runs on
 a CPU-only shared machine (Mesa llvmpipe + embreex), where one 512² frame of
-either method takes seconds, so the paths have --frames frames (default 12) at
---path-res (default 256²) — the reason is run time, not method.
+either method takes seconds, so the paths have --frames frames (default 24) at
+--path-res (default 512², the output resolution of the issue) — the reason is run time, not method.
 
     .venv/bin/python bench/reflections.py [--scenes living_room bathroom mirror] [--res 512]
-        [--timing-res 512 2048] [--frames 12] [--path-res 256] [--repeat 3]
+        [--timing-res 512 2048] [--frames 24] [--path-res 512] [--repeat 3]
 """
 
 from __future__ import annotations
@@ -323,8 +323,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--scenes", nargs="+", default=["living_room", "bathroom", "mirror"])
     ap.add_argument("--res", type=int, default=512)
     ap.add_argument("--timing-res", type=int, nargs="+", default=[512, 2048])
-    ap.add_argument("--frames", type=int, default=12)
-    ap.add_argument("--path-res", type=int, default=256)
+    ap.add_argument("--frames", type=int, default=24)
+    ap.add_argument("--path-res", type=int, default=512)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--out", default=str(RESULTS_DIR / "reflections"))
     ap.add_argument("--report-only", action="store_true", help="rewrite the .md from the existing .json")
