@@ -100,7 +100,7 @@ from scenes.glossy import FADE_FRACTION, lobe_offsets
 
 MAX_RAYS = 64
 CHUNK = 512  # triangles per culling chunk of the cluster depth images
-BLOCK = 8    # atlas texels per side of a coarse min-depth block (march skipping)
+BLOCK = 8    # atlas texels per side of a depth-bounds block (march skipping)
 TRACE_GROUP = (8, 8)  # intersection workgroup (x, y)
 GL_CLIP_DISTANCE0 = 0x3000
 BACKGROUND_DEPTH = 1e30
