@@ -9,7 +9,9 @@ back-facing hits, as Embree here is built without it.
 
 from __future__ import annotations
 
+import os
 from collections import OrderedDict
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,6 +51,32 @@ def _ray_limits(tmax: np.ndarray | float | None, n: int) -> np.ndarray:
     capped at 1e30 so Embree's float32 tfar stays finite."""
     limit = np.inf if tmax is None else np.asarray(tmax, np.float64)
     return np.minimum(np.broadcast_to(limit, (n,)), 1e30)
+
+
+#: Rays per Embree call below which the batch is not split across threads.
+PARALLEL_MIN_RAYS = 65536
+_WORKERS = max(1, min(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1,
+                       16))
+_pool: ThreadPoolExecutor | None = None
+
+
+def _embree_run(emb: object, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, **kw: object) -> dict | np.ndarray:
+    """emb.run on float32 rays, split into one chunk per CPU for large batches:
+    embreex releases the GIL while Embree traces, so the chunks run in parallel
+    (about 1.9x on 2 cores, measured on nest) with identical per-ray results."""
+    global _pool
+    o32, d32, t32 = o.astype(np.float32), d.astype(np.float32), tmax.astype(np.float32)
+    n = len(o32)
+    if _WORKERS == 1 or n < PARALLEL_MIN_RAYS:
+        return emb.run(o32, d32, dists=t32, **kw)
+    if _pool is None:
+        _pool = ThreadPoolExecutor(_WORKERS, thread_name_prefix="embree")
+    cuts = np.linspace(0, n, _WORKERS + 1).astype(np.int64)
+    parts = list(_pool.map(lambda ab: emb.run(o32[ab[0]:ab[1]], d32[ab[0]:ab[1]], dists=t32[ab[0]:ab[1]], **kw),
+                           zip(cuts[:-1], cuts[1:], strict=True)))
+    if isinstance(parts[0], dict):
+        return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    return np.concatenate([np.asarray(p) for p in parts])
 
 
 def _embree_scene(vertices: np.ndarray, faces: np.ndarray) -> object:
@@ -131,8 +159,7 @@ class RayCaster:
         u = np.zeros(n)
         v = np.zeros(n)
         if emb is not None:
-            r = emb.run(np.broadcast_to(eye, d.shape).astype(np.float32), d.astype(np.float32),
-                        dists=limit.astype(np.float32), output=1)
+            r = _embree_run(emb, np.broadcast_to(eye, d.shape), d, limit, output=1)
             hit = r["primID"] >= 0
             t[hit] = r["tfar"][hit]
             tri[hit] = faces[r["primID"][hit]].astype(np.uint32) + 1
@@ -140,8 +167,7 @@ class RayCaster:
         return Hits(t=t, tri_id=tri, u=u, v=v, front=tri > 0)
 
     def _run(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray) -> dict:
-        return self._embree.run(o.astype(np.float32), d.astype(np.float32), dists=tmax.astype(np.float32),
-                                output=1)
+        return _embree_run(self._embree, o, d, tmax, output=1)
 
     def intersect(self, origins: np.ndarray, directions: np.ndarray, tmax: np.ndarray | float | None = None,
                   cull_back_faces: bool = True) -> Hits:
@@ -213,8 +239,7 @@ class RayCaster:
         start = a + d * self.eps
         tmax = np.maximum(length * (1 - rel_eps) - 2 * self.eps, 0.0)
         if not cull_back_faces:
-            res = self._embree.run(start.astype(np.float32), d.astype(np.float32),
-                                   dists=tmax.astype(np.float32), query="OCCLUDED")
+            res = _embree_run(self._embree, start, d, tmax, query="OCCLUDED")
             return np.asarray(res) >= 0
         return self.intersect(start, d, tmax, cull_back_faces=True).hit
 
