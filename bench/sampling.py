@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -726,8 +727,9 @@ def write_report(args, info: dict, results: list[dict], sweep: dict | None, swee
            if args.timing_res else "- Table 7 timing: skipped.",
            f"- Ground planes of the built-ins: {getattr(args, 'ground', 'with')} (main tables: as built "
            "unless 'without').",
-           f"- Resolution sweep (Figs 13-15): {', '.join(args.sweep_scenes) or 'none'} at "
-           f"{', '.join(map(str, args.sweep_res))} with {args.sweep_views} intermediate views.",
+           (f"- Resolution sweep (Figs 13-15): {', '.join(args.sweep_scenes)} at "
+            f"{', '.join(map(str, args.sweep_res))} with {args.sweep_views} intermediate views."
+            if args.sweep_scenes else "- Resolution sweep (Figs 13-15): not in this run."),
            f"- Wall time {wall_s / 60:.1f} min. Target of the issue: 1024² images and 1000 intermediate views. "
            + args.why, ""]
     md += ["## Machine", "", machine_markdown(info), ""]
@@ -856,6 +858,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--report-only", action="store_true",
                     help="rewrite sampling.md (and the sweep plots) from the sampling.json in --out, no rendering")
     ap.add_argument("--out", type=Path, default=RESULTS_DIR)
+    ap.add_argument("--merge", type=Path, nargs="+", default=[],
+                    help="sampling.json files of per-scene runs with the same --res and --views: write their union "
+                         "to --out (sampling.json + sampling.md), no rendering")
     ap.add_argument("--extra-json", type=Path, action="append", default=[],
                     help="sampling.json of another run (e.g. 1024²) to include in the issue-3 criteria section")
     args = ap.parse_args(argv)
@@ -900,6 +905,33 @@ def report_only(args: argparse.Namespace) -> int:
     return 0
 
 
+def merge_runs(args: argparse.Namespace) -> int:
+    """One report from per-scene runs of the same configuration (e.g. the
+    1024²/1000-view target, run scene by scene so a long run lands in parts):
+    their scenes in the given order, stage times and wall times summed, Table 3
+    pictures referenced where they lie."""
+    out = Path(args.out)
+    parts = [(Path(p), json.loads(Path(p).read_text())) for p in args.merge]
+    keys = {(d["config"]["res"], d["config"]["views"], d["config"].get("seed", 0)) for _, d in parts}
+    if len(keys) != 1:
+        raise SystemExit(f"--merge: runs differ in (res, views, seed): {sorted(keys)}")
+    scenes, stages = [], {}
+    for path, d in parts:
+        for r in d["scenes"]:
+            png = path.parent / r["table3_png"]
+            r["table3_png"] = os.path.relpath(png, out)
+            scenes.append(r)
+        stages.update(d["stage_seconds"])
+    base = parts[0][1]
+    data = {**base, "scenes": scenes, "stage_seconds": stages, "wall_s": sum(d["wall_s"] for _, d in parts),
+            "command": " ; ".join(d["command"] for _, d in parts), "scenes_without_ground": [], "sweep": None,
+            "merged_from": [os.path.relpath(p, out) for p, _ in parts]}
+    data["config"]["scenes"] = [r["scene"] for r in scenes]
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / "sampling.json", data)
+    return report_only(args)
+
+
 def timing_only(args: argparse.Namespace) -> int:
     """Redo Table 7 for the scenes of an earlier run's sampling.json (same rig)."""
     from gl_passes.context import create_gl_context
@@ -934,6 +966,8 @@ def timing_only(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    if args.merge:
+        return merge_runs(args)
     if args.report_only:
         return report_only(args)
     if args.timing_only:
