@@ -848,7 +848,7 @@ def why_reduced(res: int, views: int) -> str:
     if (res, views) == (1024, 1000):
         return "This run is the target configuration."
     return (f"This run uses {res}² and {views} views: on this shared 2-core machine the Embree casts of 1000 "
-            "intermediate views per scene (plus the visibility-definition layer walks) at 1024² take 18-40 min per "
+            "intermediate views per scene (plus the visibility-definition layer walks) at 1024² take 17-43 min per "
             "scene (`sampling_1024_1000v/`, run scene by scene and joined with --merge), so the defaults are sized "
             "to finish within about 10 minutes; pass --res 1024 --views 1000 for the target.")
 
