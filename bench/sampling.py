@@ -726,9 +726,10 @@ def criteria_tables(runs: list[tuple[str, list[dict]]], timing_results: list[dic
 
 def write_report(args, info: dict, results: list[dict], sweep: dict | None, sweep_pngs: list[str],
                  stage_seconds: dict[str, float], wall_s: float, write_json_file: bool = True,
-                 variant: list[dict] | None = None, extra_runs: list[dict] | None = None) -> None:
+                 variant: list[dict] | None = None, extra_runs: list[dict] | None = None) -> dict:
     """sampling.md (+ sampling.json): extra_runs are the sampling.json contents of
-    other runs (e.g. 1024²) whose scenes join the issue-3 criteria section."""
+    other runs (e.g. 1024²) whose scenes join the issue-3 criteria section.
+    Returns the criteria summary (criteria_tables) written to the json."""
     md = ["# Sampling quality of depth-image sets (thesis Ch. 2, Tables 2-7, Figs 13-15)", ""]
     md += ["## What was run", "",
            f"- Command: `{args.command}`",
@@ -827,7 +828,7 @@ def write_report(args, info: dict, results: list[dict], sweep: dict | None, swee
            md_table(["stage", "seconds"], [[k, f"{v:.1f}"] for k, v in stage_seconds.items()]), ""]
     write_text(args.out / "sampling.md", "\n".join(md))
     if not write_json_file:
-        return
+        return crit
     write_json(args.out / "sampling.json", {
         "command": args.command,
         "config": {k: v for k, v in vars(args).items() if k not in ("out", "command", "report_only")},
@@ -841,6 +842,7 @@ def write_report(args, info: dict, results: list[dict], sweep: dict | None, swee
                for k in ("all", "nr_all", "nr_earlier")},
             "table4": float(np.mean(d4)) if d4 else None, "table6": float(np.mean(d6)) if d6 else None},
     })
+    return crit
 
 
 def why_reduced(res: int, views: int) -> str:
@@ -920,12 +922,10 @@ def report_only(args: argparse.Namespace) -> int:
     sweep = data.get("sweep")
     pngs = sweep_plots(sweep, args.out) if sweep else []
     extra = load_extra(args)
-    write_report(cfg, data["machine"], data["scenes"], sweep, pngs, data["stage_seconds"], data["wall_s"],
-                 write_json_file=False, variant=data.get("scenes_without_ground"), extra_runs=extra)
     # The json's derived fields follow the report (the criteria over this run and the extra runs).
-    runs = [(f"{cfg.res}², {cfg.views} views", data["scenes"])]
-    runs += [(f"{e['config']['res']}², {e['config']['views']} views", e["scenes"]) for e in extra]
-    data["criteria"] = criteria_tables(runs, data["scenes"])[1]
+    data["criteria"] = write_report(cfg, data["machine"], data["scenes"], sweep, pngs, data["stage_seconds"],
+                                    data["wall_s"], write_json_file=False,
+                                    variant=data.get("scenes_without_ground"), extra_runs=extra)
     data["extra_runs"] = [e["_path"] for e in extra]
     write_json(path, data)
     print(f"rewrote {args.out / 'sampling.md'} (and the criteria in sampling.json)", file=sys.stderr)

@@ -369,7 +369,7 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
         col = layer_surface(layer, org, top, pix, D, dtol).rgb;
         t_hit = hit_distance(t0, t1, zs, ze, a0, a1, ac, D);
         return true;
-        }
+    }
     return false;
 }
 
