@@ -95,11 +95,17 @@ class DepthImageRenderer:
     tri_from_geom: take the triangle id from a geometry shader
     (depth_image.geom, as the thesis and the G-buffer do) instead of
     gl_PrimitiveID in the fragment shader — only to measure its cost.
-    The images are the same either way (up to float rounding at texel edges)."""
+    The images are the same either way (up to float rounding at texel edges).
+    cull_back_faces: False draws both sides of every triangle — not a method of
+    the thesis (every image of §2.3 culls back faces); it exists only for the
+    benchmark's two-sided peeling variant, which measures what the thesis's
+    peeling numbers suggest (bench/sampling.py, --peel-two-sided)."""
 
-    def __init__(self, gl: GLContext, vs_project: bool | None = None, tri_from_geom: bool = False) -> None:
+    def __init__(self, gl: GLContext, vs_project: bool | None = None, tri_from_geom: bool = False,
+                 cull_back_faces: bool = True) -> None:
         gl.check_thread()
         self.gl = gl
+        self.cull_back_faces = cull_back_faces
         self.vs_project = vs_project
         self.tri_from_geom = tri_from_geom
         self.max_vs_outputs = int(gl.ctx.info.get("GL_MAX_VERTEX_OUTPUT_COMPONENTS", 64))
@@ -155,7 +161,7 @@ class DepthImageRenderer:
         fbo.use()
         fbo.viewport = (0, 0, *size)
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        ctx.enable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+        ctx.enable(moderngl.DEPTH_TEST | moderngl.CULL_FACE if self.cull_back_faces else moderngl.DEPTH_TEST)
         ctx.depth_func = "<"
         ctx.front_face = "ccw"
         ctx.cull_face = "back"

@@ -384,6 +384,32 @@ def test_peeling_layers(which, request, gl):
     assert_real_front_facing_samples(s["scene"], peel, [conv] * len(peel))
 
 
+
+def test_two_sided_peeling_peels_back_faces(gl, fig11):
+    """cull_back_faces=False (the benchmark's variant of what the thesis's peeling
+    numbers suggest): on the closed boxes, layer 0 is unchanged, and behind A's
+    front face layer 1 holds A again (its back face, normal away from the eye),
+    where the culled layer 1 holds B or nothing."""
+    scene, cam = fig11["scene"], fig11["peel_cam"]
+    sg = SceneGPU(gl, scene)
+    r = di.DepthImageRenderer(gl, cull_back_faces=False)
+    try:
+        two = di.depth_peeling(gl, sg, cam, 2, renderer=r)
+    finally:
+        r.release()
+        sg.release()
+    culled = fig11["peel"]
+    np.testing.assert_array_equal(two[0].tri_id, culled[0].tri_id)
+    behind_a = object_ids(scene, two[0].tri_id) == A
+    assert behind_a.sum() > 100
+    assert (object_ids(scene, two[1].tri_id)[behind_a] == A).all()
+    assert not (object_ids(scene, culled[1].tri_id)[behind_a] == A).any()
+    v, f = scene.vertices.astype(np.float64), scene.faces.astype(np.int64)
+    tri = v[f[two[1].tri_id[behind_a].astype(np.int64) - 1]]  # (N,3,3)
+    face_n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    to_eye = np.asarray(cam.eye) - two[1].position[behind_a]
+    assert (np.einsum("ij,ij->i", face_n, to_eye) < 0).all()  # back faces (the stored normal faces the eye)
+
 # --- resources ---------------------------------------------------------------------------
 
 def test_non_redundant_20_times_does_not_grow_gl_objects():

@@ -1,0 +1,225 @@
+"""Depth peeling with and without back-face culling, against the thesis's Tables 2 and 5.
+
+The issue asks for back-face culling on every image, and §2.3 says all its
+renderings cull back faces; yet the thesis's peeling layer 1 is almost never
+useful on the nest and the city (2 % and 7 % of its occluded samples, pixel
+definition, Table 2), although its layer 2 is (71 %). That pattern is what
+peeling *without* culling gives on closed geometry: layer 1 is the inside of the
+first surface (its back face), which no intermediate view sees. This benchmark
+measures both peelings on our scenes, with the same Fig. 8 rig, intermediate
+views and §2.3.2 metrics as `bench.sampling`, and sets the non-redundant images'
+useful occluded samples beside both (criterion (c) of issue 3).
+
+The two-sided variant is a diagnostic, not a method of the product: the service
+and `bench.sampling` peel with culling on, as the issue asks.
+
+Run `python -m bench.peeling_sides --help`; results go to bench/results/peeling_sides.*.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+if __package__ in (None, ""):  # `python bench/peeling_sides.py`
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.common import (  # noqa: E402
+    RESULTS_DIR,
+    load_named_scene,
+    machine_info,
+    machine_markdown,
+    md_table,
+    write_json,
+    write_text,
+)
+from bench.sampling import THESIS_T2, THESIS_T5, make_rig, render_sets  # noqa: E402
+
+DEFINITIONS = {"pixel": THESIS_T2, "visibility": THESIS_T5}
+PEELINGS = ("peeling", "peeling_two_sided")
+
+
+def run_scene(name: str, gl, res: int, views: int, seed: int, progress: bool) -> dict:
+    """Metrics of NR (both definitions) and of both peelings on one scene."""
+    from gl_passes import depth_images as di
+    from gl_passes.upload import SceneGPU
+    from reference.raycast import RayCaster
+    from reference.sampling_metrics import evaluate_sets
+    from scenes.rig import intermediate_views
+
+    scene = load_named_scene(name)
+    rc = RayCaster(scene)
+    sg = SceneGPU(gl, scene)
+    renderer = di.DepthImageRenderer(gl, cull_back_faces=False)
+    try:
+        cams, peel_cam = make_rig(scene, res, None)
+        sets = render_sets(gl, sg, rc, cams, peel_cam)
+        sets["peeling_two_sided"] = di.depth_peeling(gl, sg, peel_cam, 3, renderer=renderer)
+    finally:
+        renderer.release()
+        sg.release()
+    jobs = {}
+    for red in DEFINITIONS:
+        jobs[f"{red}/non_redundant"] = (sets["nr_pixel" if red == "pixel" else "nr_visibility"], red)
+        for p in PEELINGS:
+            jobs[f"{red}/{p}"] = (sets[p], red)
+    metrics = evaluate_sets(scene, jobs, sets["conventional"], intermediate_views(cams, views, seed=seed),
+                            caster=rc, progress=progress)
+    return {"scene": name, "triangles": scene.n_triangles, "metrics": {k: m.to_dict() for k, m in metrics.items()}}
+
+
+def _share(m: dict, i: int) -> tuple[float, float]:
+    """(occluded % of layer i's samples, useful % of its occluded samples)."""
+    return 100 * m["occluded_frac"][i], 100 * m["useful_frac_of_occluded"][i]
+
+
+def layer_table(results: list[dict], red: str) -> tuple[str, dict[str, float]]:
+    """Per scene and layer: occluded (useful) % of both peelings and the thesis's;
+    also the mean |ours − thesis| of the useful share over layers 1-2 per peeling."""
+    rows, gaps = [], {p: [] for p in PEELINGS}
+    for r in results:
+        t = DEFINITIONS[red].get(r["scene"], {}).get("peel")
+        for i in range(3):
+            cells = []
+            for p in PEELINGS:
+                occ, use = _share(r["metrics"][f"{red}/{p}"], i)
+                cells.append(f"{occ:.0f} ({use:.0f})")
+                if t and i:
+                    gaps[p].append(abs(use - t[i][1]))
+            rows.append([r["scene"], f"L{i}", *cells, f"{t[i][0]:g} ({t[i][1]:g})" if t else "—"])
+    table = md_table(["scene", "layer", "culled (the issue's)", "two-sided", "thesis"], rows)
+    return table, {p: float(np.mean(g)) if g else float("nan") for p, g in gaps.items()}
+
+
+def useful_table(results: list[dict], red: str) -> tuple[str, dict[str, int]]:
+    """Useful occluded samples, totals over the three images: NR (issue reading and
+    thesis reading) against both peelings; counts of scenes where NR ≥ peeling."""
+    rows, wins = [], {f"{reading}/{p}": 0 for reading in ("issue", "thesis") for p in PEELINGS}
+    for r in results:
+        m = r["metrics"]
+        nr = m[f"{red}/non_redundant"]["total"]
+        peel = [m[f"{red}/{p}"]["total"]["useful"] for p in PEELINGS]
+        cells = []
+        for reading, key in (("issue", "useful"), ("thesis", "useful_earlier")):
+            for p, u in zip(PEELINGS, peel, strict=True):
+                ok = nr[key] >= u
+                wins[f"{reading}/{p}"] += ok
+                cells.append(f"{nr[key] / u:.2f}" + ("" if ok else " **<1**") if u else "—")
+        avail = [f"{100 * m[f'{red}/{p}']['available_avg']:.2f}" for p in PEELINGS]
+        rows.append([r["scene"], f"{nr['useful']:,}", f"{nr['useful_earlier']:,}", *(f"{u:,}" for u in peel),
+                     *cells, " / ".join(avail)])
+    headers = ["scene", "NR, issue reading", "NR, thesis reading", "peel culled", "peel two-sided",
+               "NR/culled (issue r.)", "NR/two-sided (issue r.)", "NR/culled (thesis r.)",
+               "NR/two-sided (thesis r.)", "available avg culled / two-sided [%]"]
+    return md_table(headers, rows), wins
+
+
+def write_report(out: Path, args: argparse.Namespace, info: dict, results: list[dict], seconds: float) -> None:
+    n = len(results)
+    parts = [
+        "# Depth peeling with and without back-face culling (thesis Tables 2 and 5)",
+        "",
+        "## What was run",
+        "",
+        f"- Command: `python -m bench.peeling_sides --scenes {','.join(args.scenes)} --res {args.res} "
+        f"--views {args.views} --seed {args.seed}`",
+        "- Scenes: " + ", ".join(f"{r['scene']} ({r['triangles']:,} triangles)" for r in results),
+        f"- The Fig. 8 rig of `bench.sampling` at {args.res}×{args.res}; 3 peeling layers from the centroid, "
+        f"once with back-face culling (as the issue asks; the product's peeling) and once without; "
+        f"{args.views} intermediate views (seed {args.seed}) cast with Embree; metrics of "
+        "`reference.sampling_metrics` (the conventional images, whose samples define \"occluded\", cull back "
+        "faces in both cases).",
+        f"- Wall time {seconds / 60:.1f} min.",
+        "",
+        "## Machine",
+        "",
+        machine_markdown(info),
+        "",
+    ]
+    gap_by_def = {}
+    for red in DEFINITIONS:
+        table, gaps = layer_table(results, red)
+        gap_by_def[red] = gaps
+        parts += [
+            f"## Peeling layers, {red} definition: occluded % of the layer's samples (useful % of those)",
+            "",
+            table,
+            "",
+            f"Mean |ours − thesis| of the useful share over layers L1, L2: culled {gaps['peeling']:.1f} points, "
+            f"two-sided {gaps['peeling_two_sided']:.1f} points.",
+            "",
+        ]
+    for red in DEFINITIONS:
+        table, wins = useful_table(results, red)
+        parts += [
+            f"## Useful occluded samples, {red} definition (totals over the three images)",
+            "",
+            table,
+            "",
+            f"NR ≥ peeling (criterion (c) needs ≥ 3 of 4 scenes): issue reading — against culled peeling "
+            f"{wins['issue/peeling']} / {n}, against two-sided peeling {wins['issue/peeling_two_sided']} / {n}; "
+            f"thesis reading — {wins['thesis/peeling']} / {n} and {wins['thesis/peeling_two_sided']} / {n}.",
+            "",
+        ]
+    stronger = sum(r["metrics"][f"{red}/peeling"]["total"]["useful"]
+                   >= r["metrics"][f"{red}/peeling_two_sided"]["total"]["useful"]
+                   for r in results for red in DEFINITIONS)
+    closer = {red: min(PEELINGS, key=lambda p, g=gap_by_def[red]: g[p]) for red in DEFINITIONS}
+    name = {"peeling": "the culled peeling", "peeling_two_sided": "the two-sided peeling"}
+    parts += [
+        "## Reading",
+        "",
+        f"* Over the useful shares of layers L1 and L2, the thesis's Table 2 (pixel definition) is closer to "
+        f"{name[closer['pixel']]}, its Table 5 (visibility definition) to {name[closer['visibility']]}. "
+        "Both tables describe the same peeling images (peeling does not depend on the redundancy "
+        "definition; only the metric does), and on closed models both of our metrics call a back-face "
+        "sample neither captured nor needed"
+        + (". So no single peeling of ours reproduces both tables, and the thesis's near-useless layer 1 in "
+           "Table 2 (nest 2 %, grass 4 %, city 7 %) is matched on the closed models only by drawing back faces."
+           if closer["pixel"] != closer["visibility"] else ".")
+        + f" The culled peeling has at least as many useful occluded samples as the two-sided one on "
+        f"{stronger} of {n * len(DEFINITIONS)} scene × definition cases; `bench.sampling` keeps it, as the "
+        "issue asks.",
+        "* How far the variant moves a scene depends on how it is modelled: the nest's twigs (closed "
+        "prisms) and the city's blocks are closed, so two-sided layer 1 is their inside. Our grass blades and "
+        "tree leaves are two coincident sheets of opposite facing (`scenes.builtin.geometry.two_sided`): "
+        "drawn without culling, the back sheet z-fights with the front one, so layer 0 already stores "
+        "back-facing triangles at some pixels (never captured by a conventional image, hence \"occluded\", "
+        "and never needed by a view), which single-sheet leaves would not do.",
+        "",
+    ]
+    write_text(out / "peeling_sides.md", "\n".join(parts))
+    write_json(out / "peeling_sides.json", {"args": {k: v for k, v in vars(args).items() if k != "out"},
+                                            "machine": info, "seconds": seconds, "results": results})
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", type=lambda s: s.split(","), default=["nest", "grass", "city", "tree"])
+    ap.add_argument("--res", type=int, default=512, help="image resolution (square)")
+    ap.add_argument("--views", type=int, default=200, help="intermediate views")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", type=Path, default=RESULTS_DIR)
+    ap.add_argument("--no-progress", dest="progress", action="store_false")
+    return ap.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from gl_passes.context import create_gl_context
+
+    args = parse_args(argv)
+    gl = create_gl_context()
+    t0 = time.perf_counter()
+    results = [run_scene(s, gl, args.res, args.views, args.seed, args.progress) for s in args.scenes]
+    write_report(args.out, args, machine_info(gl), results, time.perf_counter() - t0)
+    gl.release()
+    print(f"wrote {args.out / 'peeling_sides.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
