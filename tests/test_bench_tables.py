@@ -1,4 +1,4 @@
-"""bench.peeling_sides: its tables count and compare what they say, on hand-made numbers."""
+"""Benchmark report helpers (bench.peeling_sides, bench.rig_spread) on hand-made numbers."""
 
 from __future__ import annotations
 
@@ -35,3 +35,15 @@ def test_layer_table_gap_to_the_thesis():
     assert gaps["peeling_two_sided"] == 0.0
     assert abs(gaps["peeling"] - (abs(50 - 2) + abs(50 - 71)) / 2) < 1e-9
     assert "| nest | L1 | 50 (50) | 50 (2) | 46 (2) |" in table
+
+
+def test_rig_spread_conventional_gap_is_the_mean_over_i1_i2():
+    from bench.rig_spread import conv_gap
+
+    # thesis nest, conventional redundant I1, I2: 70, 80 % (Table 2); 80, 87 % (Table 5)
+    nest = {"scene": "nest", "metrics": {"pixel/conventional": {"redundant_frac": [0.0, 0.60, 0.90]},
+                                         "visibility/conventional": {"redundant_frac": [0.0, 0.80, 0.87]}}}
+    assert abs(conv_gap([nest], "pixel") - 10.0) < 1e-9
+    assert abs(conv_gap([nest], "visibility")) < 1e-9
+    other = {"scene": "diorama", "metrics": {"pixel/conventional": {"redundant_frac": [0.0, 0.0, 0.0]}}}
+    assert abs(conv_gap([nest, other], "pixel") - 10.0) < 1e-9  # scenes the thesis has no row for are skipped
