@@ -259,6 +259,38 @@ def md_table(headers: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
     return "\n".join([head, sep, *body])
 
 
+def report_head(title: str, command: str, facts: Sequence[str], seconds: float, info: Mapping[str, Any]) -> list[str]:
+    """The opening lines of a benchmark report: title, "What was run" (command,
+    `facts` as bullets, wall time) and "Machine" (`machine_markdown(info)`)."""
+    return [f"# {title}", "", "## What was run", "", f"- Command: `{command}`", *(f"- {f}" for f in facts),
+            f"- Wall time {seconds / 60:.1f} min.", "", "## Machine", "", machine_markdown(info), ""]
+
+
+def measure_with_gl(measure: Callable[[Any], Any]) -> tuple[Any, dict[str, Any], float]:
+    """measure(gl) on a fresh GL context (released after): (its result,
+    machine_info(gl), wall seconds)."""
+    from gl_passes.context import create_gl_context
+
+    gl = create_gl_context()
+    try:
+        t0 = time.perf_counter()
+        result = measure(gl)
+        return result, machine_info(gl), time.perf_counter() - t0
+    finally:
+        gl.release()
+
+
+def add_scene_args(ap: Any, views: int, res: int = 512) -> None:
+    """--scenes, --res, --views, --seed, --out, --no-progress of the benchmarks
+    that measure the Fig. 8 rig on the four thesis scenes (an argparse parser)."""
+    ap.add_argument("--scenes", type=lambda s: s.split(","), default=["nest", "grass", "city", "tree"])
+    ap.add_argument("--res", type=int, default=res, help="image resolution (square)")
+    ap.add_argument("--views", type=int, default=views, help="intermediate views")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", type=Path, default=RESULTS_DIR)
+    ap.add_argument("--no-progress", dest="progress", action="store_false")
+
+
 def pct(x: float | None, digits: int = 0) -> str:
     """0.123 → '12%' (digits decimals); None/NaN → '—'."""
     if x is None or (isinstance(x, float) and not math.isfinite(x)):

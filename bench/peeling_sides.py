@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -28,48 +27,36 @@ import numpy as np
 if __package__ in (None, ""):  # `python bench/peeling_sides.py`
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import (  # noqa: E402
-    RESULTS_DIR,
-    load_named_scene,
-    machine_info,
-    machine_markdown,
-    md_table,
-    write_json,
-    write_text,
-)
-from bench.sampling import THESIS_T2, THESIS_T5, make_rig, render_sets  # noqa: E402
+from bench.common import add_scene_args, md_table, measure_with_gl, report_head, write_json, write_text  # noqa: E402
+from bench.sampling import THESIS_T2, THESIS_T5, measure_rig  # noqa: E402
 
 DEFINITIONS = {"pixel": THESIS_T2, "visibility": THESIS_T5}
 PEELINGS = ("peeling", "peeling_two_sided")
 
 
-def run_scene(name: str, gl, res: int, views: int, seed: int, progress: bool) -> dict:
-    """Metrics of NR (both definitions) and of both peelings on one scene."""
+def _two_sided_peeling(gl, sg, cams, peel_cam) -> dict[str, list]:
     from gl_passes import depth_images as di
-    from gl_passes.upload import SceneGPU
-    from reference.raycast import RayCaster
-    from reference.sampling_metrics import evaluate_sets
-    from scenes.rig import intermediate_views
 
-    scene = load_named_scene(name)
-    rc = RayCaster(scene)
-    sg = SceneGPU(gl, scene)
     renderer = di.DepthImageRenderer(gl, cull_back_faces=False)
     try:
-        cams, peel_cam = make_rig(scene, res, None)
-        sets = render_sets(gl, sg, rc, cams, peel_cam)
-        sets["peeling_two_sided"] = di.depth_peeling(gl, sg, peel_cam, 3, renderer=renderer)
+        return {"peeling_two_sided": di.depth_peeling(gl, sg, peel_cam, 3, renderer=renderer)}
     finally:
         renderer.release()
-        sg.release()
+
+
+def _jobs(sets: dict[str, list]) -> dict[str, tuple[list, str]]:
+    """NR of each definition and both peelings, under both definitions."""
     jobs = {}
     for red in DEFINITIONS:
         jobs[f"{red}/non_redundant"] = (sets["nr_pixel" if red == "pixel" else "nr_visibility"], red)
         for p in PEELINGS:
             jobs[f"{red}/{p}"] = (sets[p], red)
-    metrics = evaluate_sets(scene, jobs, sets["conventional"], intermediate_views(cams, views, seed=seed),
-                            caster=rc, progress=progress)
-    return {"scene": name, "triangles": scene.n_triangles, "metrics": {k: m.to_dict() for k, m in metrics.items()}}
+    return jobs
+
+
+def run_scene(name: str, gl, res: int, views: int, seed: int, progress: bool) -> dict:
+    """Metrics of NR (both definitions) and of both peelings on one scene."""
+    return measure_rig(gl, name, res, views, seed, jobs=_jobs, extra_sets=_two_sided_peeling, progress=progress)
 
 
 def _share(m: dict, i: int) -> tuple[float, float]:
@@ -120,26 +107,17 @@ def useful_table(results: list[dict], red: str) -> tuple[str, dict[str, int]]:
 
 def write_report(out: Path, args: argparse.Namespace, info: dict, results: list[dict], seconds: float) -> None:
     n = len(results)
-    parts = [
-        "# Depth peeling with and without back-face culling (thesis Tables 2 and 5)",
-        "",
-        "## What was run",
-        "",
-        f"- Command: `python -m bench.peeling_sides --scenes {','.join(args.scenes)} --res {args.res} "
-        f"--views {args.views} --seed {args.seed}`",
-        "- Scenes: " + ", ".join(f"{r['scene']} ({r['triangles']:,} triangles)" for r in results),
-        f"- The Fig. 8 rig of `bench.sampling` at {args.res}×{args.res}; 3 peeling layers from the centroid, "
-        f"once with back-face culling (as the issue asks; the product's peeling) and once without; "
-        f"{args.views} intermediate views (seed {args.seed}) cast with Embree; metrics of "
-        "`reference.sampling_metrics` (the conventional images, whose samples define \"occluded\", cull back "
-        "faces in both cases).",
-        f"- Wall time {seconds / 60:.1f} min.",
-        "",
-        "## Machine",
-        "",
-        machine_markdown(info),
-        "",
-    ]
+    parts = report_head(
+        "Depth peeling with and without back-face culling (thesis Tables 2 and 5)",
+        f"python -m bench.peeling_sides --scenes {','.join(args.scenes)} --res {args.res} --views {args.views} "
+        f"--seed {args.seed}",
+        ["Scenes: " + ", ".join(f"{r['scene']} ({r['triangles']:,} triangles)" for r in results),
+         f"The Fig. 8 rig of `bench.sampling` at {args.res}×{args.res}; 3 peeling layers from the centroid, "
+         f"once with back-face culling (as the issue asks; the product's peeling) and once without; "
+         f"{args.views} intermediate views (seed {args.seed}) cast with Embree; metrics of "
+         "`reference.sampling_metrics` (the conventional images, whose samples define \"occluded\", cull back "
+         "faces in both cases)."],
+        seconds, info)
     gap_by_def = {}
     for red in DEFINITIONS:
         table, gaps = layer_table(results, red)
@@ -199,24 +177,15 @@ def write_report(out: Path, args: argparse.Namespace, info: dict, results: list[
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scenes", type=lambda s: s.split(","), default=["nest", "grass", "city", "tree"])
-    ap.add_argument("--res", type=int, default=512, help="image resolution (square)")
-    ap.add_argument("--views", type=int, default=200, help="intermediate views")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", type=Path, default=RESULTS_DIR)
-    ap.add_argument("--no-progress", dest="progress", action="store_false")
+    add_scene_args(ap, views=200)
     return ap.parse_args(argv)
 
 
 def main(argv: list[str] | None = None) -> int:
-    from gl_passes.context import create_gl_context
-
     args = parse_args(argv)
-    gl = create_gl_context()
-    t0 = time.perf_counter()
-    results = [run_scene(s, gl, args.res, args.views, args.seed, args.progress) for s in args.scenes]
-    write_report(args.out, args, machine_info(gl), results, time.perf_counter() - t0)
-    gl.release()
+    results, info, seconds = measure_with_gl(
+        lambda gl: [run_scene(s, gl, args.res, args.views, args.seed, args.progress) for s in args.scenes])
+    write_report(args.out, args, info, results, seconds)
     print(f"wrote {args.out / 'peeling_sides.md'}")
     return 0
 

@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -25,49 +24,15 @@ import numpy as np
 if __package__ in (None, ""):  # `python bench/rig_spread.py`
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import (  # noqa: E402
-    RESULTS_DIR,
-    load_named_scene,
-    machine_info,
-    machine_markdown,
-    md_table,
-    write_json,
-    write_text,
-)
-from bench.sampling import (  # noqa: E402
-    THESIS_T2,
-    THESIS_T5,
-    criteria_rows,
-    make_rig,
-    metric_jobs,
-    render_sets,
-)
+from bench.common import add_scene_args, md_table, measure_with_gl, report_head, write_json, write_text  # noqa: E402
+from bench.sampling import THESIS_T2, THESIS_T5, criteria_rows, measure_rig  # noqa: E402
 
 THESIS_CONV = {"pixel": THESIS_T2, "visibility": THESIS_T5}
 
 
 def run_spread(gl, scenes: list[str], spread: float, res: int, views: int, seed: int, progress: bool) -> list[dict]:
     """`bench.sampling`-shaped results (scene, metrics) of every scene at one spread."""
-    from gl_passes.upload import SceneGPU
-    from reference.raycast import RayCaster
-    from reference.sampling_metrics import evaluate_sets
-    from scenes.rig import intermediate_views
-
-    out = []
-    for name in scenes:
-        scene = load_named_scene(name)
-        rc = RayCaster(scene)
-        sg = SceneGPU(gl, scene)
-        try:
-            cams, peel_cam = make_rig(scene, res, None, spread)
-            sets = render_sets(gl, sg, rc, cams, peel_cam)
-        finally:
-            sg.release()
-        metrics = evaluate_sets(scene, metric_jobs(sets), sets["conventional"],
-                                intermediate_views(cams, views, seed=seed), caster=rc, progress=progress)
-        out.append({"scene": name, "triangles": scene.n_triangles, "spread_deg": spread,
-                    "metrics": {k: m.to_dict() for k, m in metrics.items()}})
-    return out
+    return [measure_rig(gl, name, res, views, seed, spread, progress=progress) for name in scenes]
 
 
 def conv_gap(results: list[dict], red: str) -> float:
@@ -100,23 +65,15 @@ def write_report(out: Path, args: argparse.Namespace, info: dict, runs: dict[flo
                            "yes" if x["c_earlier"] else "**no**"])
     best = {red: min(runs, key=lambda s, red=red: conv_gap(runs[s], red)) for red in THESIS_CONV}
     gaps = {red: [conv_gap(r, red) for r in runs.values()] for red in THESIS_CONV}
-    parts = [
-        "# Issue 3's criteria against the spread of the Fig. 8 rig",
-        "",
-        "## What was run",
-        "",
-        f"- Command: `python -m bench.rig_spread --spreads {','.join(f'{s:g}' for s in runs)} --scenes "
-        f"{','.join(args.scenes)} --res {args.res} --views {args.views} --seed {args.seed}`",
-        f"- Per spread (degrees between each reference eye and the rig's axis; `bench.sampling` uses 20°): the "
-        f"Fig. 8 rig framed as in `bench.sampling` (`scenes.rig.fit_distance`), {args.res}² images, "
-        f"{args.views} intermediate views (seed {args.seed}), the metrics of `reference.sampling_metrics` and "
-        "the criteria of `bench.sampling`.",
-        f"- Wall time {seconds / 60:.1f} min.",
-        "",
-        "## Machine",
-        "",
-        machine_markdown(info),
-        "",
+    parts = report_head(
+        "Issue 3's criteria against the spread of the Fig. 8 rig",
+        f"python -m bench.rig_spread --spreads {','.join(f'{s:g}' for s in runs)} --scenes {','.join(args.scenes)} "
+        f"--res {args.res} --views {args.views} --seed {args.seed}",
+        [f"Per spread (degrees between each reference eye and the rig's axis; `bench.sampling` uses 20°): the "
+         f"Fig. 8 rig framed as in `bench.sampling` (`scenes.rig.fit_distance`), {args.res}² images, "
+         f"{args.views} intermediate views (seed {args.seed}), the metrics of `reference.sampling_metrics` and "
+         "the criteria of `bench.sampling`."],
+        seconds, info) + [
         "## Summary",
         "",
         "Conventional gap: mean |ours − thesis| of the conventional images' redundant share of I1 and I2 "
@@ -152,20 +109,13 @@ def write_report(out: Path, args: argparse.Namespace, info: dict, runs: dict[flo
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--spreads", type=lambda s: [float(x) for x in s.split(",")], default=[10.0, 15.0, 20.0, 30.0])
-    ap.add_argument("--scenes", type=lambda s: s.split(","), default=["nest", "grass", "city", "tree"])
-    ap.add_argument("--res", type=int, default=512, help="image resolution (square)")
-    ap.add_argument("--views", type=int, default=100, help="intermediate views")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", type=Path, default=RESULTS_DIR)
-    ap.add_argument("--no-progress", dest="progress", action="store_false")
+    ap.add_argument("--spreads", type=lambda s: [float(x) for x in s.split(",")], default=[5.0, 10.0, 15.0, 20.0, 30.0])
+    add_scene_args(ap, views=100)
     ap.add_argument("--report-only", action="store_true", help="rewrite rig_spread.md from rig_spread.json in --out")
     return ap.parse_args(argv)
 
 
 def main(argv: list[str] | None = None) -> int:
-    from gl_passes.context import create_gl_context
-
     args = parse_args(argv)
     if args.report_only:
         data = json.loads((args.out / "rig_spread.json").read_text())
@@ -174,11 +124,10 @@ def main(argv: list[str] | None = None) -> int:
         write_report(args.out, saved, data["machine"], runs, data["seconds"])
         print(f"rewrote {args.out / 'rig_spread.md'}")
         return 0
-    gl = create_gl_context()
-    t0 = time.perf_counter()
-    runs = {s: run_spread(gl, args.scenes, s, args.res, args.views, args.seed, args.progress) for s in args.spreads}
-    write_report(args.out, args, machine_info(gl), runs, time.perf_counter() - t0)
-    gl.release()
+    runs, info, seconds = measure_with_gl(
+        lambda gl: {s: run_spread(gl, args.scenes, s, args.res, args.views, args.seed, args.progress)
+                    for s in args.spreads})
+    write_report(args.out, args, info, runs, seconds)
     print(f"wrote {args.out / 'rig_spread.md'}")
     return 0
 

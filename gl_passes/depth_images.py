@@ -99,7 +99,7 @@ class DepthImageRenderer:
     cull_back_faces: False draws both sides of every triangle — not a method of
     the thesis (every image of §2.3 culls back faces); it exists only for the
     benchmark's two-sided peeling variant, which measures what the thesis's
-    peeling numbers suggest (bench/sampling.py, --peel-two-sided)."""
+    peeling numbers suggest (bench/peeling_sides.py)."""
 
     def __init__(self, gl: GLContext, vs_project: bool | None = None, tri_from_geom: bool = False,
                  cull_back_faces: bool = True) -> None:
@@ -161,7 +161,7 @@ class DepthImageRenderer:
         fbo.use()
         fbo.viewport = (0, 0, *size)
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        ctx.enable(moderngl.DEPTH_TEST | moderngl.CULL_FACE if self.cull_back_faces else moderngl.DEPTH_TEST)
+        ctx.enable((moderngl.DEPTH_TEST | moderngl.CULL_FACE) if self.cull_back_faces else moderngl.DEPTH_TEST)
         ctx.depth_func = "<"
         ctx.front_face = "ccw"
         ctx.cull_face = "back"
