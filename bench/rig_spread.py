@@ -45,12 +45,13 @@ def conv_gap(results: list[dict], red: str) -> float:
 
 def write_report(out: Path, args: argparse.Namespace, info: dict, runs: dict[float, list[dict]],
                  seconds: float) -> None:
+    gaps = {red: {s: conv_gap(r, red) for s, r in runs.items()} for red in THESIS_CONV}  # spread → points
     summary, detail = [], []
     for spread, results in runs.items():
         rows = criteria_rows(results, f"{spread:g}°")
         for red in THESIS_CONV:
             rr = [x for x in rows if x["definition"] == red]
-            summary.append([f"{spread:g}°", red, f"{conv_gap(results, red):.1f}",
+            summary.append([f"{spread:g}°", red, f"{gaps[red][spread]:.1f}",
                             f"{sum(x['b'] for x in rr)} / {len(rr)}", f"{sum(x['c'] for x in rr)} / {len(rr)}",
                             f"{sum(bool(x['c_earlier']) for x in rr)} / {len(rr)}"])
         for x in rows:
@@ -63,8 +64,7 @@ def write_report(out: Path, args: argparse.Namespace, info: dict, runs: dict[flo
                            f"{x['useful'][0]:,} / {x['useful'][1]:,}", "yes" if x["c"] else "**no**",
                            f"{x['useful_earlier'][0]:,} / {x['useful_earlier'][1]:,}",
                            "yes" if x["c_earlier"] else "**no**"])
-    best = {red: min(runs, key=lambda s, red=red: conv_gap(runs[s], red)) for red in THESIS_CONV}
-    gaps = {red: [conv_gap(r, red) for r in runs.values()] for red in THESIS_CONV}
+    best = {red: min(g, key=g.get) for red, g in gaps.items()}
     parts = report_head(
         "Issue 3's criteria against the spread of the Fig. 8 rig",
         f"python -m bench.rig_spread --spreads {','.join(f'{s:g}' for s in runs)} --scenes {','.join(args.scenes)} "
@@ -85,10 +85,10 @@ def write_report(out: Path, args: argparse.Namespace, info: dict, runs: dict[flo
         "",
         f"The conventional redundancy is closest to the thesis's at {best['pixel']:g}° (pixel definition) and "
         f"{best['visibility']:g}° (visibility definition); over the spreads run, the gap ranges over "
-        + " and ".join(f"{min(g):.1f}-{max(g):.1f} points ({red})" for red, g in gaps.items())
+        + " and ".join(f"{min(g.values()):.1f}-{max(g.values()):.1f} points ({red})" for red, g in gaps.items())
         + ", so it pins the spread down only "
-        + ("loosely" if max(max(g) - min(g) for g in gaps.values()) < 10 else "where one definition's gap has a "
-           "clear minimum")
+        + ("loosely" if max(max(g.values()) - min(g.values()) for g in gaps.values()) < 10
+           else "where one definition's gap has a clear minimum")
         + ". The criteria's verdicts by spread are in the summary above.",
         "",
         "## Per scene",
