@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from reference.raycast import usable_cpus  # the reference caster sizes its thread pool by it
+
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 SHARED_SCENES = Path(os.environ.get("DEPTHVIEW_SHARED_SCENES",
                                     Path(__file__).resolve().parents[2] / "shared" / "scenes"))
@@ -50,13 +52,6 @@ def memory_gib() -> float | None:
     except (OSError, ValueError):
         pass
     return None
-
-
-def usable_cpus() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - non-Linux
-        return os.cpu_count() or 1
 
 
 def _version(mod: str) -> str | None:

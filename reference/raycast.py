@@ -55,8 +55,17 @@ def _ray_limits(tmax: np.ndarray | float | None, n: int) -> np.ndarray:
 
 #: Rays per Embree call below which the batch is not split across threads.
 PARALLEL_MIN_RAYS = 65536
-_WORKERS = max(1, min(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1,
-                       16))
+
+
+def usable_cpus() -> int:
+    """CPUs this process may run on (its affinity mask where the OS has one)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - non-Linux
+        return os.cpu_count() or 1
+
+
+_WORKERS = max(1, min(usable_cpus(), 16))
 _pool: ThreadPoolExecutor | None = None
 
 
