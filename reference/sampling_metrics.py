@@ -111,17 +111,18 @@ from scipy.ndimage import maximum_filter
 from reference.raycast import RayCaster
 from reference.visibility import (
     MAX_LAYERS,
+    REDUNDANCY,
     clipped,
     count_front_hits,
     front_facing,
+    pixel_redundant,
     project_texels,
+    redundant_with,
     visible_from,
 )
 from scenes.camera import Camera
 from scenes.depth_image import DepthImage
 from scenes.model import Scene
-
-REDUNDANCY = ("pixel", "visibility")
 
 
 @dataclass
@@ -260,24 +261,6 @@ class _Samples:
             m[self.pixel[sel]] = mask[sel]
             out.append(m.reshape(im.tri_id.shape))
         return out
-
-
-def pixel_redundant(image_tri: np.ndarray, camera: Camera, points: np.ndarray, tri: np.ndarray) -> np.ndarray:
-    """(N,) bool, Alg. 3: the texel of `image_tri` (H,W) that each point projects
-    to (inside the frustum of `camera`) holds the point's triangle id."""
-    ix, iy, inside = project_texels(camera, points)
-    return inside & (image_tri[iy, ix] == np.asarray(tri, np.uint32))
-
-
-def redundant_with(caster: RayCaster, image: DepthImage, points: np.ndarray, tri: np.ndarray,
-                   redundancy: str) -> np.ndarray:
-    """(N,) bool: surface points on triangles `tri` are redundant with `image`
-    (module docstring; visibility ignores the stored content, as §2.2.1)."""
-    if redundancy == "pixel":
-        return pixel_redundant(image.tri_id, image.camera, points, tri)
-    if redundancy == "visibility":
-        return visible_from(caster, image.camera, points, tri)
-    raise ValueError(f"redundancy must be one of {REDUNDANCY}, got {redundancy!r}")
 
 
 def _any_redundant(caster: RayCaster, images: Sequence[DepthImage], pts: np.ndarray, tri: np.ndarray,

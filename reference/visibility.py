@@ -1,4 +1,4 @@
-"""Visibility redundancy (thesis §2.2.1, Alg. 2) with Embree — never with GL.
+"""Redundancy tests (thesis §2.2.1, Alg. 2 and 3) and Alg. 1 with Embree — never with GL.
 
 Definitions used here and by `reference.sampling_metrics` (culling semantics as
 every depth image in the project, DESIGN.md "Back-face culling on"):
@@ -16,6 +16,11 @@ every depth image in the project, DESIGN.md "Back-face culling on"):
   I_j (j < i) iff the point s is visible from V_j in the sense above. The
   non-redundant image I_i stores, per pixel, the nearest front-facing hit of the
   pixel ray that is not visible from any earlier V_j (image 0: plain ray cast).
+* Alg. 3 (pixel-redundancy test): s is redundant with I_j iff the texel of I_j
+  that s projects to (inside I_j's frustum) stores s's triangle id. The
+  reference non-redundant image of this definition stores, per pixel, the
+  nearest front-facing hit not pixel-redundant with any earlier image as stored
+  (`non_redundant_reference`; GL renders the same in the fragment shader).
 """
 
 from __future__ import annotations
@@ -33,6 +38,8 @@ from scenes.model import Scene
 REL_EPS = 1e-4
 #: Maximum number of surfaces a ray walks through before it gives up.
 MAX_LAYERS = 64
+#: The two redundancy definitions of §2.2.1.
+REDUNDANCY = ("pixel", "visibility")
 
 
 def clipped(camera: Camera, scene: Scene) -> Camera:
@@ -127,6 +134,24 @@ def visible_from(caster: RayCaster, camera: Camera, points: np.ndarray, tri_id: 
     return out
 
 
+def pixel_redundant(image_tri: np.ndarray, camera: Camera, points: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """(N,) bool, Alg. 3: the texel of `image_tri` (H,W) that each point projects
+    to (inside the frustum of `camera`) holds the point's triangle id."""
+    ix, iy, inside = project_texels(camera, points)
+    return inside & (image_tri[iy, ix] == np.asarray(tri, np.uint32))
+
+
+def redundant_with(caster: RayCaster, image: DepthImage, points: np.ndarray, tri: np.ndarray,
+                   redundancy: str) -> np.ndarray:
+    """(N,) bool: surface points on triangles `tri` are redundant with `image`
+    (module docstring; visibility ignores the stored content, as §2.2.1)."""
+    if redundancy == "pixel":
+        return pixel_redundant(image.tri_id, image.camera, points, tri)
+    if redundancy == "visibility":
+        return visible_from(caster, image.camera, points, tri)
+    raise ValueError(f"redundancy must be one of {REDUNDANCY}, got {redundancy!r}")
+
+
 def depth_image_from_hits(caster: RayCaster, camera: Camera, hits: Hits, directions: np.ndarray) -> DepthImage:
     """DepthImage (row 0 = top) from per-pixel hits of `camera`'s pixel rays,
     shaded exactly like RayCaster.gbuffer; misses hold no sample (colour = sky)."""
@@ -162,20 +187,24 @@ def conventional_reference(scene: Scene, cameras: Sequence[Camera],
     return out
 
 
-def non_redundant_visibility(scene: Scene, cameras: Sequence[Camera], caster: RayCaster | None = None,
-                             max_layers: int = MAX_LAYERS) -> list[DepthImage]:
-    """Alg. 1 with the visibility-redundancy test of Alg. 2, by Embree.
+def non_redundant_reference(scene: Scene, cameras: Sequence[Camera], redundancy: str = "visibility",
+                            caster: RayCaster | None = None, max_layers: int = MAX_LAYERS) -> list[DepthImage]:
+    """Alg. 1 by Embree with the redundancy test of Alg. 2 ("visibility") or
+    Alg. 3 ("pixel", against the earlier images of this set as stored).
 
     For each pixel of image i the ray's front-facing hits are walked in depth
-    order (restarting just past each hit) and the first hit that is not visible
-    from any earlier viewpoint V_j (j < i) inside I_j's frustum is kept (module
-    docstring for "visible"). Image 0 is a plain ray cast. Vectorised over
-    pixels: one Embree batch per layer. Cameras without near/far get them fitted
-    to the scene bounds."""
+    order (restarting just past each hit) and the first hit that is not
+    redundant with any earlier image I_j (j < i) is kept (module docstring for
+    "visible"). Image 0 is a plain ray cast. Vectorised over pixels: one Embree
+    batch per layer. Cameras without near/far get them fitted to the scene
+    bounds. The pixel variant is the GL-independent reference of
+    `gl_passes.depth_images.non_redundant(redundancy="pixel")`."""
+    if redundancy not in REDUNDANCY:
+        raise ValueError(f"redundancy must be one of {REDUNDANCY}, got {redundancy!r}")
     rc = caster or RayCaster(scene)
     cams = [clipped(c, scene) for c in cameras]
     images: list[DepthImage] = []
-    for i, cam in enumerate(cams):
+    for cam in cams:
         d = cam.pixel_directions().reshape(-1, 3)
         eye = np.asarray(cam.eye, np.float64)
         n = len(d)
@@ -200,11 +229,11 @@ def non_redundant_visibility(scene: Scene, cameras: Sequence[Camera], caster: Ra
             # occlusion rays that graze an edge.
             pts = (eye + d[idx] * th[:, None]).astype(np.float32).astype(np.float64)
             redundant = ht == last[idx]  # re-hit of the surface we just stepped past
-            for j in range(i):
+            for earlier in images:
                 cand = ~redundant
                 if not cand.any():
                     break
-                redundant[cand] = visible_from(rc, cams[j], pts[cand], ht[cand])
+                redundant[cand] = redundant_with(rc, earlier, pts[cand], ht[cand], redundancy)
             keep = ~redundant
             k = idx[keep]
             t[k], tri[k] = th[keep], ht[keep]
@@ -216,3 +245,11 @@ def non_redundant_visibility(scene: Scene, cameras: Sequence[Camera], caster: Ra
         hits = Hits(t=t, tri_id=tri, u=u, v=v, front=tri > 0)
         images.append(depth_image_from_hits(rc, cam, hits, d))
     return images
+
+
+def non_redundant_visibility(scene: Scene, cameras: Sequence[Camera], caster: RayCaster | None = None,
+                             max_layers: int = MAX_LAYERS) -> list[DepthImage]:
+    """Alg. 1 with the visibility-redundancy test of Alg. 2, by Embree
+    (`non_redundant_reference`): per pixel of image i, the nearest front-facing
+    hit not visible from any earlier viewpoint V_j inside I_j's frustum."""
+    return non_redundant_reference(scene, cameras, "visibility", caster, max_layers)
