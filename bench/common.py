@@ -275,6 +275,32 @@ def measure_with_gl(measure: Callable[[Any], Any]) -> tuple[Any, dict[str, Any],
         gl.release()
 
 
+def sweep_main(args: Any, stem: str, values: Sequence[Any], key: Callable[[Any], str], parse_key: Callable[[str], Any],
+               measure_one: Callable[[Any, Any], list[dict]],
+               write_report: Callable[[Path, Any, dict, dict, float], None]) -> int:
+    """main() of a benchmark that measures the rig once per value of one parameter
+    (`values`, keyed in JSON by key(value)): measure_one(gl, value) on one GL context,
+    then <out>/<stem>.json ({"args", "machine", "seconds", "runs"}) and
+    write_report(out, args, machine, runs, seconds); with args.report_only only the
+    report is rewritten from that JSON (its saved arguments, `out` from args)."""
+    import argparse
+
+    if args.report_only:
+        data = json.loads((args.out / f"{stem}.json").read_text())
+        saved = argparse.Namespace(**{**data["args"], "out": args.out})
+        runs = {parse_key(k): r for k, r in data["runs"].items()}
+        write_report(args.out, saved, data["machine"], runs, data["seconds"])
+        print(f"rewrote {args.out / f'{stem}.md'}")
+        return 0
+    runs, info, seconds = measure_with_gl(lambda gl: {v: measure_one(gl, v) for v in values})
+    write_json(args.out / f"{stem}.json", {"args": {k: v for k, v in vars(args).items() if k != "out"},
+                                           "machine": info, "seconds": seconds,
+                                           "runs": {key(v): r for v, r in runs.items()}})
+    write_report(args.out, args, info, runs, seconds)
+    print(f"wrote {args.out / f'{stem}.md'}")
+    return 0
+
+
 def add_scene_args(ap: Any, views: int, res: int = 512) -> None:
     """--scenes, --res, --views, --seed, --out, --no-progress of the benchmarks
     that measure the Fig. 8 rig on the four thesis scenes (an argparse parser)."""

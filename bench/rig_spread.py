@@ -15,7 +15,6 @@ Run `python -m bench.rig_spread --help`; results go to bench/results/rig_spread.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -24,8 +23,8 @@ import numpy as np
 if __package__ in (None, ""):  # `python bench/rig_spread.py`
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import add_scene_args, md_table, measure_with_gl, report_head, write_json, write_text  # noqa: E402
-from bench.sampling import THESIS_T2, THESIS_T5, criteria_rows, measure_rig  # noqa: E402
+from bench.common import add_scene_args, md_table, report_head, sweep_main, write_text  # noqa: E402
+from bench.sampling import THESIS_T2, THESIS_T5, criteria_rows, measure_rig, verdict_counts  # noqa: E402
 
 THESIS_CONV = {"pixel": THESIS_T2, "visibility": THESIS_T5}
 
@@ -51,9 +50,7 @@ def write_report(out: Path, args: argparse.Namespace, info: dict, runs: dict[flo
         rows = criteria_rows(results, f"{spread:g}°")
         for red in THESIS_CONV:
             rr = [x for x in rows if x["definition"] == red]
-            summary.append([f"{spread:g}°", red, f"{gaps[red][spread]:.1f}",
-                            f"{sum(x['b'] for x in rr)} / {len(rr)}", f"{sum(x['c'] for x in rr)} / {len(rr)}",
-                            f"{sum(bool(x['c_earlier']) for x in rr)} / {len(rr)}"])
+            summary.append([f"{spread:g}°", red, f"{gaps[red][spread]:.1f}", *verdict_counts(rr)])
         for x in rows:
             conv = next(r for r in results if r["scene"] == x["scene"])["metrics"][f"{x['definition']}/conventional"]
             t = THESIS_CONV[x["definition"]].get(x["scene"], {}).get("conv")
@@ -102,9 +99,6 @@ def write_report(out: Path, args: argparse.Namespace, info: dict, runs: dict[flo
         "",
     ]
     write_text(out / "rig_spread.md", "\n".join(parts))
-    write_json(out / "rig_spread.json", {"args": {k: v for k, v in vars(args).items() if k != "out"},
-                                         "machine": info, "seconds": seconds,
-                                         "runs": {f"{s:g}": r for s, r in runs.items()}})
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -117,19 +111,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    if args.report_only:
-        data = json.loads((args.out / "rig_spread.json").read_text())
-        saved = argparse.Namespace(**{**data["args"], "out": args.out})
-        runs = {float(s): r for s, r in data["runs"].items()}
-        write_report(args.out, saved, data["machine"], runs, data["seconds"])
-        print(f"rewrote {args.out / 'rig_spread.md'}")
-        return 0
-    runs, info, seconds = measure_with_gl(
-        lambda gl: {s: run_spread(gl, args.scenes, s, args.res, args.views, args.seed, args.progress)
-                    for s in args.spreads})
-    write_report(args.out, args, info, runs, seconds)
-    print(f"wrote {args.out / 'rig_spread.md'}")
-    return 0
+    return sweep_main(args, "rig_spread", args.spreads, lambda s: f"{s:g}", float,
+                      lambda gl, s: run_spread(gl, args.scenes, s, args.res, args.views, args.seed, args.progress),
+                      write_report)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,9 @@
-"""Benchmark report helpers (bench.peeling_sides, bench.rig_spread) on hand-made numbers."""
+"""Benchmark helpers (bench.peeling_sides, bench.rig_spread, bench.sampling,
+bench.tessellation) on hand-made numbers and a small scene."""
 
 from __future__ import annotations
+
+import numpy as np
 
 from bench.peeling_sides import layer_table, useful_table
 
@@ -47,3 +50,64 @@ def test_rig_spread_conventional_gap_is_the_mean_over_i1_i2():
     assert abs(conv_gap([nest], "visibility")) < 1e-9
     other = {"scene": "diorama", "metrics": {"pixel/conventional": {"redundant_frac": [0.0, 0.0, 0.0]}}}
     assert abs(conv_gap([nest, other], "pixel") - 10.0) < 1e-9  # scenes the thesis has no row for are skipped
+
+
+def test_verdict_counts_counts_scenes_per_criterion():
+    from bench.sampling import verdict_counts
+
+    rows = [{"b": True, "c": False, "c_earlier": True}, {"b": False, "c": False, "c_earlier": True},
+            {"b": True, "c": True, "c_earlier": None}]
+    assert verdict_counts(rows) == ("2 / 3", "1 / 3", "2 / 3")
+
+
+def test_granularity_loss_is_pixel_minus_visibility_availability():
+    from bench.tessellation import granularity_loss, thesis_granularity_loss
+
+    r = {"metrics": {"pixel/conventional": {"available_avg": 0.785},
+                     "visibility/conventional": {"available_avg": 0.925}}}
+    assert abs(granularity_loss(r) - (-14.0)) < 1e-9
+    assert abs(thesis_granularity_loss("grass") - (86 - 86.61)) < 1e-9  # Tables 4 and 6, conventional average
+    assert thesis_granularity_loss("diorama") is None
+
+
+def test_subdivided_scene_keeps_its_surfaces():
+    from bench.tessellation import subdivided
+    from reference.raycast import RayCaster
+    from scenes.builtin import make_builtin
+    from scenes.camera import look_at_scene
+
+    scene = make_builtin("cornell")
+    fine = subdivided(scene, 2)
+    assert fine.n_triangles == 16 * scene.n_triangles
+    for a, b in zip(scene.objects, fine.objects, strict=True):
+        assert a.name == b.name and a.material == b.material
+        area = [float(np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1).sum())
+                for v, f in ((a.vertices, a.faces), (b.vertices, b.faces))]
+        assert abs(area[1] - area[0]) <= 1e-6 * area[0]  # float32 vertices
+        assert np.allclose(np.linalg.norm(b.normals, axis=1), 1.0)
+    cam = look_at_scene(scene.bounds, width=64, height=64)
+    coarse_buf, fine_buf = RayCaster(scene).gbuffer(cam), RayCaster(fine).gbuffer(cam)
+    hit = np.isfinite(coarse_buf.depth)
+    assert hit.mean() > 0.2 and np.array_equal(hit, np.isfinite(fine_buf.depth))
+    assert np.allclose(coarse_buf.depth[hit], fine_buf.depth[hit], rtol=1e-5)
+    assert not np.array_equal(coarse_buf.tri_id, fine_buf.tri_id)  # same surfaces, other triangle ids
+
+
+def _tess_run(scene: str, nr: float, conv: float, ref: float, vis: float) -> dict:
+    m = {"pixel/non_redundant": {"available_avg": nr, "available_min": nr - 0.01},
+         "pixel/conventional": {"available_avg": conv, "available_min": conv - 0.01},
+         "pixel/non_redundant_reference": {"available_avg": ref, "available_min": ref - 0.01}}
+    for method in ("conventional", "non_redundant", "peeling"):
+        m[f"visibility/{method}"] = {"available_avg": vis, "available_min": vis}
+    return {"scene": scene, "metrics": m}
+
+
+def test_tessellation_summaries_on_hand_made_runs():
+    from bench.tessellation import lead_ranges, reference_gap, visibility_drift
+
+    runs = {0: [_tess_run("nest", 0.90, 0.89, 0.9004, 0.95), _tess_run("tree", 0.80, 0.81, 0.80, 0.96)],
+            1: [_tess_run("nest", 0.84, 0.85, 0.84, 0.951), _tess_run("tree", 0.70, 0.72, 0.7002, 0.96)]}
+    ranges = lead_ranges(runs)
+    assert np.allclose(ranges[0], (-1.0, 1.0)) and np.allclose(ranges[1], (-2.0, -1.0))
+    assert abs(reference_gap(runs) - 0.04) < 1e-9  # nest L0: 0.9004 vs 0.90
+    assert abs(visibility_drift(runs) - 0.1) < 1e-9  # nest L1: 0.951 vs 0.95
