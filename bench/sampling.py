@@ -588,7 +588,9 @@ CRITERIA_NOTES = """\
   and grass at 1024²), where GL's float32 Alg. 3 and the reference's float64
   projection fall on neighbouring texels; at 2048² (12 views) one tree
   sample in 6e5 lies 3.4e-3 texel from the edge (not counted as a tie: the
-  float32 error in texel units grows with the resolution). (Until this run the visibility NR
+  float32 error in texel units grows with the resolution); the same sets
+  rendered by Embree in float64 (`reference.visibility.non_redundant_reference`,
+  `bench/results/tessellation.md`) have none. (Until this run the visibility NR
   sets also showed 0-1 such sample: `non_redundant_visibility` tested the
   float64 hit point but stored it as float32, and an occlusion ray grazing an
   edge could answer differently for the two; it now tests the stored point.)

@@ -111,3 +111,13 @@ def test_tessellation_summaries_on_hand_made_runs():
     assert np.allclose(ranges[0], (-1.0, 1.0)) and np.allclose(ranges[1], (-2.0, -1.0))
     assert abs(reference_gap(runs) - 0.04) < 1e-9  # nest L0: 0.9004 vs 0.90
     assert abs(visibility_drift(runs) - 0.1) < 1e-9  # nest L1: 0.951 vs 0.95
+
+
+def test_tessellation_redundant_counts_add_up_over_levels():
+    from bench.tessellation import redundant_counts
+
+    def run(gl: int, ties: list[int], ref: int) -> dict:
+        return {"metrics": {"pixel/non_redundant": {"total": {"redundant": gl}, "redundant_edge_ties": ties},
+                            "pixel/non_redundant_reference": {"total": {"redundant": ref}}}}
+
+    assert redundant_counts({0: [run(5, [0, 3, 2], 0), run(2, [0, 1, 0], 1)], 1: [run(4, [0, 4, 0], 0)]}) == (11, 10, 1)
