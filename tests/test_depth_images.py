@@ -335,6 +335,8 @@ def test_pixel_nr_matches_the_embree_reference(which, request):
         np.testing.assert_allclose(a.depth[m], b.depth[m], rtol=1e-5)
     if which == "fig11":  # the reference captures C in I1 too
         assert (object_ids(s["scene"], ref[1].tri_id) == C).sum() > 50
+        with pytest.raises(ValueError, match="redundancy must be one of"):
+            non_redundant_reference(s["scene"], [im.camera for im in nr], "texel")
 
 
 def test_projection_and_triangle_id_variants_agree(gl, clutter):
