@@ -112,12 +112,12 @@ from reference.raycast import RayCaster
 from reference.visibility import (
     MAX_LAYERS,
     REDUNDANCY,
+    any_redundant,
     clipped,
     count_front_hits,
     front_facing,
     pixel_redundant,
     project_texels,
-    redundant_with,
     visible_from,
 )
 from scenes.camera import Camera
@@ -263,22 +263,6 @@ class _Samples:
         return out
 
 
-def _any_redundant(caster: RayCaster, images: Sequence[DepthImage], pts: np.ndarray, tri: np.ndarray,
-                   redundancy: str, select: np.ndarray | None = None) -> np.ndarray:
-    """(N,) bool: redundant with at least one of `images`; tests only where
-    `select` (default all) and each point at most until it is found redundant."""
-    out = np.zeros(len(pts), bool)
-    todo = np.ones(len(pts), bool) if select is None else select.copy()
-    for im in images:
-        idx = np.flatnonzero(todo)
-        if len(idx) == 0:
-            break
-        r = redundant_with(caster, im, pts[idx], tri[idx], redundancy)
-        out[idx[r]] = True
-        todo[idx[r]] = False
-    return out
-
-
 #: Pixel definition: a projection closer than this (texels) to a texel edge is a float tie.
 EDGE_TIE = 1e-3
 
@@ -314,7 +298,7 @@ def redundant_samples(caster: RayCaster, images: Sequence[DepthImage], redundanc
     out = np.zeros(len(s.tri), bool)
     for i in range(1, len(images)):
         sel = np.flatnonzero(s.image == i)
-        out[sel] = _any_redundant(caster, images[:i], s.position[sel], s.tri[sel], redundancy)
+        out[sel] = any_redundant(caster, images[:i], s.position[sel], s.tri[sel], redundancy)
     return out
 
 
@@ -412,13 +396,13 @@ def evaluate_sets(scene: Scene, sets: Mapping[str, tuple[Sequence[DepthImage], s
         images = list(images)
         s = _Samples.of(images)
         red = redundant_samples(rc, images, redundancy)
-        captured = _any_redundant(rc, conventional_images, s.position, s.tri, redundancy)
+        captured = any_redundant(rc, conventional_images, s.position, s.tri, redundancy)
         earlier = ~captured  # images tested against all conventional images (peeling) share the answer
         for i, im in enumerate(images):
             refs = earlier_conventional(im, conventional_images)
             if len(refs) < len(conventional_images):
                 sel = np.flatnonzero(s.image == i)
-                earlier[sel] = ~_any_redundant(rc, refs, s.position[sel], s.tri[sel], redundancy)
+                earlier[sel] = ~any_redundant(rc, refs, s.position[sel], s.tri[sel], redundancy)
         layers = [layer_map(rc, im) for im in images] if redundancy == "visibility" else None
         jobs.append(_Job(name, images, redundancy, s, red, ~captured, earlier, np.zeros(len(s.tri), bool), [],
                          layers))

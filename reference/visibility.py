@@ -152,6 +152,22 @@ def redundant_with(caster: RayCaster, image: DepthImage, points: np.ndarray, tri
     raise ValueError(f"redundancy must be one of {REDUNDANCY}, got {redundancy!r}")
 
 
+def any_redundant(caster: RayCaster, images: Sequence[DepthImage], pts: np.ndarray, tri: np.ndarray,
+                   redundancy: str, select: np.ndarray | None = None) -> np.ndarray:
+    """(N,) bool: redundant with at least one of `images`; tests only where
+    `select` (default all) and each point at most until it is found redundant."""
+    out = np.zeros(len(pts), bool)
+    todo = np.ones(len(pts), bool) if select is None else select.copy()
+    for im in images:
+        idx = np.flatnonzero(todo)
+        if len(idx) == 0:
+            break
+        r = redundant_with(caster, im, pts[idx], tri[idx], redundancy)
+        out[idx[r]] = True
+        todo[idx[r]] = False
+    return out
+
+
 def depth_image_from_hits(caster: RayCaster, camera: Camera, hits: Hits, directions: np.ndarray) -> DepthImage:
     """DepthImage (row 0 = top) from per-pixel hits of `camera`'s pixel rays,
     shaded exactly like RayCaster.gbuffer; misses hold no sample (colour = sky)."""
@@ -228,12 +244,8 @@ def non_redundant_reference(scene: Scene, cameras: Sequence[Camera], redundancy:
             # samples (reference.sampling_metrics) gives the same answer even for
             # occlusion rays that graze an edge.
             pts = (eye + d[idx] * th[:, None]).astype(np.float32).astype(np.float64)
-            redundant = ht == last[idx]  # re-hit of the surface we just stepped past
-            for earlier in images:
-                cand = ~redundant
-                if not cand.any():
-                    break
-                redundant[cand] = redundant_with(rc, earlier, pts[cand], ht[cand], redundancy)
+            stepped_past = ht == last[idx]  # re-hit of the surface we just stepped past
+            redundant = stepped_past | any_redundant(rc, images, pts, ht, redundancy, select=~stepped_past)
             keep = ~redundant
             k = idx[keep]
             t[k], tri[k] = th[keep], ht[keep]
