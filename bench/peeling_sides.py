@@ -34,7 +34,7 @@ DEFINITIONS = {"pixel": THESIS_T2, "visibility": THESIS_T5}
 PEELINGS = ("peeling", "peeling_two_sided")
 
 
-def _two_sided_peeling(gl, sg, cams, peel_cam) -> dict[str, list]:
+def _two_sided_peeling(gl, sg, rc, cams, peel_cam) -> dict[str, list]:
     from gl_passes import depth_images as di
 
     renderer = di.DepthImageRenderer(gl, cull_back_faces=False)

@@ -122,7 +122,7 @@ def measure_rig(gl, name: str, res: int, views: int, seed: int, spread: float = 
     """Render the benchmark's sets for scene `name` on the Fig. 8 rig (`spread`
     degrees) and evaluate `jobs(sets)` (default `metric_jobs`) over `views`
     intermediate views: {"scene", "triangles", "spread_deg", "metrics"} as in
-    sampling.json. extra_sets(gl, scene_gpu, cams, peel_cam) adds image sets
+    sampling.json. extra_sets(gl, scene_gpu, caster, cams, peel_cam) adds image sets
     (rendered while the scene is on the GPU) before the jobs are built;
     prepare(scene) → scene changes the loaded scene first (e.g. re-tessellates it)."""
     from gl_passes.upload import SceneGPU
@@ -139,7 +139,7 @@ def measure_rig(gl, name: str, res: int, views: int, seed: int, spread: float = 
         cams, peel_cam = make_rig(scene, res, None, spread)
         sets = render_sets(gl, sg, rc, cams, peel_cam)
         if extra_sets is not None:
-            sets.update(extra_sets(gl, sg, cams, peel_cam))
+            sets.update(extra_sets(gl, sg, rc, cams, peel_cam))
     finally:
         sg.release()
     metrics = evaluate_sets(scene, (jobs or metric_jobs)(sets), sets["conventional"],

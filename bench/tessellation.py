@@ -57,12 +57,12 @@ def subdivided(scene: Scene, levels: int) -> Scene:
     return replace(scene, objects=objects)
 
 
-def reference_set(gl, sg, cams, peel_cam) -> dict[str, list]:
+def reference_set(gl, sg, rc, cams, peel_cam) -> dict[str, list]:
     """The pixel-definition NR set by Embree (`reference.visibility.non_redundant_reference`)
     on the GL set's cameras: whatever (b) shows, it shows for Alg. 3 itself, not for GL."""
     from reference.visibility import non_redundant_reference
 
-    return {"nr_pixel_reference": non_redundant_reference(sg.scene, cams, "pixel")}
+    return {"nr_pixel_reference": non_redundant_reference(sg.scene, cams, "pixel", caster=rc)}
 
 
 def metric_jobs_with_reference(sets: dict[str, list]) -> dict[str, tuple[list, str]]:

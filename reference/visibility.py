@@ -153,7 +153,7 @@ def redundant_with(caster: RayCaster, image: DepthImage, points: np.ndarray, tri
 
 
 def any_redundant(caster: RayCaster, images: Sequence[DepthImage], pts: np.ndarray, tri: np.ndarray,
-                   redundancy: str, select: np.ndarray | None = None) -> np.ndarray:
+                  redundancy: str, select: np.ndarray | None = None) -> np.ndarray:
     """(N,) bool: redundant with at least one of `images`; tests only where
     `select` (default all) and each point at most until it is found redundant."""
     out = np.zeros(len(pts), bool)
