@@ -10,7 +10,12 @@ import pytest
 
 from reference.raycast import RayCaster
 from reference.sampling_metrics import evaluate_sets, sampling_metrics, texel_edge_distance
-from reference.visibility import conventional_reference, non_redundant_visibility, visible_from
+from reference.visibility import (
+    conventional_reference,
+    non_redundant_reference,
+    non_redundant_visibility,
+    visible_from,
+)
 from scenes.camera import Camera
 from scenes.model import Scene, SceneObject
 
@@ -273,3 +278,67 @@ def test_gl_pixel_nr_has_no_pixel_redundancy(gl, boxes):
     assert m.redundant[0] == 0 and m.redundant[1] <= 0.002 * m.samples[1]
     # C is captured by pixel-NR too (Fig. 12, first column).
     assert (_obj(scene, nr[1]) == 3).sum() > 10
+
+
+# --- the "offset" scene: Alg. 3 decides a whole texel by its centre ----------------
+#
+# Same back plane B and camera set-up as the strip scene, with a thin bar A at
+# z = 5, x in [1.45, 2.05], and V1 at x = 3.125 (a shift of 1.25 pixels on B, so
+# V1's texel centres reproject 0.75 texel into V0's texels). On B a pixel of V0
+# covers [-10 + 2.5c, -7.5 + 2.5c); V1's column k covers [-6.875 + 2.5k, ...) with
+# its centre at -5.625 + 2.5k. V0's centre ray of column 5 meets A (at x = 1.875
+# on z = 5); no other centre ray of V0 or V1 does, so C_0 = B B B B B A B B and
+# C_1 is all B. Pixel-NR I_1 keeps only the columns whose centre reprojects onto
+# a V0 texel without B: column 4 (B at 4.375 → V0 column 5, A) and column 7
+# (B at 11.875, outside V0); nothing lies behind B, so the other six are empty.
+# The midpoint view (x = 1.5625) sees B at -7.1875 + 2.5k in every column. Its
+# column 4 (B at 2.8125) reprojects into V0 column 5 (A) and into V1 column 3,
+# which C_1 holds but I_1 dropped: its centre (B at 1.875) reprojects into V0
+# column 4, which holds B. Column 7 (B at 10.3125, outside V0) falls in V1
+# column 6, dropped the same way. So the conventional set makes the whole frame
+# available and the non-redundant set 6 of 8 columns, although I_1 has no
+# redundant sample: a property of Alg. 3's texel granularity, not of an
+# implementation. Under Alg. 2 both sets make the frame available (B at 2.8125
+# is visible from V0; the view's column 7 is V1's layer 0).
+
+
+def offset_scene() -> Scene:
+    a_v, a_f = _quad(1.45, 2.05, -30, 30, 5.0)
+    base = strip_scene()
+    return Scene([SceneObject("A", a_v, a_f), base.objects[1]], name="offset")
+
+
+@pytest.fixture(scope="module")
+def offset():
+    scene = offset_scene()
+    rc = RayCaster(scene)
+    cams = [cam_at(0.0), cam_at(3.125)]
+    return scene, rc, cams, conventional_reference(scene, cams, rc)
+
+
+def test_pixel_nr_loses_availability_by_texel_granularity(offset):
+    scene, rc, cams, conv = offset
+    assert _columns(conv[0]) == list("BBBBBABB") and _columns(conv[1]) == list("BBBBBBBB")
+    nr = non_redundant_reference(scene, cams, "pixel", rc)
+    assert _columns(nr[0]) == _columns(conv[0]) and _columns(nr[1]) == list("----B--B")
+    mid = [cam_at(1.5625)]
+    res = evaluate_sets(scene, {"conv": (conv, "pixel"), "nr": (nr, "pixel")}, conv, mid, caster=rc)
+    assert res["nr"].redundant == [0, 0] and res["conv"].redundant == [0, 48]
+    assert res["conv"].available == [1.0] and res["nr"].available == [0.75]
+    vis = non_redundant_visibility(scene, cams, rc)
+    assert _columns(vis[1]) == list("-------B")
+    res = evaluate_sets(scene, {"conv": (conv, "visibility"), "nr": (vis, "visibility")}, conv, mid, caster=rc)
+    assert res["conv"].available == [1.0] and res["nr"].available == [1.0]
+
+
+def test_gl_pixel_nr_offset_scene_as_counted(gl, offset):
+    depth_images = pytest.importorskip("gl_passes.depth_images")
+    from gl_passes.upload import SceneGPU
+
+    scene, _, cams, _ = offset
+    sg = SceneGPU(gl, scene)
+    try:
+        nr = depth_images.non_redundant(gl, sg, cams, redundancy="pixel")
+    finally:
+        sg.release()
+    assert _columns(nr[0]) == list("BBBBBABB") and _columns(nr[1]) == list("----B--B")
