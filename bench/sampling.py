@@ -606,7 +606,12 @@ CRITERIA_NOTES = """\
   triangle that C1 or C2 holds at their texel and that NR dropped there as
   pixel-redundant with an earlier image, while the frame sample's own
   projection into that earlier image lands on a texel of another triangle
-  (silhouettes of thin blades, twigs and leaves, and building edges). It is
+  (silhouettes of thin blades, twigs and leaves, and building edges). Alg. 3
+  forces this, whatever the implementation: it keeps or drops a whole texel by
+  its centre, and in an 8×8 case counted by hand (offset scene,
+  `tests/test_sampling_metrics.py`) the NR set, with no redundant sample, makes
+  6 of a frame's 8 columns available where the conventional set makes all 8
+  (visibility definition: 8 and 8). It is
   the pixel definition's texel granularity: the gap shrinks from 512² to
   1024² (grass 0.98 → 0.15, city 1.09 → 0.54, tree 1.46 → 0.84 points; nest
   −0.32 → +0.86) as pixel redundancy converges to visibility redundancy, and
