@@ -24,7 +24,7 @@ if __package__ in (None, ""):  # `python bench/rig_spread.py`
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import add_scene_args, md_table, report_head, sweep_main, write_text  # noqa: E402
-from bench.sampling import THESIS_T2, THESIS_T5, criteria_rows, measure_rig, verdict_counts  # noqa: E402
+from bench.sampling import THESIS_T2, THESIS_T5, criteria_rows, measure_rig, verdict_counts, yes_no  # noqa: E402
 
 THESIS_CONV = {"pixel": THESIS_T2, "visibility": THESIS_T5}
 
@@ -57,10 +57,10 @@ def write_report(out: Path, args: argparse.Namespace, info: dict, runs: dict[flo
             red_cell = " / ".join(f"{100 * conv['redundant_frac'][i]:.0f}" for i in (1, 2))
             detail.append([x["run"], x["scene"], x["definition"], red_cell + (f" ({t[1]} / {t[2]})" if t else ""),
                            " / ".join(f"{100 * v:.2f}" for v in x["avail_avg"]),
-                           " / ".join(f"{100 * v:.2f}" for v in x["avail_min"]), "yes" if x["b"] else "**no**",
-                           f"{x['useful'][0]:,} / {x['useful'][1]:,}", "yes" if x["c"] else "**no**",
+                           " / ".join(f"{100 * v:.2f}" for v in x["avail_min"]), yes_no(x["b"]),
+                           f"{x['useful'][0]:,} / {x['useful'][1]:,}", yes_no(x["c"]),
                            f"{x['useful_earlier'][0]:,} / {x['useful_earlier'][1]:,}",
-                           "yes" if x["c_earlier"] else "**no**"])
+                           yes_no(x["c_earlier"])])
     best = {red: min(g, key=g.get) for red, g in gaps.items()}
     parts = report_head(
         "Issue 3's criteria against the spread of the Fig. 8 rig",

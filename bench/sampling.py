@@ -549,9 +549,9 @@ def ranking_table(results: list[dict]) -> str:
                 r["scene"], red,
                 f"{nr['total']['occluded']:,} / {pe['total']['occluded']:,}",
                 f"{nr['total']['useful']:,} / {pe['total']['useful']:,}",
-                "yes" if nr["total"]["useful"] > pe["total"]["useful"] else "**no**",
+                yes_no(nr["total"]["useful"] > pe["total"]["useful"]),
                 f"{100 * nr['available_avg']:.1f} / {100 * cv['available_avg']:.1f} / {100 * pe['available_avg']:.1f}",
-                "yes" if nr["available_avg"] >= max(cv["available_avg"], pe["available_avg"]) else "**no**",
+                yes_no(nr["available_avg"] >= max(cv["available_avg"], pe["available_avg"])),
             ])
     return md_table(["scene", "definition", "occluded samples NR / peel", "useful samples NR / peel",
                      "NR more useful", "available avg NR / conv / peel [%]", "NR most available"], rows)
@@ -678,7 +678,8 @@ CRITERIA_NOTES = """\
 """
 
 
-def _yes(ok: bool) -> str:
+def yes_no(ok: bool) -> str:
+    """A criterion's verdict cell: "yes", or "**no**" in bold."""
     return "yes" if ok else "**no**"
 
 
@@ -731,7 +732,7 @@ def criteria_tables(runs: list[tuple[str, list[dict]]], timing_results: list[dic
     Table 7 timing, plus a JSON-ready summary."""
     rows = [row for label, res in runs for row in criteria_rows(res, label)]
     def useful_cell(pair: tuple[int, int] | None, ok: bool | None) -> str:
-        return "—" if pair is None else f"{pair[0]:,} / {pair[1]:,} · {_yes(bool(ok))}"
+        return "—" if pair is None else f"{pair[0]:,} / {pair[1]:,} · {yes_no(bool(ok))}"
 
     table = md_table(
         ["scene", "run", "definition", "(a) NR redundant", "available avg NR / conv / peel [%]",
@@ -739,9 +740,9 @@ def criteria_tables(runs: list[tuple[str, list[dict]]], timing_results: list[dic
          "(c) useful occluded NR / peel, issue reading"],
         [[r["scene"], r["run"], r["definition"],
           f"{r['a_nr_redundant']:,}" + (f" ({r['a_edge_ties']:,} ties)" if r["a_edge_ties"] else "")
-          + f" · {_yes(r['a'])}",
+          + f" · {yes_no(r['a'])}",
           " / ".join(f"{100 * x:.2f}" for x in r["avail_avg"]), " / ".join(f"{100 * x:.2f}" for x in r["avail_min"]),
-          _yes(r["b"]), useful_cell(r["useful_earlier"], r["c_earlier"]), useful_cell(r["useful"], r["c"])]
+          yes_no(r["b"]), useful_cell(r["useful_earlier"], r["c_earlier"]), useful_cell(r["useful"], r["c"])]
          for r in rows])
     counts = []
     summary: dict = {"rows": [{k: v for k, v in r.items() if not k.endswith("_images")} for r in rows]}
@@ -771,7 +772,7 @@ def criteria_tables(runs: list[tuple[str, list[dict]]], timing_results: list[dic
                 ok = t["nr_over_conventional"] <= MAX_NR_OVER_CONV and t["nr_over_peeling"] <= MAX_NR_OVER_PEEL
                 trows.append([r["scene"], "gl_PrimitiveID" if label == "prim_id" else "geometry shader",
                               f"{tm['res']}²", f"{t['nr_over_conventional']:.2f}", f"{t['nr_over_peeling']:.2f}",
-                              _yes(ok)])
+                              yes_no(ok)])
                 summary.setdefault("d", {})[f"{r['scene']}/{label}"] = ok
     ttable = md_table(["scene", "triangle id from", "res", "NR / conv (≤ 2.5)", "NR / peel (≤ 1.3)", "(d) holds"],
                       trows)

@@ -34,7 +34,7 @@ if __package__ in (None, ""):  # `python bench/tessellation.py`
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import add_scene_args, md_table, report_head, sweep_main, write_text  # noqa: E402
-from bench.sampling import THESIS_T4, THESIS_T6, criteria_rows, measure_rig, metric_jobs, verdict_counts  # noqa: E402
+from bench.sampling import THESIS_T4, THESIS_T6, criteria_rows, measure_rig, metric_jobs, verdict_counts, yes_no  # noqa: E402
 from scenes.model import Scene  # noqa: E402
 
 
@@ -158,7 +158,7 @@ def write_report(out: Path, args: argparse.Namespace, info: dict, runs: dict[int
                            f"{100 * nr:.2f} / {100 * cv:.2f} / {100 * pe:.2f}",
                            f"{100 * nr_min:.2f} / {100 * cv_min:.2f} / {100 * pe_min:.2f}",
                            ref_cell,
-                           f"{100 * (nr - cv):+.2f} / {100 * (nr_min - cv_min):+.2f}", "yes" if x["b"] else "**no**",
+                           f"{100 * (nr - cv):+.2f} / {100 * (nr_min - cv_min):+.2f}", yes_no(x["b"]),
                            f"{granularity_loss(r):+.1f}" + ("" if thesis is None else f" ({thesis:+.1f})")])
     parts = report_head(
         "Issue 3's criterion (b) against the tessellation of the scenes",
