@@ -406,7 +406,6 @@ def test_peeling_layers(which, request, gl):
     assert_real_front_facing_samples(s["scene"], peel, [conv] * len(peel))
 
 
-
 def test_two_sided_peeling_peels_back_faces(gl, fig11):
     """cull_back_faces=False (the benchmark's variant of what the thesis's peeling
     numbers suggest): on the closed boxes, layer 0 is unchanged, and behind A's
@@ -431,6 +430,7 @@ def test_two_sided_peeling_peels_back_faces(gl, fig11):
     face_n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     to_eye = np.asarray(cam.eye) - two[1].position[behind_a]
     assert (np.einsum("ij,ij->i", face_n, to_eye) < 0).all()  # back faces (the stored normal faces the eye)
+
 
 # --- resources ---------------------------------------------------------------------------
 

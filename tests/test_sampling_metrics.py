@@ -43,11 +43,15 @@ def _quad(x0: float, x1: float, y0: float, y1: float, z: float) -> tuple[np.ndar
     return v, np.array([[0, 1, 2], [0, 2, 3]], np.uint32)
 
 
+def _back_plane() -> SceneObject:
+    """B: the plane z = 0 as one triangle, CCW from +z."""
+    b_v = np.array([[-100, -100, 0], [100, -100, 0], [0, 100, 0]], np.float32)
+    return SceneObject("B", b_v, np.array([[0, 1, 2]], np.uint32))
+
+
 def strip_scene() -> Scene:
     a_v, a_f = _quad(-2.5, 2.5, -30, 30, 5.0)
-    b_v = np.array([[-100, -100, 0], [100, -100, 0], [0, 100, 0]], np.float32)  # one triangle, CCW from +z
-    b_f = np.array([[0, 1, 2]], np.uint32)
-    return Scene([SceneObject("A", a_v, a_f), SceneObject("B", b_v, b_f)], name="strip")
+    return Scene([SceneObject("A", a_v, a_f), _back_plane()], name="strip")
 
 
 def cam_at(x: float, res: int = RES, fov: float = 90.0) -> Camera:
@@ -304,8 +308,7 @@ def test_gl_pixel_nr_has_no_pixel_redundancy(gl, boxes):
 
 def offset_scene() -> Scene:
     a_v, a_f = _quad(1.45, 2.05, -30, 30, 5.0)
-    base = strip_scene()
-    return Scene([SceneObject("A", a_v, a_f), base.objects[1]], name="offset")
+    return Scene([SceneObject("A", a_v, a_f), _back_plane()], name="offset")
 
 
 @pytest.fixture(scope="module")
