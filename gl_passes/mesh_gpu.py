@@ -1,0 +1,95 @@
+"""An indexed triangle mesh on the GPU (reconstructions, thesis Ch. 3): one vertex
+buffer of 16-byte vertices (position xyz float32, colour RGBA8 packed in the
+fourth float's bits) and one uint32 index buffer. Occluders for shadow maps take
+either this or a SceneGPU: both draw with `draw(prog)` and bind `in_position`.
+"""
+
+from __future__ import annotations
+
+import moderngl
+import numpy as np
+
+from gl_passes.context import GLContext
+
+#: Bytes per vertex: vec3 position + one uint of packed RGBA8 colour.
+VERTEX_BYTES = 16
+
+
+def pack_vertices(positions: np.ndarray, colors: np.ndarray | None = None) -> np.ndarray:
+    """(N,3) positions and optional (N,3) linear colours in [0,1] → (N,4) float32
+    records as the GPU holds them (colour quantised to 8 bits per channel)."""
+    n = len(positions)
+    out = np.zeros((n, 4), np.float32)
+    out[:, :3] = positions
+    if colors is not None:
+        c = np.clip(np.rint(np.asarray(colors, np.float64) * 255), 0, 255).astype(np.uint32)
+        out[:, 3] = (c[:, 0] | (c[:, 1] << 8) | (c[:, 2] << 16) | (255 << 24)).view(np.float32)
+    return out
+
+
+def unpack_vertices(records: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N,4) float32 vertex records → (positions (N,3) float32, colours (N,4) uint8 RGBA)."""
+    rec = np.ascontiguousarray(records, np.float32)
+    packed = rec[:, 3].view(np.uint32)
+    rgba = np.stack([(packed >> s) & 0xFF for s in (0, 8, 16, 24)], axis=1).astype(np.uint8)
+    return rec[:, :3].copy(), rgba
+
+
+class MeshGPU:
+    """Indexed mesh in GL buffers. `vbo` holds `n_vertices` records, `ibo`
+    `n_triangles` × 3 uint32 indices (either may be larger than that: only the
+    prefix is used). Owns the buffers: call `release()`."""
+
+    def __init__(self, gl: GLContext, vbo: moderngl.Buffer, ibo: moderngl.Buffer, n_vertices: int,
+                 n_triangles: int) -> None:
+        gl.check_thread()
+        self.gl = gl
+        self.vbo, self.ibo = vbo, ibo
+        self.n_vertices, self.n_triangles = int(n_vertices), int(n_triangles)
+        self._vaos: dict[int, moderngl.VertexArray] = {}
+
+    @classmethod
+    def from_arrays(cls, gl: GLContext, positions: np.ndarray, triangles: np.ndarray,
+                    colors: np.ndarray | None = None) -> MeshGPU:
+        """Upload (N,3) positions, (M,3) vertex indices and optional (N,3) colours."""
+        gl.check_thread()
+        rec = pack_vertices(np.asarray(positions, np.float32), colors)
+        tri = np.ascontiguousarray(triangles, np.uint32).reshape(-1, 3)
+        vbo = gl.ctx.buffer(rec.tobytes() or b"\0" * VERTEX_BYTES)
+        ibo = gl.ctx.buffer(tri.tobytes() or b"\0" * 12)
+        return cls(gl, vbo, ibo, len(rec), len(tri))
+
+    def vao(self, prog: moderngl.Program) -> moderngl.VertexArray:
+        key = prog.glo
+        if key not in self._vaos:
+            self._vaos[key] = self.gl.ctx.vertex_array(
+                prog, [(self.vbo, "3f 4x", "in_position")], index_buffer=self.ibo, index_element_size=4)
+        return self._vaos[key]
+
+    def draw(self, prog: moderngl.Program, instances: int = 1) -> None:
+        """Draw every triangle with `prog` (which reads `in_position`)."""
+        self.gl.check_thread()
+        if self.n_triangles:
+            self.vao(prog).render(moderngl.TRIANGLES, vertices=3 * self.n_triangles, instances=instances)
+
+    def read(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(positions (N,3) float32, colours (N,4) uint8 RGBA, triangles (M,3) uint32)."""
+        self.gl.check_thread()
+        rec = np.frombuffer(self.vbo.read(size=self.n_vertices * VERTEX_BYTES), np.float32).reshape(-1, 4)
+        tri = np.frombuffer(self.ibo.read(size=self.n_triangles * 12), np.uint32).reshape(-1, 3)
+        pos, rgba = unpack_vertices(rec)
+        return pos, rgba, tri.copy()
+
+    def release(self) -> None:
+        self.gl.check_thread()
+        for v in self._vaos.values():
+            v.release()
+        self._vaos.clear()
+        self.vbo.release()
+        self.ibo.release()
+
+    def __enter__(self) -> MeshGPU:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()

@@ -1,0 +1,62 @@
+"""Area-light setups for soft shadows (thesis §3.3–3.4, Alg. 5), shared by the GL
+passes, the Embree reference and the benchmark so that all three use the same
+light, the same light-sample positions and the same light cameras (no GL, no Embree).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from scenes.camera import Camera
+from scenes.model import AreaLight
+
+
+def default_area_light(bounds: tuple[np.ndarray, np.ndarray], sun: tuple[float, float, float],
+                       size: float = 1.0, distance: float = 1.0) -> AreaLight:
+    """A square area light facing the scene (§3.4.2: "the light's diagonal equals
+    the scene's bounding-box diagonal" at size = 1; Table 10 scales it by `size`).
+
+    Its centre sits `distance` × the box diagonal from the box centre along the
+    unit direction `sun` (toward the light); its edges u, v are orthogonal to `sun`,
+    each of length size·diag/√2, so the rectangle's diagonal is size·diag."""
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
+    c = (lo + hi) / 2
+    diag = float(np.linalg.norm(hi - lo)) or 1.0
+    n = np.asarray(sun, dtype=np.float64)
+    n = n / np.linalg.norm(n)
+    helper = np.array([0.0, 0.0, 1.0]) if abs(n[1]) > 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(helper, n)
+    u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    edge = size * diag / np.sqrt(2.0)
+    return AreaLight(tuple(c + distance * diag * n), tuple(u * edge), tuple(v * edge))
+
+
+def light_normal(light: AreaLight) -> np.ndarray:
+    """(3,) unit normal of the light rectangle, pointing away from the lit side
+    (u × v; `default_area_light` makes it point from the scene toward the light)."""
+    n = np.cross(np.asarray(light.u, np.float64), np.asarray(light.v, np.float64))
+    return n / np.linalg.norm(n)
+
+
+def light_camera(light: AreaLight, eye: np.ndarray, bounds: tuple[np.ndarray, np.ndarray],
+                 resolution: int, margin: float = 1.02) -> Camera:
+    """Square pinhole camera at `eye` (a light sample or corner) looking along the
+    light's −normal, with the vertical fov just wide enough (× margin) to see the
+    whole box `bounds`; near/far fitted to the box. Used for the reference depth
+    images from the light's corners / centre and for every shadow map."""
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
+    e = np.asarray(eye, dtype=np.float64)
+    fwd = -light_normal(light)
+    up = np.asarray(light.v, np.float64)
+    up = up / np.linalg.norm(up)
+    right = np.cross(fwd, up)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    d = corners - e
+    z = d @ fwd
+    if np.any(z <= 0):
+        raise ValueError("the scene box is not entirely in front of the light")
+    t = max(float(np.max(np.abs(d @ right) / z)), float(np.max(np.abs(d @ up) / z))) * margin
+    fov = float(np.degrees(2 * np.arctan(t)))
+    cam = Camera(tuple(e), tuple(e + fwd), tuple(up), fov, resolution, resolution)
+    return cam.fit_clip((lo, hi))
