@@ -12,7 +12,7 @@ from scenes.model import AreaLight
 
 
 def default_area_light(bounds: tuple[np.ndarray, np.ndarray], sun: tuple[float, float, float],
-                       size: float = 1.0, distance: float = 1.0) -> AreaLight:
+                       size: float = 1.0, distance: float = 1.5) -> AreaLight:
     """A square area light facing the scene (§3.4.2: "the light's diagonal equals
     the scene's bounding-box diagonal" at size = 1; Table 10 scales it by `size`).
 
