@@ -194,12 +194,25 @@ class DepthImageRenderer:
 
     def non_redundant(self, scene_gpu: SceneGPU, cameras: Sequence[Camera], read: bool = True) -> list[DepthImage]:
         """Alg. 1 + Alg. 3 over (prepared) cameras; read=False renders only."""
+        return self._non_redundant(scene_gpu, cameras, read)[0]
+
+    def non_redundant_with_offsets(self, scene_gpu: SceneGPU, cameras: Sequence[Camera],
+                                   offset_cameras: Sequence[Camera]) -> tuple[list[DepthImage], list[DepthImage]]:
+        """Alg. 1 + Alg. 3 as `non_redundant`, plus per image I_i the image of
+        offset_cameras[i] rendered with the same previous images I_0..I_{i−1}
+        bound (the offset image H of Alg. 4; its size may differ from I_i's)."""
+        images, offsets = self._non_redundant(scene_gpu, cameras, True, offset_cameras)
+        return images, offsets
+
+    def _non_redundant(self, scene_gpu: SceneGPU, cameras: Sequence[Camera], read: bool,
+                       offset_cameras: Sequence[Camera] | None = None) -> tuple[list[DepthImage], list[DepthImage]]:
         self.gl.check_thread()
         if len(cameras) > MAX_IMAGES:
             raise ValueError(f"non_redundant supports at most {MAX_IMAGES} images, got {len(cameras)}")
         texel = np.stack([_texel_matrix(c).T for c in cameras]).astype(np.float32)  # column-major for GL
         sizes = np.array([(c.width, c.height) for c in cameras], np.float32)
-        out = []
+        out: list[DepthImage] = []
+        offsets: list[DepthImage] = []
         for i, cam in enumerate(cameras):
             prog = self.nr_program(i) if i else self.conv_prog
             if i:
@@ -211,7 +224,10 @@ class DepthImageRenderer:
             t = self._draw(prog, scene_gpu, cam, i)
             if read:
                 out.append(self._read(t, cam, i))
-        return out
+            if offset_cameras is not None:  # same program, same previous images bound
+                off = offset_cameras[i]
+                offsets.append(self._read(self._draw(prog, scene_gpu, off, i), off, i))
+        return out, offsets
 
     def depth_peeling(self, scene_gpu: SceneGPU, camera: Camera, layers: int, eps: float = 1e-6,
                       read: bool = True) -> list[DepthImage]:

@@ -75,8 +75,9 @@ class MeshGPU:
     def read(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(positions (N,3) float32, colours (N,4) uint8 RGBA, triangles (M,3) uint32)."""
         self.gl.check_thread()
-        rec = np.frombuffer(self.vbo.read(size=self.n_vertices * VERTEX_BYTES), np.float32).reshape(-1, 4)
-        tri = np.frombuffer(self.ibo.read(size=self.n_triangles * 12), np.uint32).reshape(-1, 3)
+        nv, nt = self.n_vertices, self.n_triangles
+        rec = np.frombuffer(self.vbo.read(size=nv * VERTEX_BYTES) if nv else b"", np.float32).reshape(-1, 4)
+        tri = np.frombuffer(self.ibo.read(size=nt * 12) if nt else b"", np.uint32).reshape(-1, 3)
         pos, rgba = unpack_vertices(rec)
         return pos, rgba, tri.copy()
 

@@ -1,0 +1,361 @@
+"""Scene reconstruction from depth images (thesis Ch. 3, §3.2, Alg. 4).
+
+* Offset image H (Alg. 4, first line): the image I's camera with its image
+  window grown by half a pixel on every side and one more pixel column and row,
+  so H's (W+1)×(H+1) pixel centres are exactly I's pixel corners (the thesis's H
+  has I's resolution and misses the last row and column of corners; ours
+  covers them all). H is rendered by I's method: for a non-redundant image I_i
+  with the same previous images I_0..I_{i−1} bound, so it samples the same
+  surfaces; for a peeling layer, as that layer of the offset camera's peeling.
+* Hybrid reconstruction (Alg. 4): every sample of I becomes two triangles over
+  its pixel. Corner c comes from H where H's sample at c lies on the sample's
+  surface (same triangle id, or within `plane_tolerance` pixel footprints of the
+  sample's tangent plane), as a vertex shared by every sample taking it (indexed
+  mesh: a continuous surface gives a watertight mesh); otherwise it is the
+  intersection of c's camera ray with the sample's tangent plane, with its depth
+  clamped to ± `max_corner_extent` pixel footprints (grazing planes). Every corner
+  lies on its pixel corner's camera ray, so each quad covers exactly its pixel as
+  seen from I's camera. Three compute passes (shaders/reconstruct_hybrid_*.comp).
+* Grid reconstruction (the baseline of §3.2): neighbouring pixel centres joined
+  into two triangles unless a depth discontinuity separates them
+  (shaders/reconstruct_grid.comp); isolated samples give nothing.
+* Compact reconstruction (beyond the thesis): each image's hybrid mesh
+  simplified by meshoptimizer with an absolute geometric error bound of
+  `compact_error` pixel footprints at the image's median sample depth; borders
+  and discontinuities stay where they are up to that bound (edge collapses keep
+  the mesh's topology, so no surface is joined across a discontinuity).
+
+Meshes are `MeshGPU`s (positions in world units, linear vertex colours
+quantised to RGBA8), triangles counter-clockwise as seen from the capturing
+camera. `export_glb` writes one node per source image.
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from typing import Literal
+
+import meshoptimizer
+import moderngl
+import numpy as np
+
+from gl_passes.bindings import Units
+from gl_passes.context import GLContext
+from gl_passes.depth_images import DepthImageRenderer, prepare_cameras
+from gl_passes.mesh_gpu import VERTEX_BYTES, MeshGPU, pack_vertices
+from gl_passes.shaders import compute_program
+from gl_passes.uniforms import set_uniform
+from gl_passes.upload import SceneGPU
+from scenes.camera import Camera
+from scenes.depth_image import DepthImage
+
+Reconstruction = Literal["hybrid", "grid", "compact"]
+SamplingMethod = Literal["non_redundant", "conventional", "peeling"]
+RECONSTRUCTIONS: tuple[str, ...] = ("hybrid", "grid", "compact")
+SAMPLING_METHODS: tuple[str, ...] = ("non_redundant", "conventional", "peeling")
+
+_GROUP = 8  # local size of the reconstruction compute shaders (x and y)
+#: Units of every reconstruction shader (shared, so one binding serves all passes).
+_UNITS = Units(images=("u_i_a", "u_i_b", "u_h_a", "u_h_b", "u_flags", "u_corner_index"),
+               storage=("Vertices", "Indices", "Counters"))
+
+
+@dataclass(frozen=True)
+class ReconstructionSettings:
+    """How depth images become meshes (Alg. 4 and its baselines).
+
+    kind: "hybrid" (Alg. 4), "grid" (baseline) or "compact" (hybrid, simplified).
+    plane_tolerance: same-surface test, in pixel footprints (the world size of one
+    pixel at the sample's depth): a neighbour within this distance of the sample's
+    tangent plane is on its surface. max_corner_extent: grazing clamp of a
+    tangent-plane corner's depth, in pixel footprints. compact_error: the compact
+    mesh's absolute error bound, in pixel footprints at the image's median depth."""
+
+    kind: Reconstruction = "hybrid"
+    plane_tolerance: float = 1.0
+    max_corner_extent: float = 8.0
+    compact_error: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.kind not in RECONSTRUCTIONS:
+            raise ValueError(f"reconstruction must be one of {RECONSTRUCTIONS}, got {self.kind!r}")
+        for name in ("plane_tolerance", "max_corner_extent", "compact_error"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a positive number, got {v!r}")
+
+
+def offset_camera(camera: Camera) -> Camera:
+    """Camera of the offset image H of an image taken with `camera` (Alg. 4): the
+    same eye, orientation and clip planes, (W+1)×(H+1) pixels and a window grown by
+    half a pixel per side, so H's pixel (i, j) centre is I's pixel corner (i, j)."""
+    w, h = camera.width, camera.height
+    t = np.tan(np.radians(camera.fov) / 2) * (h + 1) / h
+    return replace(camera, width=w + 1, height=h + 1, fov=float(np.degrees(2 * np.arctan(t))))
+
+
+def pack_colors(color: np.ndarray) -> np.ndarray:
+    """(…,3) linear colours in [0,1] → (…,) uint32 RGBA8 (alpha 255), as `pack_vertices`."""
+    c = np.clip(np.rint(np.asarray(color, np.float64) * 255), 0, 255).astype(np.uint32)
+    return c[..., 0] | (c[..., 1] << 8) | (c[..., 2] << 16) | np.uint32(255 << 24)
+
+
+def _image_words(img: DepthImage) -> tuple[np.ndarray, np.ndarray]:
+    """The two rgba32ui textures' contents of a depth image (see reconstruct_common.glsl)."""
+    h, w = img.depth.shape
+    a = np.empty((h, w, 4), np.uint32)
+    b = np.empty((h, w, 4), np.uint32)
+    a[..., :3] = np.ascontiguousarray(img.position, np.float32).view(np.uint32)
+    a[..., 3] = img.tri_id
+    b[..., :3] = np.ascontiguousarray(img.normal, np.float32).view(np.uint32)
+    b[..., 3] = pack_colors(img.color)
+    return a, b
+
+
+class Reconstructor:
+    """Compute programs and scratch images for reconstructions on `gl`'s thread.
+    `release()` frees the scratch images (programs are cached on the context)."""
+
+    def __init__(self, gl: GLContext) -> None:
+        gl.check_thread()
+        self.gl = gl
+        defines = _UNITS.defines()
+        self.hybrid_passes = [compute_program(gl, f"reconstruct_hybrid_{name}.comp", defines)
+                              for name in ("flags", "corners", "quads")]
+        self.grid_prog = compute_program(gl, "reconstruct_grid.comp", defines)
+
+    def release(self) -> None:
+        self.gl.check_thread()
+
+    def __enter__(self) -> Reconstructor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+    # --- helpers -----------------------------------------------------------------
+    def _upload(self, img: DepthImage) -> tuple[moderngl.Texture, moderngl.Texture]:
+        a, b = _image_words(img)
+        size = (a.shape[1], a.shape[0])
+        return (self.gl.ctx.texture(size, 4, a.tobytes(), dtype="u4"),
+                self.gl.ctx.texture(size, 4, b.tobytes(), dtype="u4"))
+
+    def _set_camera(self, prog: moderngl.ComputeShader, camera: Camera, settings: ReconstructionSettings) -> None:
+        r, u, f = camera.basis()
+        t = np.tan(np.radians(camera.fov) / 2)
+        set_uniform(prog, "u_size", (camera.width, camera.height))
+        set_uniform(prog, "u_eye", np.asarray(camera.eye))
+        set_uniform(prog, "u_forward", f)
+        set_uniform(prog, "u_right", r * t * camera.aspect)
+        set_uniform(prog, "u_up", u * t)
+        set_uniform(prog, "u_footprint", float(2 * t / camera.height))
+        set_uniform(prog, "u_plane_tol", float(settings.plane_tolerance))
+        set_uniform(prog, "u_max_extent", float(settings.max_corner_extent))
+
+    def _mesh(self, vbo: moderngl.Buffer, ibo: moderngl.Buffer, counters: moderngl.Buffer,
+              n_vertices: int | None = None) -> MeshGPU:
+        """A MeshGPU from the output buffers, trimmed to the counted size."""
+        nv, ni = (int(x) for x in np.frombuffer(counters.read(), np.uint32))
+        counters.release()
+        nv = nv if n_vertices is None else n_vertices
+        ctx = self.gl.ctx
+        out = []
+        for buf, used in ((vbo, nv * VERTEX_BYTES), (ibo, ni * 4)):
+            if used == buf.size:
+                out.append(buf)
+                continue
+            trimmed = ctx.buffer(reserve=max(used, 16))
+            if used:
+                ctx.copy_buffer(trimmed, buf, size=used)
+            buf.release()
+            out.append(trimmed)
+        return MeshGPU(self.gl, out[0], out[1], nv, ni // 3)
+
+    @staticmethod
+    def _bind_outputs(vbo: moderngl.Buffer, ibo: moderngl.Buffer, counters: moderngl.Buffer) -> None:
+        for name, buf in (("Vertices", vbo), ("Indices", ibo), ("Counters", counters)):
+            _UNITS.bind_storage(name, buf)
+
+    @staticmethod
+    def _groups(w: int, h: int) -> tuple[int, int, int]:
+        return (w + _GROUP - 1) // _GROUP, (h + _GROUP - 1) // _GROUP, 1
+
+    # --- reconstructions -----------------------------------------------------------
+    def hybrid(self, image: DepthImage, offset: DepthImage, settings: ReconstructionSettings) -> MeshGPU:
+        """Alg. 4: the mesh of `image` (W×H) with corners from its offset image
+        ((W+1)×(H+1), see `offset_camera`). 2 triangles per sample."""
+        self.gl.check_thread()
+        h, w = image.depth.shape
+        if offset.depth.shape != (h + 1, w + 1):
+            raise ValueError(f"offset image must be {(h + 1, w + 1)}, got {offset.depth.shape}")
+        ctx = self.gl.ctx
+        n = image.n_samples
+        ia, ib = self._upload(image)
+        ha, hb = self._upload(offset)
+        flags = ctx.texture((w, h), 1, dtype="u4")  # 32-bit: llvmpipe's 8-bit image stores race
+        corner_index = ctx.texture((w + 1, h + 1), 1, np.zeros((h + 1, w + 1), np.uint32).tobytes(), dtype="u4")
+        vbo = ctx.buffer(reserve=max(4 * n * VERTEX_BYTES, 16))  # ≤ 4 distinct corners per sample
+        ibo = ctx.buffer(reserve=max(6 * n * 4, 16))
+        counters = ctx.buffer(np.zeros(2, np.uint32).tobytes())
+        for name, tex in (("u_i_a", ia), ("u_i_b", ib), ("u_h_a", ha), ("u_h_b", hb), ("u_flags", flags),
+                          ("u_corner_index", corner_index)):
+            _UNITS.bind_image(name, tex, read=True, write=name in ("u_flags", "u_corner_index"))
+        self._bind_outputs(vbo, ibo, counters)
+        try:
+            for prog, grid in zip(self.hybrid_passes, ((w, h), (w + 1, h + 1), (w, h)), strict=True):
+                self._set_camera(prog, image.camera, settings)
+                prog.run(*self._groups(*grid))
+                ctx.memory_barrier()
+        finally:
+            for t in (ia, ib, ha, hb, flags, corner_index):
+                t.release()
+        return self._mesh(vbo, ibo, counters)
+
+    def grid(self, image: DepthImage, settings: ReconstructionSettings) -> MeshGPU:
+        """The grid baseline: vertex y·W + x per sample, ≤ 2 triangles per 2×2 block."""
+        self.gl.check_thread()
+        h, w = image.depth.shape
+        m = image.mask
+        blocks = int((m[:-1, :-1].astype(np.int8) + m[1:, :-1] + m[:-1, 1:] + m[1:, 1:] >= 3).sum())
+        ctx = self.gl.ctx
+        ia, ib = self._upload(image)
+        vbo = ctx.buffer(reserve=max(w * h * VERTEX_BYTES, 16))
+        ibo = ctx.buffer(reserve=max(6 * blocks * 4, 16))
+        counters = ctx.buffer(np.zeros(2, np.uint32).tobytes())
+        prog = self.grid_prog
+        _UNITS.bind_image("u_i_a", ia)
+        _UNITS.bind_image("u_i_b", ib)
+        self._bind_outputs(vbo, ibo, counters)
+        try:
+            self._set_camera(prog, image.camera, settings)
+            prog.run(*self._groups(w, h))
+            ctx.memory_barrier()
+        finally:
+            ia.release()
+            ib.release()
+        return self._mesh(vbo, ibo, counters, n_vertices=w * h)
+
+    def compact(self, mesh: MeshGPU, image: DepthImage, settings: ReconstructionSettings) -> MeshGPU:
+        """`mesh` (a hybrid reconstruction of `image`) simplified with an absolute
+        error ≤ compact_error pixel footprints at the image's median sample depth."""
+        self.gl.check_thread()
+        pos, rgba, tri = mesh.read()
+        if len(tri) == 0:
+            return MeshGPU.from_arrays(self.gl, pos, tri)
+        cam = image.camera
+        depth = float(np.median(image.depth[image.mask]))
+        bound = settings.compact_error * depth * 2 * np.tan(np.radians(cam.fov) / 2) / cam.height
+        simplified = simplify(pos, tri, bound)
+        used, remap = np.unique(simplified, return_inverse=True)
+        colors = rgba[used, :3].astype(np.float32) / 255
+        return MeshGPU.from_arrays(self.gl, pos[used], remap.reshape(-1, 3), colors)
+
+    def reconstruct(self, image: DepthImage, offset: DepthImage | None, settings: ReconstructionSettings) -> MeshGPU:
+        """One image's mesh by settings.kind (hybrid and compact need `offset`)."""
+        if settings.kind == "grid":
+            return self.grid(image, settings)
+        if offset is None:
+            raise ValueError(f"the {settings.kind} reconstruction needs the offset image")
+        mesh = self.hybrid(image, offset, settings)
+        if settings.kind == "hybrid":
+            return mesh
+        try:
+            return self.compact(mesh, image, settings)
+        finally:
+            mesh.release()
+
+
+def simplify(positions: np.ndarray, triangles: np.ndarray, max_error: float) -> np.ndarray:
+    """(M',3) uint32 triangles of the mesh simplified by meshoptimizer with an
+    absolute error ≤ max_error (world units), as few triangles as that allows."""
+    idx = np.ascontiguousarray(triangles, np.uint32).ravel()
+    pos = np.ascontiguousarray(positions, np.float32)
+    out = np.empty_like(idx)
+    n = meshoptimizer.simplify(out, idx, pos, target_index_count=0, target_error=float(max_error),
+                               options=meshoptimizer.SIMPLIFY_ERROR_ABSOLUTE)
+    return out[:n].reshape(-1, 3)
+
+
+# --- depth-image sets with their offset images ---------------------------------------
+
+@dataclass
+class SampledSet:
+    """A depth-image set and, per image, its offset image (None for the grid)."""
+
+    method: str
+    images: list[DepthImage]
+    offsets: list[DepthImage] | None
+
+
+def render_set(gl: GLContext, scene_gpu: SceneGPU, method: SamplingMethod, cameras: Sequence[Camera],
+               layers: int = 4, offsets: bool = True, renderer: DepthImageRenderer | None = None) -> SampledSet:
+    """The depth images of `method` and (offsets=True) their offset images H.
+
+    non_redundant / conventional: one image per camera (pixel redundancy, Alg. 3);
+    peeling: `layers` layers from cameras[0]. Cameras get near/far from the scene."""
+    if method not in SAMPLING_METHODS:
+        raise ValueError(f"method must be one of {SAMPLING_METHODS}, got {method!r}")
+    gl.check_thread()
+    cams = prepare_cameras(scene_gpu, cameras)
+    own = renderer is None
+    r = DepthImageRenderer(gl) if own else renderer
+    try:
+        offs = [offset_camera(c) for c in cams] if offsets else None
+        if method == "non_redundant":
+            images, h = (r.non_redundant_with_offsets(scene_gpu, cams, offs) if offs
+                         else (r.non_redundant(scene_gpu, cams), None))
+        elif method == "conventional":
+            images = r.conventional(scene_gpu, cams)
+            h = r.conventional(scene_gpu, offs) if offs else None
+        else:
+            images = r.depth_peeling(scene_gpu, cams[0], layers)
+            h = r.depth_peeling(scene_gpu, offs[0], layers) if offs else None
+        return SampledSet(method, images, h)
+    finally:
+        if own:
+            r.release()
+
+
+def reconstruct_set(gl: GLContext, sampled: SampledSet, settings: ReconstructionSettings,
+                    reconstructor: Reconstructor | None = None) -> list[MeshGPU]:
+    """One mesh per image of `sampled` (the caller releases them)."""
+    own = reconstructor is None
+    rec = Reconstructor(gl) if own else reconstructor
+    try:
+        offs = sampled.offsets or [None] * len(sampled.images)
+        return [rec.reconstruct(img, off, settings) for img, off in zip(sampled.images, offs, strict=True)]
+    finally:
+        if own:
+            rec.release()
+
+
+def export_glb(meshes: Sequence[MeshGPU], names: Sequence[str] | None = None) -> bytes:
+    """A binary glTF with one node (and mesh) per source image: positions,
+    COLOR_0 vertex colours (linear RGBA8), triangles counter-clockwise from the
+    capturing camera. Vertices no triangle uses are dropped."""
+    import trimesh
+
+    scene = trimesh.Scene()
+    for k, mesh in enumerate(meshes):
+        pos, rgba, tri = mesh.read()
+        if len(tri) == 0:
+            continue
+        used, remap = np.unique(tri, return_inverse=True)
+        tm = trimesh.Trimesh(pos[used], remap.reshape(-1, 3), vertex_colors=rgba[used], process=False)
+        name = names[k] if names else f"image_{k}"
+        scene.add_geometry(tm, node_name=name, geom_name=name)
+    buf = io.BytesIO()
+    buf.write(scene.export(file_type="glb"))
+    return buf.getvalue()
+
+
+def mesh_arrays(mesh: MeshGPU) -> tuple[np.ndarray, np.ndarray]:
+    """(positions (N,3) float32, triangles (M,3) uint32) of a MeshGPU (for tests)."""
+    pos, _, tri = mesh.read()
+    return pos, tri
+
+
+__all__ = ["ReconstructionSettings", "Reconstructor", "SampledSet", "export_glb", "offset_camera",
+           "pack_vertices", "reconstruct_set", "render_set", "simplify"]

@@ -1,0 +1,299 @@
+"""Reconstruction of depth images (thesis Ch. 3, §3.2, Alg. 4): the hybrid mesh is
+watertight on continuous surfaces, covers exactly the sampled pixels, keeps
+isolated samples as one quad, takes its corners as Fig. 17 shows, and NR meshes
+do not cover a surface twice; the grid baseline and the compact mesh beside it."""
+
+from __future__ import annotations
+
+import io
+from collections import Counter
+
+import numpy as np
+import pytest
+import trimesh
+
+from gl_passes.reconstruction import (
+    ReconstructionSettings,
+    Reconstructor,
+    export_glb,
+    mesh_arrays,
+    offset_camera,
+    reconstruct_set,
+    render_set,
+)
+from gl_passes.upload import SceneGPU
+from reference.raycast import RayCaster
+from scenes import Camera, Material, Scene, SceneObject
+from scenes.builtin.geometry import make_object, uv_sphere
+from tests.gl_leaks import gl_object_growth
+from tests.test_depth_images import box, figure11_scene
+
+HYBRID = ReconstructionSettings()
+W, H = 40, 30
+EYE = np.array([0.0, 0.0, 5.0])
+FRONT = Camera(tuple(EYE), (0.0, 0.0, 0.0), fov=40.0, width=W, height=H, near=1.0, far=20.0)
+
+
+def pixel_point(u: float, v: float, depth: float, cam: Camera = FRONT) -> np.ndarray:
+    """World point at continuous pixel coordinate (u, v) (row 0 = top) and eye depth."""
+    r, up, f = cam.basis()
+    t = np.tan(np.radians(cam.fov) / 2)
+    x, y = (2 * u / cam.width - 1) * t * cam.aspect, (1 - 2 * v / cam.height) * t
+    return np.asarray(cam.eye) + depth * (f + x * r + y * up)
+
+
+def screen_rects(rects: list[tuple[float, float, float, float]], depth: float, name: str = "rects") -> SceneObject:
+    """Rectangles [u0,u1]×[v0,v1] in FRONT's pixel coordinates, on the plane at
+    eye depth `depth`, facing the camera."""
+    verts, faces = [], []
+    for u0, u1, v0, v1 in rects:
+        b = len(verts)
+        verts += [pixel_point(u, v, depth) for u, v in ((u0, v1), (u1, v1), (u1, v0), (u0, v0))]
+        faces += [[b, b + 1, b + 2], [b, b + 2, b + 3]]
+    return SceneObject(name, np.array(verts), np.array(faces), material=Material((0.5, 0.6, 0.7)))
+
+
+def reconstruct(gl, scene: Scene, cams: list[Camera], method: str = "conventional",
+                settings: ReconstructionSettings = HYBRID):
+    with SceneGPU(gl, scene) if hasattr(SceneGPU, "__enter__") else _Owned(SceneGPU(gl, scene)) as sg:
+        ss = render_set(gl, sg, method, cams)
+    meshes = reconstruct_set(gl, ss, settings)
+    try:
+        return ss, [mesh_arrays(m) for m in meshes]
+    finally:
+        for m in meshes:
+            m.release()
+
+
+class _Owned:
+    def __init__(self, obj) -> None:
+        self.obj = obj
+
+    def __enter__(self):
+        return self.obj
+
+    def __exit__(self, *exc) -> None:
+        self.obj.release()
+
+
+def edge_counts(tri: np.ndarray) -> Counter:
+    e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+    e.sort(axis=1)
+    return Counter(map(tuple, e))
+
+
+def perimeter(mask: np.ndarray) -> int:
+    """Pixel edges between a sampled pixel and an unsampled one (or the border)."""
+    m = np.pad(mask, 1)
+    return int((m[1:, :] != m[:-1, :]).sum() + (m[:, 1:] != m[:, :-1]).sum())
+
+
+def quad_pixels(pos: np.ndarray, tri: np.ndarray, cam: Camera) -> np.ndarray:
+    """(n_quads, 2) pixel (x, y) covered by each quad (triangles 2q, 2q+1) seen from cam."""
+    px, _ = cam.project(pos[tri[0::2]].reshape(-1, 3).astype(np.float64))
+    return np.floor(px.reshape(-1, 3, 2).mean(axis=1)).astype(int)
+
+
+# --- offset image --------------------------------------------------------------------
+
+def test_offset_camera_centres_are_pixel_corners():
+    off = offset_camera(FRONT)
+    assert (off.width, off.height) == (W + 1, H + 1)
+    corners = np.array([pixel_point(u, v, 3.0) for u, v in ((0, 0), (W, 0), (7, 11), (W, H))])
+    px, _ = off.project(corners)  # I's corner (u, v) is H's pixel centre (u + 0.5, v + 0.5)
+    np.testing.assert_allclose(px, [[0.5, 0.5], [W + 0.5, 0.5], [7.5, 11.5], [W + 0.5, H + 0.5]], atol=1e-9)
+
+
+# --- watertight, covering, exact on planes -----------------------------------------------
+
+def test_hybrid_plane_is_watertight_and_covers_the_samples(gl):
+    # A tilted plane (not facing the camera) over part of the image.
+    plane = SceneObject("plane", np.array([[-3, -1.2, -4], [3, -1.2, -4], [3, 1.0, 1], [-3, 1.0, 1]], float),
+                        np.array([[0, 1, 2], [0, 2, 3]]), material=Material((0.6, 0.6, 0.6)))
+    ss, [(pos, tri)] = reconstruct(gl, Scene([plane]), [FRONT])
+    img = ss.images[0]
+    assert 0 < img.n_samples < W * H and len(tri) == 2 * img.n_samples
+    counts = edge_counts(tri)
+    assert max(counts.values()) == 2
+    assert sum(1 for c in counts.values() if c == 1) == perimeter(img.mask)
+    n = np.cross([6, 0, 0], [0, 2.2, 5.0])
+    assert np.abs((pos - [-3, -1.2, -4]) @ (n / np.linalg.norm(n))).max() < 1e-5
+    pix = quad_pixels(pos, tri, FRONT)
+    assert len(np.unique(pix, axis=0)) == len(pix)  # one quad per pixel, no overlap
+    assert img.mask[pix[:, 1], pix[:, 0]].all()
+
+
+def test_hybrid_sphere_is_watertight_inside_its_rim(gl):
+    sphere = make_object("sphere", uv_sphere((0, 0, 0), 1.2, 32, 64), Material((0.8, 0.2, 0.2)))
+    ss, [(pos, tri)] = reconstruct(gl, Scene([sphere]), [FRONT.with_size(64, 64)])
+    img = ss.images[0]
+    assert len(tri) == 2 * img.n_samples
+    counts = edge_counts(tri)
+    assert max(counts.values()) == 2
+    # Once-used edges may only lie on the rim: pixels within one pixel of an unsampled one.
+    pad = np.pad(img.mask, 1)
+    rim = np.zeros_like(img.mask)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            rim |= ~pad[1 + dy:1 + dy + 64, 1 + dx:1 + dx + 64]
+    once = np.array([e for e, c in counts.items() if c == 1])
+    mid = FRONT.with_size(64, 64).project(pos[once].mean(axis=1).astype(np.float64))[0]
+    near = np.floor(mid).astype(int).clip(0, 63)
+    assert rim[near[:, 1], near[:, 0]].all()
+    assert (~rim & img.mask).sum() > 1000  # a real interior
+    # Every vertex is close to the sphere (corners off the rim are H's samples on it).
+    r = np.linalg.norm(pos[np.unique(tri)], axis=1)
+    pix = quad_pixels(pos, tri, FRONT.with_size(64, 64))
+    interior_vertices = np.unique(tri[np.repeat(~rim[pix[:, 1], pix[:, 0]], 2)])
+    np.testing.assert_allclose(np.linalg.norm(pos[interior_vertices], axis=1), 1.2, atol=5e-3)
+    assert r.max() < 1.4
+
+
+def test_isolated_sample_gives_exactly_one_quad(gl):
+    # A patch smaller than a pixel, around pixel (10, 12)'s centre: H sees none of it.
+    patch = screen_rects([(10.3, 10.7, 12.3, 12.7)], 4.0)
+    ss, [(pos, tri)] = reconstruct(gl, Scene([patch]), [FRONT])
+    assert ss.images[0].n_samples == 1 and ss.offsets[0].n_samples == 0
+    assert len(tri) == 2 and len(np.unique(tri)) == 4
+    assert quad_pixels(pos, tri, FRONT).tolist() == [[10, 12]]
+    np.testing.assert_allclose(FRONT.project(pos.astype(np.float64))[1], 4.0 * FRONT.basis()[2] @ [0, 0, -1],
+                               rtol=1e-5)
+    grid = ReconstructionSettings(kind="grid")
+    _, [(_, gtri)] = reconstruct(gl, Scene([patch]), [FRONT], settings=grid)
+    assert len(gtri) == 0  # the grid baseline drops it
+
+
+def test_fig17_corner_cases(gl):
+    """S_0: all four corners from H (shared); S_2: one corner missing (tangent
+    plane); S_5: isolated (four tangent-plane corners). An L-shaped patch: pixel
+    centres x, y ∈ {2.5, 3.5, 4.5} minus (4.5, 2.5); lattice corners 2..5 minus
+    (5, 2) and (5, 3); plus an isolated sample at pixel (20, 20) on a nearer plane."""
+    l_shape = screen_rects([(1.6, 4.2, 1.6, 5.4), (4.2, 5.4, 3.2, 5.4)], 4.0, "L")
+    lone = screen_rects([(20.3, 20.7, 20.3, 20.7)], 3.0, "lone")
+    ss, [(pos, tri)] = reconstruct(gl, Scene([l_shape, lone]), [FRONT])
+    assert ss.images[0].n_samples == 9
+    quads = {tuple(p): tri[2 * q:2 * q + 2] for q, p in enumerate(quad_pixels(pos, tri, FRONT))}
+    assert set(quads) == {(x, y) for x in (2, 3, 4) for y in (2, 3, 4)} - {(4, 2)} | {(20, 20)}
+    refs = Counter(tri.ravel().tolist())
+
+    def shared(q: tuple[int, int]) -> int:  # corners used by more than this quad's 2 triangles
+        v = np.unique(quads[q])
+        return int(sum(refs[i] > sum(int(i in t) for t in quads[q]) for i in v))
+
+    assert shared((3, 3)) == 4  # S_0: its four corners are shared with neighbours
+    # (4, 3): corners (4,3) (5,3) (5,4) (4,4); (5,3) lies outside the L → one tangent-plane corner.
+    v43 = np.unique(quads[(4, 3)])
+    assert len(v43) == 4 and shared((4, 3)) == 3
+    assert shared((20, 20)) == 0 and len(np.unique(quads[(20, 20)])) == 4  # S_5
+    # 8 L pixels' shared lattice corners (16 − 2 outside) + 1 private + 4 isolated.
+    assert len(np.unique(tri)) == 14 + 1 + 4
+
+
+# --- NR: no surface covered twice -------------------------------------------------------
+
+def overdraw(meshes: list[tuple[np.ndarray, np.ndarray]], view: Camera) -> float:
+    """Fraction of `view`'s rays hitting reconstruction surface whose nearest hit
+    is matched (within 1e-3 relative depth) by a second mesh: surface covered twice."""
+    d = view.pixel_directions().reshape(-1, 3)
+    ts = []
+    for pos, tri in meshes:
+        if len(tri) == 0:
+            continue
+        obj = SceneObject("m", pos.astype(np.float64), tri.astype(np.int64), material=Material((1, 1, 1)))
+        ts.append(RayCaster(Scene([obj])).cast_from(view.eye, d).t)  # front faces only
+    t = np.stack(ts)
+    near = t.min(axis=0)
+    hit = np.isfinite(near)
+    t, near = t[:, hit], near[hit]
+    twice = (np.abs(t - near) <= 1e-3 * near).sum(axis=0) >= 2
+    return float(twice.mean())
+
+
+def test_nr_reconstruction_does_not_cover_a_surface_twice(gl):
+    scene = figure11_scene()
+    cams = [Camera((x, 0.0, 10.0), (0.0, 0.0, 0.0), fov=40.0, width=96, height=96) for x in (-2.0, 2.0)]
+    mid = Camera((0.0, 0.0, 10.0), (0.0, 0.0, 0.0), fov=40.0, width=96, height=96)
+    _, nr = reconstruct(gl, scene, cams, "non_redundant")
+    _, conv = reconstruct(gl, scene, cams, "conventional")
+    nr_twice, conv_twice = overdraw(nr, mid), overdraw(conv, mid)
+    print(f"overdraw: NR {nr_twice:.4f}, conventional {conv_twice:.4f}")
+    assert conv_twice > 0.3  # both conventional images hold A's and D's fronts
+    assert nr_twice < 0.03  # only texel-granularity fringes (Alg. 3) overlap
+
+
+# --- baselines, compact, export, leaks ----------------------------------------------
+
+def test_grid_joins_neighbours_but_not_across_a_discontinuity(gl):
+    near = screen_rects([(4.0, 12.0, 4.0, 12.0)], 3.0, "near")
+    far = screen_rects([(12.0, 20.0, 4.0, 12.0)], 4.5, "far")  # touches `near` in screen space
+    _, [(pos, tri)] = reconstruct(gl, Scene([near, far]), [FRONT], settings=ReconstructionSettings(kind="grid"))
+    assert len(tri) == 2 * (7 * 7) * 2  # two 8×8 sample blocks, each 7×7 quads
+    z = FRONT.project(pos[tri].reshape(-1, 3).astype(np.float64))[1].reshape(-1, 3)
+    assert (np.ptp(z, axis=1) < 1e-4).all()  # no triangle spans the two planes
+
+
+def test_compact_keeps_the_surface_within_its_bound(gl):
+    sphere = make_object("sphere", uv_sphere((0, 0, 0), 1.2, 32, 64), Material((0.8, 0.2, 0.2)))
+    floor = box("floor", (-4, -1.6, -4), (4, -1.4, 2))
+    cam = Camera((0.5, 1.5, 5.0), (0, -0.5, 0), fov=45.0, width=96, height=96)
+    scene = Scene([sphere, floor])
+    _, [(hpos, htri)] = reconstruct(gl, scene, [cam])
+    ss, [(cpos, ctri)] = reconstruct(gl, scene, [cam], settings=ReconstructionSettings(kind="compact"))
+    assert len(ctri) < len(htri) / 4
+    img = ss.images[0]
+    bound = 1.0 * np.median(img.depth[img.mask]) * 2 * np.tan(np.radians(cam.fov) / 2) / cam.height
+    # Every compact vertex is one of the hybrid mesh's vertices...
+    assert np.isin(cpos.view("V12").ravel(), hpos.view("V12").ravel()).all()
+    # ...and the compact surface stays within the bound of the hybrid one along the camera's rays.
+    obj = SceneObject("c", cpos.astype(np.float64), ctri.astype(np.int64), material=Material((1, 1, 1)))
+    hobj = SceneObject("h", hpos.astype(np.float64), htri.astype(np.int64), material=Material((1, 1, 1)))
+    d = cam.pixel_directions().reshape(-1, 3)
+    tc = RayCaster(Scene([obj])).intersect(np.broadcast_to(cam.eye, d.shape), d, cull_back_faces=False).t
+    th = RayCaster(Scene([hobj])).intersect(np.broadcast_to(cam.eye, d.shape), d, cull_back_faces=False).t
+    both = np.isfinite(tc) & np.isfinite(th)
+    assert both.sum() > 0.9 * img.n_samples
+    err = np.abs(tc[both] - th[both]) * np.abs(d[both] @ cam.basis()[2])
+    assert np.quantile(err, 0.99) <= 3 * bound  # distance along a ray ≥ the normal distance
+
+
+def test_glb_has_one_node_per_image_with_vertex_colours(gl):
+    scene = figure11_scene()
+    cams = [Camera((x, 0.0, 10.0), (0.0, 0.0, 0.0), fov=40.0, width=48, height=48) for x in (-2.0, 2.0)]
+    with _Owned(SceneGPU(gl, scene)) as sg:
+        ss = render_set(gl, sg, "non_redundant", cams)
+    meshes = reconstruct_set(gl, ss, HYBRID)
+    try:
+        glb = export_glb(meshes)
+        n_tri = [m.n_triangles for m in meshes]
+    finally:
+        for m in meshes:
+            m.release()
+    loaded = trimesh.load(io.BytesIO(glb), file_type="glb")
+    assert sorted(loaded.graph.nodes_geometry) == ["image_0", "image_1"]
+    assert sorted(len(g.faces) for g in loaded.geometry.values()) == sorted(n_tri)
+    colors = np.concatenate([g.visual.vertex_colors for g in loaded.geometry.values()])
+    assert colors[:, :3].max() > 100  # real shading colours, not the default grey/white
+    assert len(np.unique(colors[:, :3], axis=0)) > 3
+
+
+@pytest.mark.parametrize("kind", ["hybrid", "grid"])
+def test_reconstruction_frees_its_gl_objects(kind):
+    scene = figure11_scene()
+    cam = Camera((2.0, 0.0, 10.0), (0.0, 0.0, 0.0), fov=40.0, width=32, height=32)
+
+    class State:
+        def __init__(self, gl) -> None:
+            self.sg, self.rec = SceneGPU(gl, scene), Reconstructor(gl)
+            self.ss = render_set(gl, self.sg, "conventional", [cam])
+            self.frame(0)
+
+        def frame(self, _: int) -> None:
+            img, off = self.ss.images[0], self.ss.offsets[0]
+            self.rec.reconstruct(img, off, ReconstructionSettings(kind=kind)).release()
+
+        def release(self) -> None:
+            self.rec.release()
+            self.sg.release()
+
+    before, after = gl_object_growth(State, State.frame, 50)
+    assert after == before
