@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from scenes.model import AMBIENT
+from scenes.model import AMBIENT, AreaLight
 
 SKY_ZENITH = (0.18, 0.36, 0.78)
 SKY_HORIZON = (0.78, 0.84, 0.92)
@@ -51,3 +51,18 @@ def glsl_defines() -> dict[str, str]:
         "SUN_GLOW": vec3(SUN_GLOW),
         "SUN_GLOW_EXPONENT": repr(float(SUN_GLOW_EXPONENT)),
     }
+
+
+def area_light_shade(albedo: np.ndarray, normal: np.ndarray, position: np.ndarray, light: AreaLight,
+                     visible_fraction: np.ndarray) -> np.ndarray:
+    """Shaded image of the soft-shadow output (§3.3, Alg. 5): albedo (...,3) ×
+    (AMBIENT + (1 − AMBIENT)·max(0, n·l)·visible_fraction), with normal (...,3) unit,
+    position (...,3) world units, l the unit direction from the point to the light's
+    centre and visible_fraction (...,) in [0, 1] the share of the k×k light samples
+    the point sees. Returns (...,3) float32."""
+    to_light = np.asarray(light.center, np.float64) - np.asarray(position, np.float64)
+    length = np.linalg.norm(to_light, axis=-1, keepdims=True)
+    l_dir = to_light / np.maximum(length, 1e-30)
+    ndl = np.maximum(0.0, np.einsum("...k,...k->...", np.asarray(normal, np.float64), l_dir))
+    lit = AMBIENT + (1.0 - AMBIENT) * ndl * np.asarray(visible_fraction, np.float64)
+    return (np.asarray(albedo, np.float64) * lit[..., None]).astype(np.float32)
