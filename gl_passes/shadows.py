@@ -1,0 +1,356 @@
+"""Soft shadows from shadow maps (thesis §3.3, Alg. 5; DESIGN.md technique 2).
+
+`SoftShadowPass(gl, settings).visibility(occluders, bounds, points, normals, mask,
+light)` answers, for every receiver point P of a G-buffer and every light sample s
+of a rectangular area light's k×k grid (`AreaLight.samples(k)`, row s = sample s),
+whether s sees P:
+
+1. one shadow map per light sample (k² maps), rendered from the light camera
+   `scenes.lights.light_camera(light, s, bounds, res)` — the same cameras for every
+   occluder kind, so the original geometry (ground truth of Alg. 5) and its
+   reconstruction (several meshes) are judged through identical maps. Every
+   occluder (a `SceneGPU`, a `MeshGPU`, anything whose `draw(prog)` draws
+   triangles reading `in_position`) is drawn into every map: depth only, with a
+   position-only vertex shader (shadow_map.vert), no back-face culling (a
+   reconstruction is a one-sided surface whose back faces cast shadows too), and
+   depth clamping (an occluder in front of a light camera's near plane, e.g. a
+   reconstruction quad slightly outside `bounds`, still occludes);
+2. `maps_per_draw` maps per draw call: one instance per map into its own tile of a
+   depth atlas (clip distances keep each instance in its tile), one batch of
+   maps after another;
+3. after each batch, a compute pass over the receiver points (shadow_lookup.comp)
+   compares each point with each map of the batch and sets bit s of the point's
+   visibility words in a storage buffer, read back once at the end.
+
+Visibility rule (shared with the Embree reference): a light sample on or behind
+P's tangent plane (dot(n, s − P) ≤ 0) is not visible. Depth bias: P is moved
+`normal_offset` texels along its normal n, and is lit when that point's depth along
+the light camera's axis is at most the map's linear depth + `depth_bias` texels;
+a texel is the world size of one shadow-map texel at P's depth (2·tan(fov/2)·z/res),
+so the bias follows the map's quantisation at every depth and is the same for
+every occluder. Points outside a map or in front of an empty texel are lit.
+"""
+
+from __future__ import annotations
+
+import inspect
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Protocol
+
+import moderngl
+import numpy as np
+
+from gl_passes.bindings import Units
+from gl_passes.context import GLContext
+from gl_passes.shaders import compute_program, program
+from scenes.lights import light_camera
+from scenes.model import AreaLight
+
+GL_CLIP_DISTANCE0 = 0x3000
+GL_DEPTH_CLAMP = 0x864F
+#: Clip distances written by shadow_map.vert with MAPS_PER_DRAW (the tile's four sides).
+N_CLIP_DISTANCES = 4
+#: local_size_x of shadow_lookup.comp, and the most work groups per dispatch row.
+LOOKUP_GROUP = 64
+MAX_GROUPS_X = 65535
+#: Units of shadow_lookup.comp (compiled in as `UNIT_<name>` #defines; gl_passes.bindings).
+LOOKUP_UNITS = Units(storage=("points", "normals", "bits"), textures=("depth",))
+
+
+@dataclass(frozen=True)
+class ShadowSettings:
+    """Shadow-map settings of Alg. 5 (§3.3).
+
+    samples: k, the light is sampled on a k×k grid of cell centres (k² maps).
+    shadow_map_resolution: texels per side of each (square) shadow map.
+    normal_offset: receiver offset along its unit normal, in shadow-map texels.
+    depth_bias: tolerance on the light-space depth comparison, in texels.
+    maps_per_draw: shadow maps rendered per draw call (instanced into a square
+    atlas of ceil(√maps_per_draw)² tiles); 1 = one draw per map."""
+
+    samples: int = 16
+    shadow_map_resolution: int = 1024
+    normal_offset: float = 0.75
+    depth_bias: float = 1.0
+    maps_per_draw: int = 16
+
+    def __post_init__(self) -> None:
+        if self.samples < 1 or self.shadow_map_resolution < 1 or self.maps_per_draw < 1:
+            raise ValueError("samples, shadow_map_resolution and maps_per_draw must be ≥ 1")
+        if not (np.isfinite(self.normal_offset) and np.isfinite(self.depth_bias)):
+            raise ValueError("normal_offset and depth_bias must be finite")
+
+    @property
+    def n_samples(self) -> int:
+        """k², the number of light samples and shadow maps."""
+        return self.samples * self.samples
+
+    @property
+    def words(self) -> int:
+        """uint32 visibility words per receiver point, ceil(k²/32)."""
+        return (self.n_samples + 31) // 32
+
+
+@dataclass
+class ShadowResult:
+    """Per-pixel light-sample visibility (Alg. 5).
+
+    bits: (H,W,ceil(k²/32)) uint32, bit s % 32 of word s // 32 set when light
+    sample s (row s of light.samples(k)) sees the pixel's point; 0 outside the mask.
+    counts: (H,W) uint16 visible samples per pixel (0..k²).
+    timings: seconds per step ("upload", "shadow_maps", "lookup", "readback")."""
+
+    bits: np.ndarray
+    counts: np.ndarray
+    timings: dict[str, float]
+
+
+class Occluder(Protocol):
+    """Anything that draws its triangles with `prog`, reading `in_position` (vec3).
+    When its draw() also takes `instances` (SceneGPU, MeshGPU) one call draws a
+    whole batch of maps; `materials=False` is passed where accepted (SceneGPU)."""
+
+    def draw(self, prog: moderngl.Program) -> None: ...
+
+
+@dataclass(frozen=True)
+class ShadowCameras:
+    """The k² light cameras as the shaders read them (S = k², sample order).
+
+    view_proj: (S,4,4) float32 world → clip, column-major (GL layout).
+    light: (S,4) float32 sample position (world units) and texel size per unit
+    depth, 2·tan(fov/2)/res. clip: (S,2) float32 near, far (world units).
+    forward: (3,) float32 the common unit view axis (−light normal)."""
+
+    view_proj: np.ndarray
+    light: np.ndarray
+    clip: np.ndarray
+    forward: np.ndarray
+
+
+def shadow_cameras(light: AreaLight, bounds: tuple[np.ndarray, np.ndarray], samples: int,
+                   resolution: int) -> ShadowCameras:
+    """The light cameras of the k×k light samples (`scenes.lights.light_camera`)."""
+    cams = [light_camera(light, s, bounds, resolution) for s in light.samples(samples)]
+    view_proj = np.stack([c.view_projection().T for c in cams]).astype(np.float32)
+    texel = np.array([2 * np.tan(np.radians(c.fov) / 2) / resolution for c in cams])
+    light_rows = np.column_stack([[c.eye for c in cams], texel]).astype(np.float32)
+    clip = np.array([(c.near, c.far) for c in cams], np.float32)
+    return ShadowCameras(np.ascontiguousarray(view_proj), light_rows, clip, cams[0].basis()[2].astype(np.float32))
+
+
+def atlas_tiles(n: int) -> tuple[int, np.ndarray]:
+    """(t, (n,4) float32): a t×t tile grid (t = ceil(√n)) and, per tile i (column
+    i % t, row i // t from the bottom), the NDC scale (x, y) and offset (x, y) that
+    map a full-viewport NDC position into the tile."""
+    t = int(np.ceil(np.sqrt(n)))
+    i = np.arange(n)
+    tiles = np.empty((n, 4), np.float32)
+    tiles[:, :2] = 1.0 / t
+    tiles[:, 2] = (2 * (i % t) + 1) / t - 1
+    tiles[:, 3] = (2 * (i // t) + 1) / t - 1
+    return t, tiles
+
+
+def _padded(rows: np.ndarray, first: int, count: int, size: int) -> bytes:
+    """rows[first:first+count] zero-padded to `size` rows, as bytes for a uniform array."""
+    out = np.zeros((size, *rows.shape[1:]), rows.dtype)
+    out[:count] = rows[first:first + count]
+    return out.tobytes()
+
+
+#: Set bits of each byte value (popcount where numpy < 2 has no bitwise_count).
+_BYTE_BITS = np.array([bin(i).count("1") for i in range(256)], np.uint8)
+
+
+def popcount_words(bits: np.ndarray) -> np.ndarray:
+    """(..., words) uint32 → (...) uint16 number of set bits."""
+    b = np.ascontiguousarray(bits, np.uint32)
+    if hasattr(np, "bitwise_count"):
+        return np.bitwise_count(b).sum(axis=-1, dtype=np.uint16)
+    return _BYTE_BITS[b.view(np.uint8)].sum(axis=-1, dtype=np.uint16)
+
+
+def _draw(occluder: Occluder, prog: moderngl.Program, instances: int,
+          set_first: Callable[[int], None]) -> None:
+    """Draw `occluder` `instances` times with `prog`, in one instanced call when its
+    draw() takes `instances`, else once per instance (set_first(i) before each);
+    a SceneGPU is told to skip its material uniforms."""
+    params = inspect.signature(occluder.draw).parameters
+    kw = {"materials": False} if "materials" in params else {}
+    if "instances" in params or instances == 1:
+        if instances > 1:
+            kw["instances"] = instances
+        set_first(0)
+        occluder.draw(prog, **kw)
+        return
+    for i in range(instances):
+        set_first(i)
+        occluder.draw(prog, **kw)
+
+
+class SoftShadowPass:
+    """Shadow maps of an area light's k×k samples and per-point visibility bits
+    (Alg. 5) on `gl`'s thread. Owns a depth atlas and the point buffers (reused
+    across calls, grown when needed): call `release()` or use it as a context
+    manager. Programs are cached on the context."""
+
+    def __init__(self, gl: GLContext, settings: ShadowSettings = ShadowSettings()) -> None:
+        gl.check_thread()
+        self.gl = gl
+        self.settings = settings
+        res = settings.shadow_map_resolution
+        self.batch = min(settings.maps_per_draw, settings.n_samples)
+        self.tiles, self.tile_ndc = atlas_tiles(self.batch)
+        size = res * self.tiles
+        limit = int(gl.ctx.info["GL_MAX_TEXTURE_SIZE"])
+        if size > limit:
+            raise ValueError(f"shadow-map atlas {size}² exceeds GL_MAX_TEXTURE_SIZE {limit}: "
+                             "lower maps_per_draw or shadow_map_resolution")
+        instanced = {"MAPS_PER_DRAW": str(self.batch)} if self.batch > 1 else {}
+        self.map_prog = program(gl, "shadow_map.vert", "shadow_map.frag", defines=instanced)
+        self.lookup_prog = compute_program(gl, "shadow_lookup.comp", defines={
+            "MAPS_PER_DRAW": str(self.batch), "WORDS": str(settings.words), **LOOKUP_UNITS.defines()})
+        self.atlas = gl.ctx.depth_texture((size, size))
+        self.atlas.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self.atlas.compare_func = ""
+        self.fbo = gl.ctx.framebuffer(depth_attachment=self.atlas)
+        self._buffers: dict[str, moderngl.Buffer] = {}
+
+    # --- resources -------------------------------------------------------------------
+    def _buffer(self, name: str, nbytes: int) -> moderngl.Buffer:
+        """The storage buffer `name`, at least `nbytes` long (replaced when smaller)."""
+        buf = self._buffers.get(name)
+        if buf is None or buf.size < nbytes:
+            if buf is not None:
+                buf.release()
+            buf = self._buffers[name] = self.gl.ctx.buffer(reserve=max(nbytes, 16))
+        return buf
+
+    def release(self) -> None:
+        """Free the atlas, its framebuffer and the point buffers."""
+        self.gl.check_thread()
+        for buf in self._buffers.values():
+            buf.release()
+        self._buffers.clear()
+        self.fbo.release()
+        self.atlas.release()
+
+    def __enter__(self) -> SoftShadowPass:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+    # --- steps -----------------------------------------------------------------------
+    def _upload(self, points: np.ndarray, normals: np.ndarray, mask: np.ndarray) -> int:
+        """Masked receivers → the `points`/`normals` buffers as (N,4) float32; zeroed
+        bits (N × words uint32). Returns N."""
+        sel = np.flatnonzero(mask.ravel())
+        n = len(sel)
+        for name, arr in (("points", points), ("normals", normals)):
+            rows = np.zeros((n, 4), np.float32)
+            rows[:, :3] = arr.reshape(-1, 3)[sel]
+            self._buffer(name, rows.nbytes).write(rows.tobytes())
+        self._buffer("bits", n * self.settings.words * 4).clear()
+        return n
+
+    @contextmanager
+    def _map_state(self) -> Iterator[None]:
+        """Depth test, no culling, depth clamp and the tile clip distances while
+        shadow maps are drawn; restored afterwards."""
+        ctx = self.gl.ctx
+        clips = [GL_CLIP_DISTANCE0 + i for i in range(N_CLIP_DISTANCES)] if self.batch > 1 else []
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.disable(moderngl.CULL_FACE)
+        ctx.depth_func = "<"
+        for e in [GL_DEPTH_CLAMP, *clips]:
+            ctx.enable_direct(e)
+        try:
+            yield
+        finally:
+            for e in [GL_DEPTH_CLAMP, *clips]:
+                ctx.disable_direct(e)
+            ctx.disable(moderngl.DEPTH_TEST)
+
+    def _render_maps(self, occluders: Sequence[Occluder], cams: ShadowCameras, first: int, count: int) -> None:
+        """Maps first..first+count−1 into atlas tiles 0..count−1."""
+        prog = self.map_prog
+        self.fbo.use()
+        self.fbo.viewport = (0, 0, *self.atlas.size)
+        self.fbo.clear(depth=1.0)
+        prog["u_light_vp"].write(_padded(cams.view_proj, first, count, self.batch))
+        if "u_tile" in prog:
+            prog["u_tile"].write(self.tile_ndc.tobytes())
+
+        def set_first(i: int) -> None:
+            if "u_map0" in prog:
+                prog["u_map0"].value = i
+
+        with self._map_state():
+            for occ in occluders:
+                _draw(occ, prog, count, set_first)
+
+    def _lookup(self, cams: ShadowCameras, first: int, count: int, n_points: int) -> None:
+        """Set the bits of samples first..first+count−1 for every receiver point."""
+        prog = self.lookup_prog
+        LOOKUP_UNITS.bind_texture("depth", self.atlas)
+        for name in LOOKUP_UNITS.storage:
+            LOOKUP_UNITS.bind_storage(name, self._buffers[name])
+        for name, rows in (("u_light_vp", cams.view_proj), ("u_light", cams.light), ("u_clip", cams.clip)):
+            prog[name].write(_padded(rows, first, count, self.batch))
+        prog["u_forward"].value = tuple(float(x) for x in cams.forward)
+        s = self.settings
+        for name, value in (("u_first", first), ("u_count", count), ("u_tiles", self.tiles),
+                            ("u_res", s.shadow_map_resolution), ("u_n_points", n_points),
+                            ("u_normal_offset", float(s.normal_offset)), ("u_depth_bias", float(s.depth_bias))):
+            prog[name].value = value
+        groups = -(-n_points // LOOKUP_GROUP)
+        gx = min(groups, MAX_GROUPS_X)
+        prog.run(gx, -(-groups // gx))
+        self.gl.ctx.memory_barrier()
+
+    # --- public ----------------------------------------------------------------------
+    def visibility(self, occluders: Sequence[Occluder], bounds: tuple[np.ndarray, np.ndarray],
+                   points: np.ndarray, normals: np.ndarray, mask: np.ndarray, light: AreaLight) -> ShadowResult:
+        """Visibility of k×k light samples at the receiver points (Alg. 5).
+
+        occluders: everything that casts shadows, all drawn into every map.
+        bounds: (lo, hi) (3,) world box of the scene; it fixes the light cameras.
+        points, normals: (H,W,3) float32 world positions and unit normals of the
+        receivers (row 0 = top); mask: (H,W) bool receivers to evaluate.
+        Returns a ShadowResult (bits, counts; 0 outside the mask). Raises
+        ValueError on mismatched shapes, or when `bounds` is not entirely in front
+        of the light (scenes.lights.light_camera)."""
+        self.gl.check_thread()
+        s = self.settings
+        mask = np.asarray(mask, bool)
+        h, w = mask.shape
+        if np.shape(points) != (h, w, 3) or np.shape(normals) != (h, w, 3):
+            raise ValueError(f"points and normals must be (H,W,3) with mask (H,W) = {mask.shape}")
+        timings = {"upload": 0.0, "shadow_maps": 0.0, "lookup": 0.0, "readback": 0.0}
+        t0 = time.perf_counter()
+        cams = shadow_cameras(light, bounds, s.samples, s.shadow_map_resolution)
+        n = self._upload(np.asarray(points, np.float32), np.asarray(normals, np.float32), mask)
+        timings["upload"] = time.perf_counter() - t0
+        ctx = self.gl.ctx
+        for first in range(0, s.n_samples if n else 0, self.batch):
+            count = min(self.batch, s.n_samples - first)
+            t0 = time.perf_counter()
+            self._render_maps(occluders, cams, first, count)
+            ctx.finish()
+            t1 = time.perf_counter()
+            self._lookup(cams, first, count, n)
+            ctx.finish()
+            timings["shadow_maps"] += t1 - t0
+            timings["lookup"] += time.perf_counter() - t1
+        t0 = time.perf_counter()
+        bits = np.zeros((h, w, s.words), np.uint32)
+        if n:
+            flat = np.frombuffer(self._buffers["bits"].read(size=n * s.words * 4), np.uint32)
+            bits.reshape(-1, s.words)[np.flatnonzero(mask.ravel())] = flat.reshape(n, s.words)
+        timings["readback"] = time.perf_counter() - t0
+        return ShadowResult(bits=bits, counts=popcount_words(bits), timings=timings)
