@@ -332,14 +332,19 @@ def reconstruct_set(gl: GLContext, sampled: SampledSet, settings: Reconstruction
 
 
 def export_glb(meshes: Sequence[MeshGPU], names: Sequence[str] | None = None) -> bytes:
-    """A binary glTF with one node (and mesh) per source image: positions,
-    COLOR_0 vertex colours (linear RGBA8), triangles counter-clockwise from the
-    capturing camera. Vertices no triangle uses are dropped."""
+    """`glb_bytes` of GPU meshes (reads them back on the GL thread)."""
+    return glb_bytes([m.read() for m in meshes], names)
+
+
+def glb_bytes(parts: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], names: Sequence[str] | None = None) -> bytes:
+    """A binary glTF with one node (and mesh) per source image from (positions
+    (N,3), RGBA8 colours (N,4), triangles (M,3)) as `MeshGPU.read` returns them:
+    COLOR_0 vertex colours (linear), triangles counter-clockwise from the capturing
+    camera; vertices no triangle uses are dropped. No GL (call off the GL thread)."""
     import trimesh
 
     scene = trimesh.Scene()
-    for k, mesh in enumerate(meshes):
-        pos, rgba, tri = mesh.read()
+    for k, (pos, rgba, tri) in enumerate(parts):
         if len(tri) == 0:
             continue
         used, remap = np.unique(tri, return_inverse=True)
@@ -357,5 +362,5 @@ def mesh_arrays(mesh: MeshGPU) -> tuple[np.ndarray, np.ndarray]:
     return pos, tri
 
 
-__all__ = ["ReconstructionSettings", "Reconstructor", "SampledSet", "export_glb", "offset_camera",
+__all__ = ["ReconstructionSettings", "Reconstructor", "SampledSet", "export_glb", "glb_bytes", "offset_camera",
            "pack_vertices", "reconstruct_set", "render_set", "simplify"]

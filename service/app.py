@@ -53,8 +53,9 @@ from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 from starlette.formparsers import MultiPartException, MultiPartParser
 
+from gl_passes.reconstruction import glb_bytes
 from scenes.loaders import SceneLoadError
-from scenes.model import Scene
+from scenes.model import AreaLight, Scene
 from service.config import Settings
 from service.depth_sets import embree_set, encode_set, needs_gl, plan_set, set_job, set_metrics
 from service.effects import encode_reflections, raytrace, reflection_job
@@ -64,8 +65,19 @@ from service.schemas import (
     DepthImagesRequest,
     FrameRequest,
     Readiness,
+    ReconstructionRequest,
     SceneInfo,
     SceneList,
+)
+from service.soft_shadows import (
+    SoftShadowRequest,
+    encode_shadowed,
+    raytrace_counts,
+    reconstruction_job,
+    reference_cameras,
+    resolve_light,
+    shade,
+    soft_shadow_job,
 )
 from service.store import (
     InvalidBuiltin,
@@ -418,6 +430,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         camera = req.to_camera().fit_clip(scene.bounds)
         label = f"frame {scene_id[:12]}"
         method, rays = req.effects.reflections, req.effects.glossy_rays
+        if req.effects.soft_shadows is not None:
+            return await _soft_shadow_frame(app_, scene_id, scene, camera, req, label)
         if method == "none":
             gbuf = await run_job(app_, frame_job(scene_id, scene, camera, req.cull_back_faces), label)
             body = await run_in_threadpool(encode_frame, gbuf, req.format)
@@ -429,6 +443,52 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             body = await run_in_threadpool(encode_reflections, result, req.format)
         return body, MEDIA_TYPES[req.format]
 
+
+    async def _soft_shadow_frame(app_: FastAPI, scene_id: str, scene: Scene, camera: Any, req: FrameRequest,
+                                 label: str) -> tuple[bytes, str]:
+        spec = req.effects.soft_shadows
+        light = resolve_light(scene, None if spec.light is None else
+                              AreaLight(spec.light.center, spec.light.u, spec.light.v))
+        ss = SoftShadowRequest(light, spec.samples, spec.method, spec.reconstruction, spec.resolution)
+        try:  # the light must see the whole scene from its corners (422 otherwise)
+            reference_cameras(scene, light, "conventional", 16)
+        except ValueError as exc:
+            raise HTTPException(422, f"soft_shadows light: {exc}") from None
+        gbuf, counts = await run_job(app_, soft_shadow_job(scene_id, scene, camera, ss), label)
+        if counts is None:
+            counts = await run_in_threadpool(raytrace_counts, scene, gbuf, ss)
+        color = await run_in_threadpool(shade, scene, gbuf, counts, ss)
+        body = await run_in_threadpool(encode_shadowed, color, gbuf, counts, req.format)
+        return body, MEDIA_TYPES[req.format]
+
+    # --- reconstructions (thesis Ch. 3) -----------------------------------------------------
+    @app.post(
+        "/scenes/{scene_id}/reconstruction", tags=["reconstruction"], summary="Reconstruct a depth-image set (GLB)",
+        response_class=Response,
+        responses={200: {"content": {"model/gltf-binary": {}},
+                         "description": "binary glTF, one node per source image, vertex colours"},
+                   404: {"description": "unknown scene"}, 422: {"description": "invalid cameras, light or size"},
+                   503: {"description": "render queue full"}, 504: {"description": "timed out"}})
+    async def reconstruct(scene_id: str, req: ReconstructionRequest, request: Request) -> Response:
+        scene = await load_scene(request.app, scene_id)
+        cams = req.to_cameras()
+        try:
+            if cams is None:
+                spec = req.light
+                light = resolve_light(scene, None if spec is None else AreaLight(spec.center, spec.u, spec.v))
+                cams = reference_cameras(scene, light, req.method, req.resolution)
+            else:
+                cams = [c.fit_clip(scene.bounds) for c in cams]
+        except ValueError as exc:
+            raise HTTPException(422, f"reconstruction viewpoints: {exc}") from None
+        if req.method == "peeling":
+            cams = cams[:1]
+        job = reconstruction_job(scene_id, scene, cams, req.method, req.reconstruction, req.layers)
+        parts = await run_job(request.app, job, f"reconstruction {scene_id[:12]}")
+        names = [f"{req.method}_{k}" for k in range(len(parts))]
+        body = await run_in_threadpool(glb_bytes, parts, names)
+        return Response(body, media_type="model/gltf-binary",
+                        headers={"Content-Disposition": 'attachment; filename="reconstruction.glb"'})
 
     # --- depth-image sets (thesis Ch. 2) ---------------------------------------------------
     @app.post(

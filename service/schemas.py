@@ -17,8 +17,13 @@ from scenes.camera import Camera, CameraError
 
 Vec3 = tuple[float, float, float]
 
-#: Effect methods accepted by /frames (soft shadows arrive with the Ch. 3 passes).
-SHADOW_METHODS = ("none",)
+#: Soft-shadow occluders (thesis Ch. 3, Alg. 5): the original scene, reconstructions of
+#: depth images by method, or the exact Embree truth.
+SHADOW_METHODS = ("geometry", "non_redundant", "conventional", "peeling", "raytrace")
+#: Most light samples per side of a soft-shadow light (k² shadow maps).
+MAX_SHADOW_SAMPLES = 32
+#: Largest reference-image side of a reconstruction (a 2048² image gives up to ~8 M triangles).
+MAX_RECONSTRUCTION_RES = 2048
 #: cluster: cluster depth images (thesis Ch. 4, GL); raytrace: Embree reference;
 #: envmap: environment map only (baseline); none: local shading only.
 REFLECTION_METHODS = ("none", "cluster", "raytrace", "envmap")
@@ -60,22 +65,59 @@ class CameraSpec(BaseModel):
         return self
 
 
-class Effects(BaseModel):
-    """Effects applied to a frame: reflections by method (2×2 supersampled), with
-    `glossy_rays` lobe rays per sample on glossy surfaces."""
+class LightSpec(BaseModel):
+    """A rectangular area light: centre C and edge vectors u, v (world units); the
+    rectangle is C + a·u + b·v for a, b in [−1/2, 1/2]; it lights the side u × v points away from."""
 
     model_config = ConfigDict(extra="forbid")
 
-    shadows: str = Field(default="none", description=f"soft-shadow method; one of {list(SHADOW_METHODS)}")
+    center: Vec3
+    u: Vec3
+    v: Vec3
+
+    @field_validator("center", "u", "v")
+    @classmethod
+    def _finite(cls, v: Any, info: Any) -> Any:
+        return _finite_vec3(info.field_name, v)
+
+    @model_validator(mode="after")
+    def _rectangle(self) -> LightSpec:
+        area = math.dist((0, 0, 0), (self.u[1] * self.v[2] - self.u[2] * self.v[1],
+                                     self.u[2] * self.v[0] - self.u[0] * self.v[2],
+                                     self.u[0] * self.v[1] - self.u[1] * self.v[0]))
+        if not (math.isfinite(area) and area > 0):
+            raise ValueError("light u and v must be non-zero and not parallel")
+        return self
+
+
+class SoftShadowSpec(BaseModel):
+    """Soft shadows of a rectangular area light (thesis Ch. 3, Alg. 5) from k×k
+    shadow maps whose occluders are the original scene (`geometry`) or the
+    reconstruction of depth images from the light's 4 corners (`non_redundant`,
+    `conventional`) or of 4 peeling layers from its centre (`peeling`);
+    `raytrace` is the exact Embree truth."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    light: LightSpec | None = Field(default=None, description="omitted: a light sized to the scene "
+                                                                "(diagonal = scene diagonal, from the sun's side)")
+    samples: int = Field(default=16, ge=1, le=MAX_SHADOW_SAMPLES, description="k: k×k light samples")
+    method: Literal["geometry", "non_redundant", "conventional", "peeling", "raytrace"] = "non_redundant"
+    reconstruction: Literal["hybrid", "grid", "compact"] = Field(
+        default="hybrid", description="hybrid (Alg. 4), grid (baseline) or compact (simplified hybrid)")
+    resolution: int = Field(default=1024, ge=16, le=MAX_RECONSTRUCTION_RES,
+                            description="reference-image side in pixels")
+
+
+class Effects(BaseModel):
+    """Effects applied to a frame: reflections by method (2×2 supersampled), with
+    `glossy_rays` lobe rays per sample on glossy surfaces; soft shadows of an area light."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    soft_shadows: SoftShadowSpec | None = Field(default=None, description="soft shadows (thesis Ch. 3)")
     reflections: str = Field(default="none", description=f"reflection method; one of {list(REFLECTION_METHODS)}")
     glossy_rays: int = Field(default=8, ge=1, le=MAX_GLOSSY_RAYS, description="lobe rays per glossy sample")
-
-    @field_validator("shadows")
-    @classmethod
-    def _shadows(cls, v: str) -> str:
-        if v not in SHADOW_METHODS:
-            raise ValueError(f"shadows method {v!r} is not available; supported: {', '.join(SHADOW_METHODS)}")
-        return v
 
     @field_validator("reflections")
     @classmethod
@@ -84,6 +126,12 @@ class Effects(BaseModel):
             raise ValueError(
                 f"reflections method {v!r} is not available; supported: {', '.join(REFLECTION_METHODS)}")
         return v
+
+    @model_validator(mode="after")
+    def _one_effect(self) -> Effects:
+        if self.soft_shadows is not None and self.reflections != "none":
+            raise ValueError("soft_shadows and reflections cannot be combined in one frame yet")
+        return self
 
 
 class FrameRequest(BaseModel):
@@ -205,3 +253,32 @@ class DepthImagesRequest(BaseModel):
             return None
         return [Camera(eye=c.eye, target=c.target, up=c.up, fov=c.fov, width=self.width, height=self.height)
                 for c in self.cameras]
+
+
+class ReconstructionRequest(BaseModel):
+    """``POST /scenes/{id}/reconstruction``: the reconstruction (thesis Ch. 3, Alg. 4)
+    of a depth-image set as GLB, one node per source image. Reference viewpoints:
+    ``cameras`` (square images of ``resolution``²), or the 4 corners of ``light``
+    (peeling: its centre), or, with neither, of the default light sized to the scene."""
+
+    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [
+        {"method": "non_redundant", "reconstruction": "hybrid", "resolution": 256}]})
+
+    cameras: list[CameraSpec] | None = Field(default=None, min_length=1, max_length=MAX_SET_IMAGES)
+    light: LightSpec | None = None
+    method: Literal["non_redundant", "conventional", "peeling"] = "non_redundant"
+    reconstruction: Literal["hybrid", "grid", "compact"] = "hybrid"
+    resolution: int = Field(default=512, ge=16, le=MAX_RECONSTRUCTION_RES, description="image side in pixels")
+    layers: int = Field(default=4, ge=1, le=MAX_SET_IMAGES, description="peeling layers")
+
+    @model_validator(mode="after")
+    def _viewpoints(self) -> ReconstructionRequest:
+        if self.cameras is not None and self.light is not None:
+            raise ValueError("give cameras or a light, not both")
+        return self
+
+    def to_cameras(self) -> list[Camera] | None:
+        if self.cameras is None:
+            return None
+        return [Camera(eye=c.eye, target=c.target, up=c.up, fov=c.fov, width=self.resolution,
+                       height=self.resolution) for c in self.cameras]

@@ -1,0 +1,136 @@
+"""Soft shadows and reconstructions for the service (thesis Ch. 3, Alg. 4–5).
+
+GL work (G-buffer, reference images, reconstruction, shadow maps) runs only in
+the worker jobs below, on the worker thread; the Embree truth (`raytrace`) and
+the shading run off it. The settings are the benchmark's (`bench/soft_shadows.py`):
+`ShadowSettings` with its default shadow-map resolution, reference images of
+`resolution`² from the light's 4 corners (peeling: 4 layers from its centre),
+`ReconstructionSettings` defaults per kind.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from gl_passes.reconstruction import ReconstructionSettings, reconstruct_set, render_set
+from gl_passes.shadows import ShadowSettings, SoftShadowPass
+from reference.raycast import RayCaster
+from reference.shadows import light_visibility, visible_counts
+from scenes.camera import Camera
+from scenes.lights import default_area_light, light_camera
+from scenes.model import AreaLight, Scene
+from scenes.shading import area_light_shade
+from service import image_io
+
+#: Occluders of the shadow maps: the original scene, or a reconstruction of images
+#: by method; "raytrace" is the exact Embree truth (no shadow maps).
+SHADOW_METHODS = ("geometry", "non_redundant", "conventional", "peeling", "raytrace")
+#: A mesh read back: positions (N,3), RGBA8 colours (N,4), triangles (M,3).
+MeshArrays = tuple[np.ndarray, np.ndarray, np.ndarray]
+#: Depth-peeling layers from the light's centre (§3.4.2).
+PEEL_LAYERS = 4
+
+
+@dataclass(frozen=True)
+class SoftShadowRequest:
+    """What one frame's soft shadows need (validated by the schema)."""
+
+    light: AreaLight
+    samples: int
+    method: str
+    reconstruction: str
+    resolution: int
+
+
+def resolve_light(scene: Scene, light: AreaLight | None) -> AreaLight:
+    """The request's light, or the default one sized to the scene (diagonal = scene diagonal)."""
+    return light if light is not None else default_area_light(scene.bounds, scene.sun_direction)
+
+
+def reference_cameras(scene: Scene, light: AreaLight, method: str, resolution: int) -> list[Camera]:
+    """The light's 4 corners (NR, conventional) or its centre (peeling), looking at the scene."""
+    eyes = [np.asarray(light.center)] if method == "peeling" else list(light.corners())
+    return [light_camera(light, e, scene.bounds, resolution) for e in eyes]
+
+
+def _shadow_pass(state: Any, samples: int) -> SoftShadowPass:
+    return state.resource(f"soft_shadows_{samples}",
+                          lambda gl: SoftShadowPass(gl, ShadowSettings(samples=samples)))
+
+
+def _reconstruct(state: Any, scene_key: str, scene: Scene, cameras: Sequence[Camera], method: str,
+                 kind: str, layers: int = PEEL_LAYERS) -> list:
+    gpu = state.scene_gpu(scene_key, scene)
+    sampled = render_set(state.gl, gpu, method, cameras, layers=layers, offsets=kind != "grid")
+    return reconstruct_set(state.gl, sampled, ReconstructionSettings(kind=kind))
+
+
+def soft_shadow_job(scene_key: str, scene: Scene, camera: Camera, req: SoftShadowRequest) -> Callable[[Any], Any]:
+    """Worker job: (G-buffer of `camera`, per-pixel visible light samples (H,W)
+    uint16, or None for `raytrace`, whose visibility is computed off the GL thread)."""
+
+    def run(state: Any) -> tuple[Any, np.ndarray | None]:
+        gpu = state.scene_gpu(scene_key, scene)
+        gbuf = state.gbuffer.render(gpu, camera)
+        if req.method == "raytrace":
+            return gbuf, None
+        if req.method == "geometry":
+            occluders, owned = [gpu], []
+        else:
+            cams = reference_cameras(scene, req.light, req.method, req.resolution)
+            owned = _reconstruct(state, scene_key, scene, cams, req.method, req.reconstruction)
+            occluders = owned
+        try:
+            res = _shadow_pass(state, req.samples).visibility(
+                occluders, scene.bounds, gbuf.position, gbuf.normal, gbuf.mask, req.light)
+        finally:
+            for m in owned:
+                m.release()
+        return gbuf, res.counts
+
+    return run
+
+
+def raytrace_counts(scene: Scene, gbuf: Any, req: SoftShadowRequest) -> np.ndarray:
+    """The exact Embree truth (CPU; call off the GL thread)."""
+    bits = light_visibility(RayCaster(scene), gbuf.position, gbuf.normal, gbuf.mask, req.light, req.samples)
+    return visible_counts(bits)
+
+
+def shade(scene: Scene, gbuf: Any, counts: np.ndarray, req: SoftShadowRequest) -> np.ndarray:
+    """(H,W,3) linear colour: the area light's shading with the visible fraction
+    on surfaces, the G-buffer's sky elsewhere."""
+    albedo = scene.materials[gbuf.obj_id, :3]
+    lit = area_light_shade(albedo, gbuf.normal, gbuf.position, req.light, counts / float(req.samples**2))
+    return np.where(gbuf.mask[..., None], lit, gbuf.color).astype(np.float32)
+
+
+def encode_shadowed(color: np.ndarray, gbuf: Any, counts: np.ndarray, fmt: str) -> bytes:
+    """PNG (sRGB) or EXR (linear RGB, Z, N, id, object and `visible`: the count of
+    visible light samples per pixel)."""
+    if fmt == "png":
+        return image_io.encode_png(color)
+    if fmt == "exr":
+        return image_io.encode_exr({"RGB": color, "Z": gbuf.depth, "N": gbuf.normal, "id": gbuf.tri_id,
+                                    "object": gbuf.obj_id, "visible": counts.astype(np.uint32)})
+    raise ValueError(f"unknown frame format {fmt!r}")
+
+
+def reconstruction_job(scene_key: str, scene: Scene, cameras: Sequence[Camera], method: str,
+                       kind: str, layers: int = PEEL_LAYERS) -> Callable[[Any], list[MeshArrays]]:
+    """Worker job: per source image (positions, RGBA8 colours, triangles) of the
+    reconstruction; `gl_passes.reconstruction.glb_bytes` encodes them off the GL thread."""
+
+    def run(state: Any) -> list[MeshArrays]:
+        meshes = _reconstruct(state, scene_key, scene, cameras, method, kind, layers)
+        try:
+            return [m.read() for m in meshes]
+        finally:
+            for m in meshes:
+                m.release()
+
+    return run

@@ -1,0 +1,146 @@
+"""Soft shadows (thesis Ch. 3, Alg. 5) and reconstructions (Alg. 4) through the service."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+from scenes.builtin import make_builtin
+from scenes.camera import look_at_scene
+from scenes.lights import default_area_light, light_camera
+from service import image_io
+from tests.test_service import service
+
+RES = 40
+SCENE = "city"
+
+
+@pytest.fixture(scope="module")
+def client(tmp_path_factory):
+    with service(tmp_path_factory.mktemp("data")) as c:
+        yield c, c.post("/scenes", json={"builtin": SCENE}).json()["id"]
+
+
+def camera() -> dict:
+    cam = look_at_scene(make_builtin(SCENE).bounds)
+    return {"eye": list(cam.eye), "target": list(cam.target)}
+
+
+def shadow_frame(c, sid, fmt: str = "exr", **spec):
+    return c.post(f"/scenes/{sid}/frames", json={"camera": camera(), "width": RES, "height": RES, "format": fmt,
+                                                  "effects": {"soft_shadows": {"samples": 4, **spec}}})
+
+
+def visible(r) -> np.ndarray:
+    assert r.status_code == 200, r.text
+    return image_io.decode_exr(r.content)["visible"]
+
+
+def test_geometry_shadow_maps_agree_with_the_raytraced_truth(client):
+    c, sid = client
+    geo, exact = visible(shadow_frame(c, sid, method="geometry")), visible(shadow_frame(c, sid, method="raytrace"))
+    assert geo.max() <= 16 and exact.max() == 16 and exact.min() == 0  # umbra and full light both occur
+    # Shadow maps quantise (1024² maps of a k = 4 light): most pixels agree exactly, the mean stays small.
+    assert np.mean(geo == exact) > 0.9
+    assert np.abs(geo.astype(int) - exact.astype(int)).mean() < 0.3
+
+
+@pytest.mark.parametrize("method, reconstruction", [("non_redundant", "hybrid"), ("conventional", "grid"),
+                                                    ("peeling", "compact")])
+def test_reconstructed_occluders_shade_a_png(client, method, reconstruction):
+    c, sid = client
+    r = shadow_frame(c, sid, "png", method=method, reconstruction=reconstruction, resolution=128)
+    assert r.status_code == 200, r.text
+    assert r.headers["content-type"] == "image/png"
+    img = np.asarray(Image.open(io.BytesIO(r.content)))
+    assert img.shape == (RES, RES, 3) and img.std() > 5  # shaded, not blank
+
+
+def test_nr_hybrid_frame_is_close_to_the_geometry_truth(client):
+    c, sid = client
+    geo = visible(shadow_frame(c, sid, method="geometry")).astype(int)
+    nr = visible(shadow_frame(c, sid, method="non_redundant", resolution=256)).astype(int)
+    assert np.abs(nr - geo).mean() < 1.0  # of 16 samples, at 256² reference images
+
+
+@pytest.mark.parametrize("spec, needle", [
+    ({"samples": 0}, "samples"),
+    ({"samples": 33}, "samples"),
+    ({"method": "pcss"}, "method"),
+    ({"reconstruction": "mesh"}, "reconstruction"),
+    ({"resolution": 4096}, "resolution"),
+    ({"light": {"center": [0, 5, 0], "u": [1, 0, 0], "v": [2, 0, 0]}}, "not parallel"),
+    ({"light": {"center": [0, 5, 0], "u": [1, 0, 0], "v": [0, 0, float("inf")]}}, "finite"),
+    ({"light": {"center": [0, 5, 0], "u": [1, 0, 0], "v": [0, 0, 1]}}, "in front of the light"),
+    ({"bias": 3}, "bias"),
+])
+def test_bad_soft_shadow_requests_are_422(client, spec, needle):
+    c, sid = client
+    if "inf" in str(spec):
+        body = ('{"camera": {"eye": [3, 3, 3], "target": [0, 0, 0]}, "effects": {"soft_shadows": '
+                '{"light": {"center": [0, 5, 0], "u": [1, 0, 0], "v": [0, 0, Infinity]}}}}')
+        r = c.post(f"/scenes/{sid}/frames", content=body.encode(), headers={"content-type": "application/json"})
+    else:
+        r = shadow_frame(c, sid, **spec)
+    assert r.status_code == 422, r.text
+    assert needle in r.text
+
+
+def test_soft_shadows_and_reflections_together_are_422(client):
+    c, sid = client
+    r = c.post(f"/scenes/{sid}/frames", json={"camera": camera(), "width": RES, "height": RES, "effects": {
+        "soft_shadows": {}, "reflections": "cluster"}})
+    assert r.status_code == 422 and "cannot be combined" in r.text
+
+
+def glb(r) -> trimesh.Scene:
+    assert r.status_code == 200, r.text
+    assert r.headers["content-type"] == "model/gltf-binary"
+    return trimesh.load(io.BytesIO(r.content), file_type="glb")
+
+
+def test_reconstruction_glb_from_the_light_corners(client):
+    c, sid = client
+    s = glb(c.post(f"/scenes/{sid}/reconstruction", json={"resolution": 64}))
+    assert sorted(s.graph.nodes_geometry) == [f"non_redundant_{k}" for k in range(4)]
+    scene = make_builtin(SCENE)
+    lo, hi = scene.bounds
+    v = np.concatenate([g.vertices for g in s.geometry.values()])
+    # A quad covers its whole pixel and a tangent-plane corner may reach
+    # max_corner_extent (8) pixel footprints past its sample: 9 footprints at the far plane.
+    light = default_area_light(scene.bounds, scene.sun_direction)
+    cam = light_camera(light, light.corners()[0], scene.bounds, 64)
+    margin = 9 * cam.far * 2 * np.tan(np.radians(cam.fov) / 2) / 64
+    assert ((v >= lo - margin) & (v <= hi + margin)).all()
+    assert np.median(np.linalg.norm(v - scene.center, axis=1)) < np.linalg.norm(hi - lo) / 2
+
+
+def test_reconstruction_glb_from_cameras(client):
+    c, sid = client
+    cams = [camera(), {**camera(), "eye": [e * 1.1 for e in camera()["eye"]]}]
+    s = glb(c.post(f"/scenes/{sid}/reconstruction",
+                   json={"cameras": cams, "method": "conventional", "reconstruction": "grid", "resolution": 48}))
+    assert len(s.graph.nodes_geometry) == 2
+
+
+@pytest.mark.parametrize("body, status, needle", [
+    ({"cameras": [{"eye": [3, 3, 3], "target": [0, 0, 0]}],
+      "light": {"center": [0, 5, 0], "u": [1, 0, 0], "v": [0, 0, 1]}}, 422, "not both"),
+    ({"resolution": 4096}, 422, "resolution"),
+    ({"method": "visibility"}, 422, "method"),
+    ({"light": {"center": [0, 5, 0], "u": [1, 0, 0], "v": [0, 0, 1]}}, 422, "in front of the light"),
+])
+def test_bad_reconstruction_requests(client, body, status, needle):
+    c, sid = client
+    r = c.post(f"/scenes/{sid}/reconstruction", json=body)
+    assert r.status_code == status, r.text
+    assert needle in r.text
+
+
+def test_reconstruction_of_an_unknown_scene_is_404(client):
+    c, _ = client
+    assert c.post(f"/scenes/{'0' * 64}/reconstruction", json={}).status_code == 404
