@@ -76,7 +76,7 @@ class ReconstructionSettings:
     kind: Reconstruction = "hybrid"
     plane_tolerance: float = 1.0
     max_corner_extent: float = 8.0
-    compact_error: float = 1.0
+    compact_error: float = 0.5
 
     def __post_init__(self) -> None:
         if self.kind not in RECONSTRUCTIONS:
