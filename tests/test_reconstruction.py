@@ -241,7 +241,8 @@ def test_compact_keeps_the_surface_within_its_bound(gl):
     ss, [(cpos, ctri)] = reconstruct(gl, scene, [cam], settings=ReconstructionSettings(kind="compact"))
     assert len(ctri) < len(htri) / 4
     img = ss.images[0]
-    bound = ReconstructionSettings().compact_error * np.median(img.depth[img.mask]) * 2 * np.tan(np.radians(cam.fov) / 2) / cam.height
+    footprint = np.median(img.depth[img.mask]) * 2 * np.tan(np.radians(cam.fov) / 2) / cam.height
+    bound = ReconstructionSettings().compact_error * footprint
     # Every compact vertex is one of the hybrid mesh's vertices...
     assert np.isin(cpos.view("V12").ravel(), hpos.view("V12").ravel()).all()
     # ...and the compact surface stays within the bound of the hybrid one along the camera's rays.
