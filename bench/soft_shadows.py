@@ -1,0 +1,561 @@
+"""Soft shadows from reconstructed depth images (thesis Ch. 3, §3.4: Tables 8–11, Fig. 20).
+
+Per scene (nest, grass, city, tree): a square area light whose diagonal is the
+scene's (`scenes.lights.default_area_light`), k×k light samples, a 512² output
+view. Occluders of the k² shadow maps (Alg. 5, `gl_passes.shadows`): the original
+geometry (the thesis's truth), and the reconstructions (`gl_passes.reconstruction`:
+hybrid Alg. 4, grid baseline, compact) of non-redundant or conventional images from
+the light's 4 corners or of 4 depth-peeling layers from its centre. Errors (§3.4.2,
+`reference.shadows`) against the geometry-shadow-map truth and against the exact
+Embree truth from the same surface points.
+
+Parts (each writes bench/results/soft_shadows/<part>_<scene>.json; the report
+joins whatever is there):
+  table8   reference images 1024², k = 16: errors, pictures, triangles, step times
+           (Table 11 is this run's step breakdown);
+  table9   reference resolution 512 / 1024 / 1536 (k = --sweep-k);
+  table10  light size 1/4 … 4 × the scene diagonal (k = --sweep-k);
+  fig20    shadow-map time per light sample against the triangle count of grass at
+           increasing detail: the original geometry vs the NR reconstructions;
+  layered  shadow maps per draw call (instanced into a depth atlas) against one
+           draw per map, on grass at detail 20 (one upload of the mesh either way);
+  peeling  why 4 peeling layers beat the NR images here: the light's distance
+           (0.6 / 1.0 / 1.5 diagonals) and two-sided peeling (k = --sweep-k), with the
+           errors split into too dark and too bright.
+
+    python -m bench.soft_shadows --part table8 --scenes nest,grass,city,tree
+    python -m bench.soft_shadows --report-only
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench.common import RESULTS_DIR, machine_info, md_table, progress, write_json, write_text
+from gl_passes.context import GLContext, create_gl_context
+from gl_passes.depth_images import DepthImageRenderer
+from gl_passes.gbuffer import GBufferPass
+from gl_passes.reconstruction import (
+    RECONSTRUCTIONS,
+    SAMPLING_METHODS,
+    ReconstructionSettings,
+    reconstruct_set,
+    render_set,
+)
+from gl_passes.shadows import ShadowSettings, SoftShadowPass
+from gl_passes.upload import SceneGPU
+from reference.raycast import RayCaster
+from reference.shadows import error_maps, error_picture, light_visibility, shadow_errors, visible_counts
+from scenes.camera import Camera, look_at_scene
+from scenes.lights import default_area_light, light_camera
+from scenes.model import AreaLight, Scene
+from scenes.shading import area_light_shade
+
+OUT = RESULTS_DIR / "soft_shadows"
+SCENES = ("nest", "grass", "city", "tree")
+PARTS = ("table8", "table9", "table10", "fig20", "peeling", "layered")
+#: The thesis's Table 8 (intensity mean/max, visibility mean/max) for NR, conventional, peeling.
+THESIS_TABLE8 = {
+    "nest": {"non_redundant": (3.00, 106, 6.31, 110), "conventional": (5.62, 179, 7.72, 179),
+             "peeling": (3.58, 137, 7.40, 141)},
+    "grass": {"non_redundant": (1.71, 112, 3.70, 116), "conventional": (5.15, 181, 6.12, 181),
+              "peeling": (2.55, 199, 4.41, 199)},
+}
+#: The thesis's Table 9 mean errors (intensity, visibility) at 1024² (the other rows in the report).
+THESIS_TABLE9_1024 = {
+    "nest": {"non_redundant": (3.00, 6.31), "conventional": (5.62, 7.72), "peeling": (3.58, 7.40)},
+    "grass": {"non_redundant": (1.71, 3.70), "conventional": (5.15, 6.12), "peeling": (2.55, 4.41)},
+    "city": {"non_redundant": (1.60, 2.07), "conventional": (3.46, 3.64), "peeling": (11.3, 12.6)},
+    "tree": {"non_redundant": (9.21, 17.5), "conventional": (13.7, 21.1), "peeling": (10.9, 18.7)},
+}
+OUTPUT_RES = 512
+PEEL_LAYERS = 4
+
+
+@dataclass
+class Stage:
+    """One scene ready for shadow queries: its GPU copy, the receivers of the
+    output view (G-buffer points, normals, mask, albedo) and the Embree caster."""
+
+    scene: Scene
+    gpu: SceneGPU
+    caster: RayCaster
+    view: Camera
+    points: np.ndarray
+    normals: np.ndarray
+    mask: np.ndarray
+    albedo: np.ndarray
+
+
+def stage_scene(gl: GLContext, scene: Scene) -> Stage:
+    gpu = SceneGPU(gl, scene)
+    view = look_at_scene(scene.bounds, width=OUTPUT_RES, height=OUTPUT_RES)
+    gb = GBufferPass(gl)
+    try:
+        buf = gb.render(gpu, view)
+    finally:
+        gb.release()
+    albedo = scene.materials[buf.obj_id, :3]
+    return Stage(scene, gpu, RayCaster(scene), view, buf.position, buf.normal, buf.mask, albedo)
+
+
+def reference_cameras(light: AreaLight, bounds: tuple[np.ndarray, np.ndarray], method: str, res: int) -> list[Camera]:
+    """§3.4.2: NR and conventional images from the light's 4 corners; peeling from its centre."""
+    if method == "peeling":
+        return [light_camera(light, np.asarray(light.center), bounds, res)]
+    return [light_camera(light, c, bounds, res) for c in light.corners()]
+
+
+def approximate(gl: GLContext, st: Stage, sp: SoftShadowPass, light: AreaLight, method: str,
+                kinds: tuple[str, ...], res: int) -> dict[str, dict[str, Any]]:
+    """Alg. 5 with each reconstruction kind of `method`'s images: bits, triangles,
+    and the time of step 1 (reference images), 2 (reconstruction), 3 (shadows)."""
+    bounds = st.scene.bounds
+    t0 = time.perf_counter()
+    sampled = render_set(gl, st.gpu, method, reference_cameras(light, bounds, method, res), layers=PEEL_LAYERS)
+    gl.ctx.finish()
+    step1 = time.perf_counter() - t0
+    out = {}
+    for kind in kinds:
+        t0 = time.perf_counter()
+        meshes = reconstruct_set(gl, sampled, ReconstructionSettings(kind=kind))
+        gl.ctx.finish()
+        step2 = time.perf_counter() - t0
+        try:
+            t0 = time.perf_counter()
+            res_ = sp.visibility(meshes, bounds, st.points, st.normals, st.mask, light)
+            step3 = time.perf_counter() - t0
+            out[kind] = {"bits": res_.bits, "triangles": sum(m.n_triangles for m in meshes),
+                         "samples": sum(img.n_samples for img in sampled.images),
+                         "seconds": {"reference_images": step1, "reconstruction": step2, "shadows": step3}}
+        finally:
+            for m in meshes:
+                m.release()
+    return out
+
+
+def truths(st: Stage, sp: SoftShadowPass, light: AreaLight, k: int) -> tuple[np.ndarray, np.ndarray, dict]:
+    """(geometry-shadow-map bits, exact Embree bits, their seconds)."""
+    t0 = time.perf_counter()
+    geo = sp.visibility([st.gpu], st.scene.bounds, st.points, st.normals, st.mask, light).bits
+    t1 = time.perf_counter()
+    exact = light_visibility(st.caster, st.points, st.normals, st.mask, light, k)
+    return geo, exact, {"geometry_shadows": t1 - t0, "exact_embree": time.perf_counter() - t1}
+
+
+def errors(bits: np.ndarray, geo: np.ndarray, exact: np.ndarray, mask: np.ndarray) -> dict[str, Any]:
+    """§3.4.2 errors against both truths, and the mean wrong decisions against the
+    geometry truth split by sign (too dark: samples shadowed that the truth lights)."""
+    _, signed = error_maps(bits, geo)
+    s = signed[mask].astype(np.float64)
+    return {"vs_geometry": shadow_errors(bits, geo, mask), "vs_exact": shadow_errors(bits, exact, mask),
+            "too_dark_mean": float(np.clip(-s, 0, None).mean()) if s.size else 0.0,
+            "too_bright_mean": float(np.clip(s, 0, None).mean()) if s.size else 0.0}
+
+
+# --- parts ----------------------------------------------------------------------------
+
+def part_table8(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str, Any]:
+    k = args.k
+    light = default_area_light(st.scene.bounds, st.scene.sun_direction)
+    with SoftShadowPass(gl, ShadowSettings(samples=k, shadow_map_resolution=args.shadow_res)) as sp:
+        geo, exact, tsec = truths(st, sp, light, k)
+        rows: dict[str, Any] = {"truth_seconds": tsec, "geometry_vs_exact": shadow_errors(geo, exact, st.mask),
+                                "scene_triangles": st.scene.n_triangles, "methods": {}}
+        pictures = {"geometry": shaded(st, light, geo, k)}
+        for method in progress(SAMPLING_METHODS, args.progress, desc=f"{st.scene.name} table8", leave=False):
+            runs = approximate(gl, st, sp, light, method, RECONSTRUCTIONS, args.ref_res)
+            for kind, r in runs.items():
+                r.update(errors(r.pop("bits") if kind != "hybrid" else r["bits"], geo, exact, st.mask))
+            hybrid_bits = runs["hybrid"].pop("bits")
+            pictures[method] = shaded(st, light, hybrid_bits, k)
+            pictures[f"{method}_error"] = error_picture(hybrid_bits, geo, st.mask, k)
+            rows["methods"][method] = runs
+    save_pictures(st.scene.name, pictures)
+    return rows
+
+
+def part_table9(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str, Any]:
+    k = args.sweep_k
+    light = default_area_light(st.scene.bounds, st.scene.sun_direction)
+    out: dict[str, Any] = {}
+    with SoftShadowPass(gl, ShadowSettings(samples=k, shadow_map_resolution=args.shadow_res)) as sp:
+        geo, exact, _ = truths(st, sp, light, k)
+        for res in progress((512, 1024, 1536), args.progress, desc=f"{st.scene.name} table9", leave=False):
+            out[str(res)] = {}
+            for method in SAMPLING_METHODS:
+                r = approximate(gl, st, sp, light, method, ("hybrid",), res)["hybrid"]
+                out[str(res)][method] = {**errors(r.pop("bits"), geo, exact, st.mask), "triangles": r["triangles"]}
+    return out
+
+
+def part_table10(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str, Any]:
+    k = args.sweep_k
+    out: dict[str, Any] = {}
+    with SoftShadowPass(gl, ShadowSettings(samples=k, shadow_map_resolution=args.shadow_res)) as sp:
+        for size in progress((0.25, 0.5, 1.0, 2.0, 4.0), args.progress, desc=f"{st.scene.name} table10", leave=False):
+            light = default_area_light(st.scene.bounds, st.scene.sun_direction, size=size)
+            geo, exact, _ = truths(st, sp, light, k)
+            out[str(size)] = {}
+            for method in SAMPLING_METHODS:
+                r = approximate(gl, st, sp, light, method, ("hybrid",), args.ref_res)["hybrid"]
+                out[str(size)][method] = errors(r.pop("bits"), geo, exact, st.mask)
+    return out
+
+
+def part_peeling(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str, Any]:
+    k = args.sweep_k
+    variants = (("non_redundant", True), ("conventional", True), ("peeling", True), ("peeling", False))
+    out: dict[str, Any] = {}
+    two_sided = DepthImageRenderer(gl, cull_back_faces=False)
+    with SoftShadowPass(gl, ShadowSettings(samples=k, shadow_map_resolution=args.shadow_res)) as sp:
+        for distance in progress((0.6, 1.0, 1.5), args.progress, desc=f"{st.scene.name} peeling", leave=False):
+            light = default_area_light(st.scene.bounds, st.scene.sun_direction, distance=distance)
+            geo, exact, _ = truths(st, sp, light, k)
+            out[str(distance)] = {}
+            for method, culled in variants:
+                cams = reference_cameras(light, st.scene.bounds, method, args.ref_res)
+                sampled = render_set(gl, st.gpu, method, cams, layers=PEEL_LAYERS,
+                                     renderer=None if culled else two_sided)
+                meshes = reconstruct_set(gl, sampled, ReconstructionSettings())
+                try:
+                    r = sp.visibility(meshes, st.scene.bounds, st.points, st.normals, st.mask, light)
+                    name = method if culled else "peeling_two_sided"
+                    out[str(distance)][name] = {**errors(r.bits, geo, exact, st.mask),
+                                                "triangles": sum(m.n_triangles for m in meshes)}
+                finally:
+                    for m in meshes:
+                        m.release()
+    two_sided.release()
+    return out
+
+
+def part_layered(gl: GLContext, args: argparse.Namespace) -> dict[str, Any]:
+    """Seconds per shadow map with 1, 4 and 16 maps per draw, interleaved side by side."""
+    from scenes.builtin import make_builtin
+
+    scene = make_builtin("grass", detail=20)
+    st = stage_scene(gl, scene)
+    light = default_area_light(scene.bounds, scene.sun_direction)
+    k = 4
+    passes = {n: SoftShadowPass(gl, ShadowSettings(samples=k, shadow_map_resolution=args.shadow_res,
+                                                   maps_per_draw=n)) for n in (1, 4, 16)}
+    try:
+        times: dict[int, list[float]] = {n: [] for n in passes}
+        for rep in range(4):  # round 0 warms up
+            for n, sp in passes.items():
+                t = _shadow_seconds(sp, [st.gpu], st, light) / k**2
+                if rep:
+                    times[n].append(t)
+        return {"triangles": scene.n_triangles, "maps": k * k,
+                "seconds_per_map": {str(n): sorted(v)[len(v) // 2] for n, v in times.items()}}
+    finally:
+        for sp in passes.values():
+            sp.release()
+        st.gpu.release()
+
+
+def part_fig20(gl: GLContext, args: argparse.Namespace) -> dict[str, Any]:
+    """Grass at increasing detail: seconds per shadow map of the original geometry
+    and of the NR hybrid / compact reconstructions (reference images at ref_res)."""
+    from scenes.builtin import make_builtin
+
+    k = 2  # 4 shadow maps per measurement; time per map = shadows / k²
+    levels = []
+    with SoftShadowPass(gl, ShadowSettings(samples=k, shadow_map_resolution=args.shadow_res)) as sp:
+        for detail in progress(args.fig20_details, args.progress, desc="fig20", leave=False):
+            scene = make_builtin("grass", detail=detail)
+            st = stage_scene(gl, scene)
+            try:
+                light = default_area_light(scene.bounds, scene.sun_direction)
+                sp.visibility([st.gpu], scene.bounds, st.points, st.normals, st.mask, light)  # warm-up
+                geo = min(_shadow_seconds(sp, [st.gpu], st, light) for _ in range(2)) / k**2
+                runs = approximate(gl, st, sp, light, "non_redundant", ("hybrid", "compact"), args.ref_res)
+                rec = {kind: {"triangles": r["triangles"],
+                              "seconds_per_map": r["seconds"]["shadows"] / k**2,
+                              "reconstruction_seconds": r["seconds"]["reconstruction"]}
+                       for kind, r in runs.items()}
+                levels.append({"detail": detail, "triangles": scene.n_triangles, "geometry_seconds_per_map": geo,
+                               **rec})
+            finally:
+                st.gpu.release()
+    return {"levels": levels, "k": k}
+
+
+def _shadow_seconds(sp: SoftShadowPass, occluders: list, st: Stage, light: AreaLight) -> float:
+    t0 = time.perf_counter()
+    sp.visibility(occluders, st.scene.bounds, st.points, st.normals, st.mask, light)
+    return time.perf_counter() - t0
+
+
+# --- pictures and report ------------------------------------------------------------
+
+def shaded(st: Stage, light: AreaLight, bits: np.ndarray, k: int) -> np.ndarray:
+    frac = visible_counts(bits).astype(np.float64) / k**2
+    img = area_light_shade(st.albedo, st.normals, st.points, light, frac)
+    img[~st.mask] = 0.0
+    return img
+
+
+def save_pictures(scene: str, pictures: dict[str, np.ndarray]) -> None:
+    """One PNG row per scene: geometry, then per method the shaded image over its error picture."""
+    from PIL import Image
+
+    def srgb(a: np.ndarray) -> np.ndarray:
+        a = np.clip(a, 0, 1)
+        return (np.where(a <= 0.0031308, 12.92 * a, 1.055 * a ** (1 / 2.4) - 0.055) * 255 + 0.5).astype(np.uint8)
+
+    h, w = pictures["geometry"].shape[:2]
+    top = [srgb(pictures["geometry"])] + [srgb(pictures[m]) for m in SAMPLING_METHODS]
+    bottom = [np.zeros((h, w, 3), np.uint8)] + [(np.clip(pictures[f"{m}_error"], 0, 1) * 255).astype(np.uint8)
+                                                for m in SAMPLING_METHODS]
+    grid = np.concatenate([np.concatenate(top, axis=1), np.concatenate(bottom, axis=1)], axis=0)
+    OUT.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(grid).resize((grid.shape[1] // 2, grid.shape[0] // 2), Image.LANCZOS).save(
+        OUT / f"table8_{scene}.png")
+
+
+def _err(e: dict[str, Any], which: str = "vs_geometry") -> str:
+    x = e[which]
+    return (f"{x['intensity_mean']:.2f}/{x['intensity_max']:.0f} · "
+            f"{x['visibility_mean']:.2f}/{x['visibility_max']:.0f}")
+
+
+def load_parts() -> dict[str, dict[str, Any]]:
+    data: dict[str, dict[str, Any]] = {p: {} for p in PARTS}
+    for f in sorted(OUT.glob("*.json")):
+        part, _, scene = f.stem.partition("_")
+        if part in data:
+            data[part][scene] = json.loads(f.read_text())
+    return data
+
+
+def crossover(levels: list[dict[str, Any]], kind: str) -> float | None:
+    """Original triangle count where the geometry's time per shadow map reaches the
+    reconstruction's (linear interpolation between measured levels); None if never."""
+    prev = None
+    for lv in levels:
+        diff = lv["geometry_seconds_per_map"] - lv[kind]["seconds_per_map"]
+        if diff >= 0:
+            if prev is None:
+                return float(lv["triangles"])
+            (t0, d0), t1 = prev, lv["triangles"]
+            return float(t0 + (t1 - t0) * (-d0) / (diff - d0))
+        prev = (lv["triangles"], diff)
+    return None
+
+
+def fig20_plot(levels: list[dict[str, Any]]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tri = [lv["triangles"] / 1e6 for lv in levels]
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.plot(tri, [lv["geometry_seconds_per_map"] * 1e3 for lv in levels], "o-", label="original geometry")
+    for kind in ("hybrid", "compact"):
+        ax.plot(tri, [lv[kind]["seconds_per_map"] * 1e3 for lv in levels], "s-", label=f"NR {kind} reconstruction")
+    ax.set_xlabel("original triangles (millions), grass")
+    ax.set_ylabel("ms per shadow map")
+    ax.set_title("Fig. 20: shadow-map time against scene complexity")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(OUT / "fig20.png", dpi=110)
+    plt.close(fig)
+
+
+def write_report(data: dict[str, dict[str, Any]], info: dict[str, Any] | None) -> Path:
+    lines = ["# Soft shadows from depth-image reconstructions (thesis Ch. 3, Tables 8–11, Fig. 20)", "",
+             "Generated by `python -m bench.soft_shadows` (parts joined by `--report-only`). Light: a square "
+             "facing the scene from the sun's direction at 1.5 scene diagonals, diagonal = scene diagonal "
+             "(`scenes.lights.default_area_light`); output 512² from `look_at_scene`; shadow maps "
+             "square, one per light sample (`gl_passes.shadows`). Errors in cells: intensity mean/max · "
+             "visibility mean/max over the output pixels that hold a surface (§3.4.2), in light samples.", ""]
+    if info:
+        lines += ["## Machine", "", "```", json.dumps(info, indent=1), "```", ""]
+    t8 = data["table8"]
+    if t8:
+        any_run = next(iter(t8.values()))
+        lines += ["## Table 8: errors against the geometry-shadow-map truth", "",
+                  f"Reference images {any_run['args']['ref_res']}², k = {any_run['args']['k']} "
+                  f"({any_run['args']['k'] ** 2} light samples), shadow maps {any_run['args']['shadow_res']}².", ""]
+        rows = []
+        for scene, r in t8.items():
+            for method in SAMPLING_METHODS:
+                m = r["methods"][method]
+                thesis = THESIS_TABLE8.get(scene, {}).get(method)
+                rows.append([scene, method, *(_err(m[kind]) for kind in RECONSTRUCTIONS),
+                             "{:.2f}/{:.0f} · {:.2f}/{:.0f}".format(*thesis) if thesis else "—"])
+        lines += [md_table(["scene", "images", *RECONSTRUCTIONS, "thesis (hybrid)"], rows), ""]
+        lines += ["The same against the exact Embree truth (one occlusion ray per pixel and light sample from "
+                  "the same surface points); the first row per scene is the geometry shadow maps themselves:", ""]
+        rows = []
+        for scene, r in t8.items():
+            g = r["geometry_vs_exact"]
+            rows.append([scene, "geometry shadow maps",
+                         f"{g['intensity_mean']:.2f}/{g['intensity_max']:.0f} · "
+                         f"{g['visibility_mean']:.2f}/{g['visibility_max']:.0f}", "", ""])
+            for method in SAMPLING_METHODS:
+                m = r["methods"][method]
+                rows.append([scene, method, *(_err(m[kind], "vs_exact") for kind in RECONSTRUCTIONS)])
+        lines += [md_table(["scene", "occluders", *RECONSTRUCTIONS], rows), ""]
+        lines += ["Triangles of the reconstructions (all images of the set) against the scene's:", ""]
+        rows = [[s, f"{r['scene_triangles']:,}",
+                 *(" / ".join(f"{r['methods'][m][kind]['triangles']:,}" for kind in RECONSTRUCTIONS)
+                   for m in SAMPLING_METHODS)] for s, r in t8.items()]
+        lines += [md_table(["scene", "original", *(f"{m} (hybrid / grid / compact)" for m in SAMPLING_METHODS)],
+                           rows), ""]
+        lines += [f"![{s}](soft_shadows/table8_{s}.png)" for s in t8] + [
+            "", "Pictures: top row geometry truth, NR, conventional, peeling (hybrid reconstructions); bottom row "
+            "their error against the truth (green: too bright, red: too dark; saturated at 1/16 of the "
+            "light samples).", ""]
+        lines += ["## Table 11: time of each step (seconds, this machine)", ""]
+        rows = []
+        for scene, r in t8.items():
+            for method in SAMPLING_METHODS:
+                for kind in RECONSTRUCTIONS:
+                    s = r["methods"][method][kind]["seconds"]
+                    rows.append([scene, method, kind, f"{s['reference_images']:.2f}", f"{s['reconstruction']:.2f}",
+                                 f"{s['shadows']:.1f}"])
+            rows.append([scene, "geometry", "—", "—", "—", f"{r['truth_seconds']['geometry_shadows']:.1f}"])
+        lines += [md_table(["scene", "images", "reconstruction", "step 1: images", "step 2: reconstruct",
+                            "step 3: shadows"], rows), ""]
+    t9 = data["table9"]
+    if t9:
+        k = next(iter(t9.values()))["args"]["sweep_k"]
+        lines += [f"## Table 9: reference resolution (hybrid, k = {k}; mean intensity · visibility error)", ""]
+        rows = []
+        for scene, r in t9.items():
+            for method in SAMPLING_METHODS:
+                cells = [f"{r['runs'][res][method]['vs_geometry']['intensity_mean']:.2f} · "
+                         f"{r['runs'][res][method]['vs_geometry']['visibility_mean']:.2f}" for res in r["runs"]]
+                th = THESIS_TABLE9_1024.get(scene, {}).get(method)
+                rows.append([scene, method, *cells, f"{th[0]} · {th[1]}" if th else "—"])
+        lines += [md_table(["scene", "images", *(f"{res}²" for res in next(iter(t9.values()))["runs"]),
+                            "thesis 1024² (k=16)"], rows), ""]
+    t10 = data["table10"]
+    if t10:
+        first = next(iter(t10.values()))
+        k = first["args"]["sweep_k"]
+        lines += [f"## Table 10: light size (× scene diagonal; hybrid, k = {k}, reference "
+                  f"{first['args']['ref_res']}²; intensity mean/max · visibility mean/max)", ""]
+        rows = []
+        for scene, r in t10.items():
+            for method in SAMPLING_METHODS:
+                rows.append([scene, method, *(_err(r["runs"][s][method]) for s in r["runs"])])
+        lines += [md_table(["scene", "images", *r["runs"]], rows), ""]
+    pg = data["peeling"]
+    if pg:
+        first = next(iter(pg.values()))
+        lines += [f"## Why peeling wins here: light distance and two-sided peeling (hybrid, k = "
+                  f"{first['args']['sweep_k']}, reference {first['args']['ref_res']}²)", "",
+                  "Mean visibility error against the geometry truth, and its split into too-dark / too-bright "
+                  "light samples per pixel; the light keeps its size (diagonal = scene diagonal) and moves "
+                  "closer (0.6 diagonals) or farther (1.5, the default).", ""]
+        names = ("non_redundant", "conventional", "peeling", "peeling_two_sided")
+        rows = []
+        for scene, r in pg.items():
+            for dist, runs in r["runs"].items():
+                rows.append([scene, dist, *(f"{runs[n]['vs_geometry']['visibility_mean']:.2f} "
+                                            f"({runs[n]['too_dark_mean']:.2f} / {runs[n]['too_bright_mean']:.2f})"
+                                            for n in names)])
+        lines += [md_table(["scene", "light distance", *names], rows), ""]
+    ly = data["layered"].get("grass")
+    if ly:
+        r = ly["runs"]
+        lines += ["## Shadow maps per draw call", "",
+                  f"Grass at detail 20 ({r['triangles']:,} triangles), {r['maps']} maps of "
+                  f"{ly['args']['shadow_res']}², median of 3 interleaved rounds: milliseconds per map with n maps "
+                  "per instanced draw into a depth atlas (n = 1 is one draw per map).", "",
+                  md_table(["maps per draw", "ms per map"],
+                           [[n, f"{v * 1e3:.0f}"] for n, v in r["seconds_per_map"].items()]), ""]
+    f20 = data["fig20"].get("grass")
+    if f20:
+        lv = f20["runs"]["levels"]
+        lines += ["## Fig. 20: shadow-map time against triangle count (grass)", "",
+                  f"Milliseconds per shadow map ({f20['args']['shadow_res']}²), median of the per-map time of "
+                  f"{f20['runs']['k'] ** 2} maps; NR reconstructions of 4 images at {f20['args']['ref_res']}².", ""]
+        rows = [[f"{x['detail']:g}", f"{x['triangles']:,}", f"{x['geometry_seconds_per_map'] * 1e3:.0f}",
+                 f"{x['hybrid']['triangles']:,}", f"{x['hybrid']['seconds_per_map'] * 1e3:.0f}",
+                 f"{x['compact']['triangles']:,}", f"{x['compact']['seconds_per_map'] * 1e3:.0f}"] for x in lv]
+        lines += [md_table(["detail", "original triangles", "ms original", "hybrid triangles", "ms hybrid",
+                            "compact triangles", "ms compact"], rows), ""]
+        for kind in ("hybrid", "compact"):
+            c = crossover(lv, kind)
+            lines.append(f"- Crossover, NR {kind}: " + (f"{c:,.0f} original triangles." if c else
+                                                        "not reached in the measured range."))
+        lines += ["", "![Fig. 20](soft_shadows/fig20.png)", ""]
+        fig20_plot(lv)
+    path = RESULTS_DIR / "soft_shadows.md"
+    write_text(path, "\n".join(lines))
+    return path
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--part", choices=PARTS, action="append", help="parts to measure (repeatable)")
+    ap.add_argument("--scenes", type=lambda s: s.split(","), default=list(SCENES))
+    ap.add_argument("--ref-res", type=int, default=1024, help="reference image resolution (square)")
+    ap.add_argument("--k", type=int, default=16, help="light samples per side (Table 8)")
+    ap.add_argument("--sweep-k", type=int, default=4, help="light samples per side in the Table 9/10 sweeps")
+    ap.add_argument("--shadow-res", type=int, default=1024, help="shadow-map resolution (square)")
+    ap.add_argument("--fig20-details", type=lambda s: [float(x) for x in s.split(",")],
+                    default=[1, 5, 10, 20, 40, 60])
+    ap.add_argument("--report-only", action="store_true")
+    ap.add_argument("--no-progress", dest="progress", action="store_false")
+    args = ap.parse_args(argv)
+    info = None
+    if not args.report_only:
+        from scenes.builtin import make_builtin
+
+        gl = create_gl_context()
+        try:
+            info = machine_info(gl)
+            for part in args.part or []:
+                if part in ("fig20", "layered"):
+                    t0 = time.perf_counter()
+                    runs = (part_fig20 if part == "fig20" else part_layered)(gl, args)
+                    _save(part, "grass", args, info, runs, time.perf_counter() - t0)
+                    continue
+                fn = {"table8": part_table8, "table9": part_table9, "table10": part_table10,
+                      "peeling": part_peeling}[part]
+                for name in args.scenes:
+                    st = stage_scene(gl, make_builtin(name))
+                    try:
+                        t0 = time.perf_counter()
+                        runs = fn(gl, st, args)
+                        _save(part, name, args, info, runs, time.perf_counter() - t0)
+                    finally:
+                        st.gpu.release()
+        finally:
+            gl.release()
+        write_json(OUT / "machine.json", info)
+    elif (OUT / "machine.json").exists():
+        info = json.loads((OUT / "machine.json").read_text())
+    print(f"wrote {write_report(load_parts(), info)}")
+    return 0
+
+
+def _save(part: str, scene: str, args: argparse.Namespace, info: dict, runs: Any, seconds: float) -> None:
+    if part == "table8":
+        runs = {**runs, "args": {k: v for k, v in vars(args).items() if k != "part"}}
+        write_json(OUT / f"{part}_{scene}.json", {**runs, "seconds": seconds})
+        return
+    write_json(OUT / f"{part}_{scene}.json", {"args": {k: v for k, v in vars(args).items() if k != "part"},
+                                              "runs": runs, "seconds": seconds})
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
+
+
+__all__ = ["main", "Path"]
