@@ -34,6 +34,7 @@ import numpy as np
 
 from gl_passes.context import GLContext
 from gl_passes.readback import read_texture
+from gl_passes.releasable import Releasable
 from gl_passes.shaders import program
 from gl_passes.uniforms import set_camera, set_uniform
 from gl_passes.upload import SceneGPU
@@ -84,7 +85,7 @@ class _SizeTargets:
             t.release()
 
 
-class DepthImageRenderer:
+class DepthImageRenderer(Releasable):
     """Programs and per-size render targets for depth-image sets on `gl`'s thread.
 
     vs_project: where the non-redundant test projects a fragment into the

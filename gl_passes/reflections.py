@@ -91,6 +91,7 @@ from gl_passes.clustering import ClusteringPass
 from gl_passes.context import GLContext
 from gl_passes.gbuffer import GBufferPass
 from gl_passes.readback import read_texture
+from gl_passes.releasable import Releasable
 from gl_passes.shaders import compute_program, program
 from gl_passes.uniforms import set_uniform
 from gl_passes.upload import SceneGPU
@@ -156,7 +157,7 @@ class ClusterReflectionResult(ReflectionBuffers):
     diagnostics: ClusterDiagnostics | None = None
 
 
-class ClusterReflections:
+class ClusterReflections(Releasable):
     """Reflection renderer on `gl`'s thread. Parameters: max_resolution caps a
     cluster image's side; resolution_scale multiplies the texel density derived
     from the cluster's projected sample spacing; bin_scale and bin_rule set the §4.3
