@@ -66,7 +66,7 @@ from reference.image_metrics import (  # noqa: E402
     occlusion_error_mask,
     occlusion_error_percentage,
 )
-from reference.occlusion import captured_mask, uncaptured_error_mask, uncaptured_ray_percentage  # noqa: E402
+from reference.occlusion import captured_by_clusters, uncaptured_error_mask, uncaptured_ray_percentage  # noqa: E402
 from reference.raycast import RayCaster  # noqa: E402
 from reference.reflections import envmap_reflections, raytrace_reflections  # noqa: E402
 from scenes.camera import flythrough_path, orbit_path  # noqa: E402
@@ -96,9 +96,7 @@ def occlusion_metrics(ours, ref) -> tuple[dict, np.ndarray, np.ndarray]:
     agrees within 5 %)."""
     mask = ref.reflective
     strict = occlusion_error_mask(ours.ray_length, ref.ray_length, mask)
-    d = ours.diagnostics
-    cap = captured_mask(ref.hit_points_samples, d.cluster_of_sample, d.view_proj, d.viewports, d.layer_depths,
-                        ref.hit_normals_samples, d.clip_planes)
+    cap = captured_by_clusters(ours.diagnostics, ref.hit_points_samples, ref.hit_normals_samples)
     thesis = uncaptured_error_mask(ref.reflective_samples, ref.hit_points_samples, cap, ref.supersample) & mask
     pct = {"occlusion_pct": occlusion_error_percentage(strict, mask),
            "occlusion_thesis_ray_pct": uncaptured_ray_percentage(ref.reflective_samples, ref.hit_points_samples, cap),

@@ -109,7 +109,7 @@ def render_sets(gl, sg, rc, cams, peel_cam, layers: int = 3) -> dict[str, list]:
 
     return {
         "conventional": di.conventional(gl, sg, cams),
-        "nr_pixel": di.non_redundant(gl, sg, cams, redundancy="pixel"),
+        "nr_pixel": di.non_redundant(gl, sg, cams),
         "nr_visibility": non_redundant_visibility(sg.scene, cams, rc),
         "peeling": di.depth_peeling(gl, sg, peel_cam, layers),
     }

@@ -9,8 +9,6 @@ midpoint, the peeling viewpoint; an intermediate viewpoint sees it.
 
 from __future__ import annotations
 
-import sys
-
 import numpy as np
 import pytest
 import trimesh
@@ -366,27 +364,18 @@ def test_sixteen_images_and_limits(gl, clutter):
     assert sum(im.n_samples for im in nr[8:]) > 0
     with pytest.raises(ValueError):
         di.non_redundant(gl, sg, cams + cams[:1])
-    with pytest.raises(ValueError):
-        di.non_redundant(gl, sg, cams[:2], redundancy="strict")
 
 
-def test_visibility_redundancy_delegates_to_reference(gl, fig11):
-    pytest.importorskip("reference.visibility")
+def test_visibility_redundancy_is_the_reference_set(fig11):
+    """Alg. 2 (visibility redundancy) is Embree's, called by the caller (gl_passes
+    never imports reference): its image 0 is the conventional image, image 1 holds C."""
+    from reference.visibility import non_redundant_visibility
+
     scene = fig11["scene"]
-    sg = SceneGPU(gl, scene)
-    try:
-        vis = di.non_redundant(gl, sg, fig11["cams"], redundancy="visibility")
-    finally:
-        sg.release()
+    vis = non_redundant_visibility(scene, fig11["cams"])
     assert len(vis) == 2 and all(isinstance(im, DepthImage) for im in vis)
     assert (vis[0].tri_id == fig11["conv"][0].tri_id).mean() > 0.99
     assert (object_ids(scene, vis[1].tri_id) == C).sum() > 100
-
-
-def test_visibility_redundancy_without_reference_is_not_implemented(gl, clutter, monkeypatch):
-    monkeypatch.setitem(sys.modules, "reference.visibility", None)  # makes the import fail
-    with pytest.raises(NotImplementedError, match="non_redundant_visibility"):
-        di.non_redundant(gl, clutter["sg"], clutter["cams"], redundancy="visibility")
 
 
 # --- depth peeling -----------------------------------------------------------------------

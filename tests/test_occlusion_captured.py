@@ -8,7 +8,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from reference.occlusion import EMPTY_DEPTH, captured_mask, uncaptured_error_mask, uncaptured_ray_percentage
+from reference.occlusion import (
+    EMPTY_DEPTH,
+    captured_by_clusters,
+    captured_mask,
+    uncaptured_error_mask,
+    uncaptured_ray_percentage,
+)
 
 EMPTY = 1e30
 N_FRONT = np.array([0.0, 0.0, 1.0])  # a surface facing the camera (which looks down −z)
@@ -201,9 +207,7 @@ def _render_both(gl, refl, scene, size: int = 96):
 
 
 def _captured(ours, ref) -> np.ndarray:
-    d = ours.diagnostics
-    return captured_mask(ref.hit_points_samples, d.cluster_of_sample, d.view_proj, d.viewports, d.layer_depths,
-                         ref.hit_normals_samples, d.clip_planes)
+    return captured_by_clusters(ours.diagnostics, ref.hit_points_samples, ref.hit_normals_samples)
 
 
 def test_planar_mirror_has_no_thesis_occlusion_error(gl, refl):

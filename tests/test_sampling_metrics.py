@@ -275,7 +275,7 @@ def test_gl_pixel_nr_has_no_pixel_redundancy(gl, boxes):
     sg = SceneGPU(gl, scene)
     try:
         conv = depth_images.conventional(gl, sg, cams)
-        nr = depth_images.non_redundant(gl, sg, cams, redundancy="pixel")
+        nr = depth_images.non_redundant(gl, sg, cams)
     finally:
         sg.release()
     m = sampling_metrics(scene, nr, conv, [], redundancy="pixel", caster=rc)
@@ -341,7 +341,7 @@ def test_gl_pixel_nr_offset_scene_as_counted(gl, offset):
     scene, _, cams, _ = offset
     sg = SceneGPU(gl, scene)
     try:
-        nr = depth_images.non_redundant(gl, sg, cams, redundancy="pixel")
+        nr = depth_images.non_redundant(gl, sg, cams)
     finally:
         sg.release()
     assert _columns(nr[0]) == list("BBBBBABB") and _columns(nr[1]) == list("----B--B")

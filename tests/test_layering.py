@@ -1,0 +1,40 @@
+"""The layering DESIGN.md states ("Dependencies point one way"), checked on the
+source: `gl_passes` and `reference` never import each other, `scenes` imports
+neither (nor the service), and nothing below `service` imports it."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+#: package → top-level packages of ours it must never import
+FORBIDDEN = {
+    "gl_passes": {"reference", "service", "bench", "tests"},
+    "reference": {"gl_passes", "service", "bench", "tests"},
+    "scenes": {"gl_passes", "reference", "service", "bench", "tests"},
+    "service": {"bench", "tests"},
+}
+
+
+def imported_modules(path: Path) -> set[str]:
+    """Every module name a source file imports (absolute imports, any nesting depth)."""
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names.add(node.module)
+    return names
+
+
+@pytest.mark.parametrize("package", sorted(FORBIDDEN))
+def test_package_imports_point_one_way(package):
+    bad = []
+    for path in sorted((ROOT / package).rglob("*.py")):
+        for name in imported_modules(path):
+            if name.split(".")[0] in FORBIDDEN[package]:
+                bad.append(f"{path.relative_to(ROOT)} imports {name}")
+    assert not bad, "\n".join(bad)
