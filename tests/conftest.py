@@ -7,6 +7,8 @@ from pathlib import Path
 
 import pytest
 
+pytest_plugins = ("pytester",)
+
 SHARED_SCENES = Path(os.environ.get("DEPTHVIEW_SHARED_SCENES",
                                     Path(__file__).resolve().parents[2] / "shared" / "scenes"))
 
