@@ -38,3 +38,16 @@ def test_package_imports_point_one_way(package):
             if name.split(".")[0] in FORBIDDEN[package]:
                 bad.append(f"{path.relative_to(ROOT)} imports {name}")
     assert not bad, "\n".join(bad)
+
+
+def test_tests_share_helpers_not_each_other():
+    """Test modules import shared builders from tests.helpers (under that one
+    name), never another test module nor conftest (which pytest imports itself)."""
+    ours = {p.stem for p in (ROOT / "tests").glob("*.py")}
+    bad = []
+    for path in sorted((ROOT / "tests").glob("*.py")):
+        for name in imported_modules(path):
+            last = name.split(".")[-1]
+            if last == "conftest" or last.startswith("test_") or (last in ours and not name.startswith("tests.")):
+                bad.append(f"{path.name} imports {name}")
+    assert not bad, "\n".join(bad)
