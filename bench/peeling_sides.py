@@ -19,16 +19,12 @@ Run `python -m bench.peeling_sides --help`; results go to bench/results/peeling_
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
 
-if __package__ in (None, ""):  # `python bench/peeling_sides.py`
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from bench.common import add_scene_args, md_table, measure_with_gl, report_head, write_json, write_text  # noqa: E402
-from bench.sampling import THESIS_T2, THESIS_T5, measure_rig  # noqa: E402
+from bench.common import add_scene_args, md_table, measure_with_gl, report_head, write_json, write_text
+from bench.sampling import THESIS_T2, THESIS_T5, measure_rig
 
 DEFINITIONS = {"pixel": THESIS_T2, "visibility": THESIS_T5}
 PEELINGS = ("peeling", "peeling_two_sided")

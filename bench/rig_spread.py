@@ -15,16 +15,12 @@ Run `python -m bench.rig_spread --help`; results go to bench/results/rig_spread.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
 
-if __package__ in (None, ""):  # `python bench/rig_spread.py`
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from bench.common import add_scene_args, md_table, report_head, sweep_main, write_text  # noqa: E402
-from bench.sampling import THESIS_T2, THESIS_T5, criteria_rows, measure_rig, verdict_counts, yes_no  # noqa: E402
+from bench.common import add_scene_args, md_table, report_head, sweep_main, write_text
+from bench.sampling import THESIS_T2, THESIS_T5, criteria_rows, measure_rig, verdict_counts, yes_no
 
 THESIS_CONV = {"pixel": THESIS_T2, "visibility": THESIS_T5}
 

@@ -29,10 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-if __package__ in (None, ""):  # `python bench/sampling.py`
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from bench.common import (  # noqa: E402
+from bench.common import (
     RESULTS_DIR,
     Stopwatch,
     load_named_scene,

@@ -24,18 +24,14 @@ Run `python -m bench.tessellation --help`; results go to bench/results/tessellat
 from __future__ import annotations
 
 import argparse
-import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-if __package__ in (None, ""):  # `python bench/tessellation.py`
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from bench.common import add_scene_args, md_table, report_head, sweep_main, write_text  # noqa: E402
-from bench.sampling import THESIS_T4, THESIS_T6, criteria_rows, measure_rig, metric_jobs, verdict_counts, yes_no  # noqa: E402
-from scenes.model import Scene  # noqa: E402
+from bench.common import add_scene_args, md_table, report_head, sweep_main, write_text
+from bench.sampling import THESIS_T4, THESIS_T6, criteria_rows, measure_rig, metric_jobs, verdict_counts, yes_no
+from scenes.model import Scene
 
 
 def subdivided(scene: Scene, levels: int) -> Scene:

@@ -51,3 +51,29 @@ def test_tests_share_helpers_not_each_other():
             if last == "conftest" or last.startswith("test_") or (last in ours and not name.startswith("tests.")):
                 bad.append(f"{path.name} imports {name}")
     assert not bad, "\n".join(bad)
+
+
+def test_bench_runs_as_modules_without_import_cycles():
+    """bench/ scripts run as `python -m bench.<name>`: no sys.path edits, and the
+    imports between bench modules (at any depth, lazy ones included) form no cycle."""
+    graph: dict[str, set[str]] = {}
+    hacks = []
+    for path in sorted((ROOT / "bench").glob("*.py")):
+        tree = ast.parse(path.read_text(), str(path))
+        if any(isinstance(n, ast.Attribute) and n.attr == "path" and isinstance(n.value, ast.Name)
+               and n.value.id == "sys" for n in ast.walk(tree)):
+            hacks.append(path.name)
+        graph[path.stem] = {m.split(".")[1] for m in imported_modules(path) if m.startswith("bench.")}
+    assert not hacks, f"sys.path edited in {hacks}"
+
+    def cycle_from(node: str, stack: list[str]) -> list[str] | None:
+        if node in stack:
+            return stack[stack.index(node):] + [node]
+        for nxt in sorted(graph.get(node, ())):
+            found = cycle_from(nxt, stack + [node])
+            if found:
+                return found
+        return None
+
+    cycles = [c for c in (cycle_from(n, []) for n in graph) if c]
+    assert not cycles, " → ".join(cycles[0])
