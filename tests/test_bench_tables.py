@@ -1,11 +1,11 @@
-"""Benchmark helpers (bench.peeling_sides, bench.rig_spread, bench.sampling,
-bench.tessellation) on hand-made numbers and a small scene."""
+"""Benchmark report helpers (bench.sampling_report: the tables of bench.peeling_sides,
+bench.rig_spread, bench.sampling, bench.tessellation) on hand-made numbers and a small scene."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from bench.peeling_sides import layer_table, useful_table
+from bench.sampling_report import layer_table, useful_table
 
 
 def _m(useful: int, useful_earlier: int = 0, occ=(0.1, 0.5, 0.6), use=(0.9, 0.02, 0.7), avail: float = 0.9) -> dict:
@@ -41,7 +41,7 @@ def test_layer_table_gap_to_the_thesis():
 
 
 def test_rig_spread_conventional_gap_is_the_mean_over_i1_i2():
-    from bench.rig_spread import conv_gap
+    from bench.sampling_report import conv_gap
 
     # thesis nest, conventional redundant I1, I2: 70, 80 % (Table 2); 80, 87 % (Table 5)
     nest = {"scene": "nest", "metrics": {"pixel/conventional": {"redundant_frac": [0.0, 0.60, 0.90]},
@@ -53,7 +53,7 @@ def test_rig_spread_conventional_gap_is_the_mean_over_i1_i2():
 
 
 def test_verdict_counts_counts_scenes_per_criterion():
-    from bench.sampling import verdict_counts
+    from bench.sampling_report import verdict_counts
 
     rows = [{"b": True, "c": False, "c_earlier": True}, {"b": False, "c": False, "c_earlier": True},
             {"b": True, "c": True, "c_earlier": None}]
@@ -61,7 +61,7 @@ def test_verdict_counts_counts_scenes_per_criterion():
 
 
 def test_granularity_loss_is_pixel_minus_visibility_availability():
-    from bench.tessellation import granularity_loss, thesis_granularity_loss
+    from bench.sampling_report import granularity_loss, thesis_granularity_loss
 
     r = {"metrics": {"pixel/conventional": {"available_avg": 0.785},
                      "visibility/conventional": {"available_avg": 0.925}}}
@@ -103,7 +103,7 @@ def _tess_run(scene: str, nr: float, conv: float, ref: float, vis: float) -> dic
 
 
 def test_tessellation_summaries_on_hand_made_runs():
-    from bench.tessellation import lead_ranges, reference_gap, visibility_drift
+    from bench.sampling_report import lead_ranges, reference_gap, visibility_drift
 
     runs = {0: [_tess_run("nest", 0.90, 0.89, 0.9004, 0.95), _tess_run("tree", 0.80, 0.81, 0.80, 0.96)],
             1: [_tess_run("nest", 0.84, 0.85, 0.84, 0.951), _tess_run("tree", 0.70, 0.72, 0.7002, 0.96)]}
@@ -114,7 +114,7 @@ def test_tessellation_summaries_on_hand_made_runs():
 
 
 def test_tessellation_redundant_counts_add_up_over_levels():
-    from bench.tessellation import redundant_counts
+    from bench.sampling_report import redundant_counts
 
     def run(gl: int, ties: list[int], ref: int) -> dict:
         return {"metrics": {"pixel/non_redundant": {"total": {"redundant": gl}, "redundant_edge_ties": ties},
