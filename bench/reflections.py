@@ -51,6 +51,7 @@ from bench.common import (
     machine_info,
     machine_markdown,
     md_table,
+    span,
     write_json,
     write_text,
 )
@@ -189,15 +190,34 @@ OCCLUSION_METRICS_TEXT = (
     "true hit but our march found another length, or found a hit where Embree's ray escapes).")
 
 
-STEP_BREAKDOWN_TEXT = (
-    "What the breakdown says: Embree's cost grows with the rays (about 16× from 512² to 2048²), ours splits "
-    "into steps that grow with the samples (G-buffer, clustering, cluster cameras' extent passes, "
-    "intersection, resolve) and one that does not: the cluster depth images, every cluster's frustum-culled "
-    "triangles drawn into four layers, vertex-bound on llvmpipe's CPU vertex pipeline (69–123 clusters). At "
-    "512² that step is the largest and keeps us below Embree; at 2048² it is amortised and the per-ray "
-    "march (a few texel fetches per step; blocks without a possible hit skipped) costs about a third of "
-    "Embree's trace. The fourth layer (the other objects' second surface) adds 50–60 % to the depth-image "
-    "time and buys most of the drop in occlusion error (the layers sweep below).")
+#: One-off measurements the report's prose quotes (with how they were measured).
+NOTES_JSON = RESULTS_DIR / "reflections_notes.json"
+FRACTION_WORDS = {2: "half", 3: "a third", 4: "a quarter", 5: "a fifth"}
+
+
+def step_breakdown(timings: list[dict]) -> str:
+    """What the step breakdown says, its numbers from the timing rows of the rooms
+    (lowest and highest resolution) and NOTES_JSON."""
+    rooms = [t for t in timings if t["scene"] in ROOMS]
+    lo, hi = min(t["res"] for t in rooms), max(t["res"] for t in rooms)
+    at = {(t["scene"], t["res"]): t for t in rooms}
+    names = sorted({t["scene"] for t in rooms})
+    growth = [at[n, hi]["embree_trace_ms"] / at[n, lo]["embree_trace_ms"] for n in names]
+    clusters = [t["clusters"] for t in rooms]
+    share = np.mean([at[n, hi]["ours_ms"]["intersection"] / at[n, hi]["embree_trace_ms"] for n in names])
+    part = FRACTION_WORDS.get(round(1 / share), f"{100 * share:.0f} %")
+    layer_cost = json.loads(NOTES_JSON.read_text())["fourth_layer_depth_image_cost_pct"]["value"]
+    return (
+        f"What the breakdown says: Embree's cost grows with the rays (about {span(growth, '.0f', '–')}× "
+        f"from {lo}² to {hi}²), ours splits "
+        "into steps that grow with the samples (G-buffer, clustering, cluster cameras' extent passes, "
+        "intersection, resolve) and one that does not: the cluster depth images, every cluster's frustum-culled "
+        "triangles drawn into four layers, vertex-bound on llvmpipe's CPU vertex pipeline "
+        f"({min(clusters)}–{max(clusters)} clusters). At "
+        f"{lo}² that step is the largest and keeps us below Embree; at {hi}² it is amortised and the per-ray "
+        f"march (a few texel fetches per step; blocks without a possible hit skipped) costs about {part} of "
+        f"Embree's trace. The fourth layer (the other objects' second surface) adds {layer_cost} % to the depth-image "
+        "time and buys most of the drop in occlusion error (the layers sweep below).")
 
 
 def _mean_max(rows: list[dict], key: str) -> tuple[float, float, int] | None:
@@ -367,7 +387,7 @@ def write_report(out: Path, info: dict, quality: list[dict], timings: list[dict]
                    [[t["scene"], t["res"], t["clusters"], *(f(t["ours_ms"][k]) for k in STEPS),
                      f(t["ours_ms"]["total"]), f(t["embree_build_ms"]), f(t["embree_trace_ms"]),
                      f(t["fps_ours"], 2), f(t["fps_embree"], 2), f(t["speedup"], 2) + "×"] for t in timings]), "",
-          STEP_BREAKDOWN_TEXT, ""]
+          step_breakdown(timings), ""]
     if paths:
         md += [f"## Occlusion error and clusters along camera paths ({frames} frames per path at "
                f"{path_res}²; §4.7.1, Table 19)", "",

@@ -3,7 +3,7 @@
 Fig. 8 shows three reference eyes around the scene and the peeling eye at their
 centroid, with no angles. `bench.sampling` uses 20° between each eye and the
 rig's axis. This benchmark repeats its metrics for several spreads and reports,
-per spread, criteria (b) and (c) of issue 3 (`bench.sampling.criteria_rows`)
+per spread, criteria (b) and (c) of issue 3 (`bench.sampling_report.criteria_rows`)
 and the conventional images' redundancy, which depends on the rig and the scene
 only (not on NR or peeling), against the thesis's Tables 2 and 5: the spread
 whose conventional redundancy is closest to the thesis's is the one calibrated

@@ -43,7 +43,7 @@ from bench.common import (
     write_json,
     write_text,
 )
-from bench.sampling_notes import CRITERIA_NOTES, DISCUSSION
+from bench.sampling_notes import criteria_notes, discussion, target_minutes_per_scene
 from bench.sampling_report import (
     EARLIER_NOTE,
     METHODS,
@@ -398,7 +398,7 @@ def write_report(args, info: dict, results: list[dict], sweep: dict | None, swee
            "Runs: " + "; ".join(f"{label} ({'this file' if k == 0 else 'see ' + e['_path']})"
                                 for k, ((label, _), e) in enumerate(zip(runs, [{}] + list(extra_runs or []),
                                                                           strict=True))) + ".", "",
-           crit_md, CRITERIA_NOTES, ""]
+           crit_md, criteria_notes(), ""]
     md += ["## Table 2: view-independent metrics, pixel definition [%]", "", t2, "", gap(d2), ""]
     md += ["## Table 4: available samples, pixel definition [%]", "", t4, "", gap(d4), ""]
     md += ["## Table 5: view-independent metrics, visibility definition [%]", "", t5, "", gap(d5), ""]
@@ -442,7 +442,7 @@ def write_report(args, info: dict, results: list[dict], sweep: dict | None, swee
         md += ["", md_table(["res", "conv red. px I1", "px I2", "vis I1", "vis I2", "NR occ. px I1", "px I2",
                              "vis I1", "vis I2", "NR useful px I1", "px I2", "vis I1", "vis I2",
                              "avail. px conv", "NR", "peel"], rows), ""]
-    md += [DISCUSSION, "## Stage times [s]", "",
+    md += [discussion(), "## Stage times [s]", "",
            md_table(["stage", "seconds"], [[k, f"{v:.1f}"] for k, v in stage_seconds.items()]), ""]
     write_text(args.out / "sampling.md", "\n".join(md))
     if not write_json_file:
@@ -467,10 +467,11 @@ def why_reduced(res: int, views: int) -> str:
     """The report's sentence on how this run relates to the issue's target."""
     if (res, views) == (1024, 1000):
         return "This run is the target configuration."
+    minutes = target_minutes_per_scene() or "tens of"  # measured by the target run, when it is there
     return (f"This run uses {res}² and {views} views: on this shared 2-core machine the Embree casts of 1000 "
-            "intermediate views per scene (plus the visibility-definition layer walks) at 1024² take 17-43 min per "
-            "scene (`sampling_1024_1000v/`, run scene by scene and joined with --merge), so the defaults are sized "
-            "to finish within about 10 minutes; pass --res 1024 --views 1000 for the target.")
+            "intermediate views per scene (plus the visibility-definition layer walks) at 1024² take "
+            f"{minutes} min per scene (`sampling_1024_1000v/`, run scene by scene and joined with --merge), so the "
+            "defaults are sized to finish within about 10 minutes; pass --res 1024 --views 1000 for the target.")
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:

@@ -8,7 +8,7 @@ midpoint subdivision (`subdivided`): the surfaces, and so every metric of the
 visibility definition, stay the same (the report checks it), while the pixel
 definition sees triangles 2^L times smaller along each edge. Criterion (b) (NR's
 available samples ≥ conventional's and peeling's, average and minimum) is then
-judged per level with `bench.sampling.criteria_rows`. Beside the GL set, the
+judged per level with `bench.sampling_report.criteria_rows`. Beside the GL set, the
 same NR set is rendered by Embree (`reference.visibility.non_redundant_reference`)
 and measured alike, with criterion (a) counted for both.
 

@@ -121,3 +121,53 @@ def test_tessellation_redundant_counts_add_up_over_levels():
                             "pixel/non_redundant_reference": {"total": {"redundant": ref}}}}
 
     assert redundant_counts({0: [run(5, [0, 3, 2], 0), run(2, [0, 1, 0], 1)], 1: [run(4, [0, 4, 0], 0)]}) == (11, 10, 1)
+
+
+def _copy_results(dst):
+    """The canonical results the sampling prose reads (bench.sampling_notes.FILES and
+    the target run's parts) copied under dst."""
+    import shutil
+
+    from bench.common import RESULTS_DIR
+    from bench.sampling_notes import FILES
+
+    for rel in [*FILES.values(), *(f"sampling_1024_1000v/{s}/sampling.json"
+                                   for s in ("nest", "grass", "city", "tree", "diorama"))]:
+        (dst / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(RESULTS_DIR / rel, dst / rel)
+
+
+def test_sampling_prose_numbers_follow_the_results(tmp_path):
+    """The reports' prose is computed from the JSON results: no placeholder is left,
+    a changed result changes the quoted number, and without the results it says so."""
+    import json
+    import re
+
+    from bench.sampling_notes import criteria_notes, discussion
+
+    _copy_results(tmp_path)
+    before = criteria_notes(tmp_path) + discussion(tmp_path)
+    assert not re.search(r"\{[a-z_0-9]+\}", before)
+    assert "80 / 99 / 46 / 75 %" in before and "(80, 99, 46 % at" in before
+    main = json.loads((tmp_path / "sampling.json").read_text())
+    nest = next(r for r in main["scenes"] if r["scene"] == "nest")
+    nest["metrics"]["pixel/peeling"]["useful_frac_of_occluded"][1] = 0.123
+    (tmp_path / "sampling.json").write_text(json.dumps(main))
+    after = " ".join((criteria_notes(tmp_path) + discussion(tmp_path)).split())
+    assert "12 / 99 / 46 / 75 %" in after and "(12, 99, 46 % at" in after
+    (tmp_path / "rig_spread.json").unlink()
+    assert "missing (rig_spread.json)" in criteria_notes(tmp_path)
+
+
+def test_reflection_step_breakdown_from_the_timing_rows():
+    from bench.reflections import step_breakdown
+
+    def row(scene, res, clusters, trace, intersection):
+        return {"scene": scene, "res": res, "clusters": clusters, "embree_trace_ms": trace,
+                "ours_ms": {"intersection": intersection}}
+
+    text = step_breakdown([row("living_room", 512, 60, 100.0, 50.0), row("living_room", 2048, 61, 1500.0, 740.0),
+                           row("bathroom", 512, 110, 80.0, 40.0), row("bathroom", 2048, 115, 1440.0, 730.0),
+                           row("mirror", 512, 1, 10.0, 1.0)])
+    assert "(about 15–18× from 512² to 2048²)" in text and "(60–115 clusters)" in text
+    assert "costs about half of Embree's trace" in text
