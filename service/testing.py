@@ -116,11 +116,19 @@ def scene_key(scene: Scene) -> str:
     return "pytest-" + h.hexdigest()
 
 
+#: The effects these frames render (others are refused rather than silently left out).
+SUPPORTED_EFFECTS = ("reflections", "glossy_rays")
+
+
 def _effects(effects: Mapping[str, Any] | None) -> Effects:
     try:
-        return Effects.model_validate(dict(effects or {}))
+        fx = Effects.model_validate(dict(effects or {}))
     except ValueError as exc:  # pydantic's ValidationError is a ValueError
         raise ValueError(f"invalid effects {effects!r}: {exc}") from None
+    other = sorted(k for k, v in fx.model_dump().items() if k not in SUPPORTED_EFFECTS and v not in (None, "none"))
+    if other:
+        raise NotImplementedError(f"the test fixtures render {', '.join(SUPPORTED_EFFECTS)} only, not {other}")
+    return fx
 
 
 def render_frame(gl: GLThread, scene: SceneArg, camera: CameraArg, effects: Mapping[str, Any] | None = None

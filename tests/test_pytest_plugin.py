@@ -227,3 +227,18 @@ def test_outside_pytest_the_files_go_to_a_temporary_folder(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=60)
     files = written_files(out.stdout)
     assert set(files) == {"actual", "expected", "error", "bad pixels"} and all(p.exists() for p in files.values())
+
+
+def test_fixture_arguments_are_checked_before_anything_renders(tmp_path):
+    """The fixtures' scene and effects arguments: an unknown effect method or a
+    missing model file is a clear error, not a frame without the effect."""
+    from scenes import Camera
+    from service.testing import reference_frame
+
+    cam = Camera((2.0, 1.5, 2.5), (0.0, 0.0, 0.0), width=8, height=8)
+    with pytest.raises(ValueError, match="reflections method 'ssr' is not available"):
+        reference_frame("cornell", cam, {"reflections": "ssr"})
+    with pytest.raises(FileNotFoundError, match="not a built-in scene"):
+        reference_frame(tmp_path / "absent.glb", cam)
+    frame = reference_frame(write_small_glb(tmp_path / "model.glb"), cam)
+    assert frame.color.shape == (8, 8, 3) and frame.mask.any()
