@@ -36,4 +36,4 @@ lint: setup
 	$(VENV)/bin/ruff check .
 
 bench: setup
-	$(PY) bench/render_throughput.py
+	$(PY) -m bench.render_throughput

@@ -317,3 +317,10 @@ def pct(x: float | None, digits: int = 0) -> str:
     if x is None or (isinstance(x, float) and not math.isfinite(x)):
         return "—"
     return f"{100 * x:.{digits}f}%"
+
+
+def span(values: Iterable[float], fmt: str, sep: str = "-") -> str:
+    """'lo-hi' of the values (one value when both ends print the same)."""
+    vals = list(values)
+    lo, hi = format(min(vals), fmt), format(max(vals), fmt)
+    return lo if lo == hi else f"{lo}{sep}{hi}"

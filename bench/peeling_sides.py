@@ -19,19 +19,11 @@ Run `python -m bench.peeling_sides --help`; results go to bench/results/peeling_
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-import numpy as np
-
-if __package__ in (None, ""):  # `python bench/peeling_sides.py`
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from bench.common import add_scene_args, md_table, measure_with_gl, report_head, write_json, write_text  # noqa: E402
-from bench.sampling import THESIS_T2, THESIS_T5, measure_rig  # noqa: E402
-
-DEFINITIONS = {"pixel": THESIS_T2, "visibility": THESIS_T5}
-PEELINGS = ("peeling", "peeling_two_sided")
+from bench.common import add_scene_args, measure_with_gl, report_head, write_json, write_text
+from bench.sampling import measure_rig
+from bench.sampling_report import PEELINGS, THESIS_BY_DEFINITION, layer_table, useful_table
 
 
 def _two_sided_peeling(gl, sg, rc, cams, peel_cam) -> dict[str, list]:
@@ -47,7 +39,7 @@ def _two_sided_peeling(gl, sg, rc, cams, peel_cam) -> dict[str, list]:
 def _jobs(sets: dict[str, list]) -> dict[str, tuple[list, str]]:
     """NR of each definition and both peelings, under both definitions."""
     jobs = {}
-    for red in DEFINITIONS:
+    for red in THESIS_BY_DEFINITION:
         jobs[f"{red}/non_redundant"] = (sets["nr_pixel" if red == "pixel" else "nr_visibility"], red)
         for p in PEELINGS:
             jobs[f"{red}/{p}"] = (sets[p], red)
@@ -57,52 +49,6 @@ def _jobs(sets: dict[str, list]) -> dict[str, tuple[list, str]]:
 def run_scene(name: str, gl, res: int, views: int, seed: int, progress: bool) -> dict:
     """Metrics of NR (both definitions) and of both peelings on one scene."""
     return measure_rig(gl, name, res, views, seed, jobs=_jobs, extra_sets=_two_sided_peeling, progress=progress)
-
-
-def _share(m: dict, i: int) -> tuple[float, float]:
-    """(occluded % of layer i's samples, useful % of its occluded samples)."""
-    return 100 * m["occluded_frac"][i], 100 * m["useful_frac_of_occluded"][i]
-
-
-def layer_table(results: list[dict], red: str) -> tuple[str, dict[str, float]]:
-    """Per scene and layer: occluded (useful) % of both peelings and the thesis's;
-    also the mean |ours − thesis| of the useful share over layers 1-2 per peeling."""
-    rows, gaps = [], {p: [] for p in PEELINGS}
-    for r in results:
-        t = DEFINITIONS[red].get(r["scene"], {}).get("peel")
-        for i in range(3):
-            cells = []
-            for p in PEELINGS:
-                occ, use = _share(r["metrics"][f"{red}/{p}"], i)
-                cells.append(f"{occ:.0f} ({use:.0f})")
-                if t and i:
-                    gaps[p].append(abs(use - t[i][1]))
-            rows.append([r["scene"], f"L{i}", *cells, f"{t[i][0]:g} ({t[i][1]:g})" if t else "—"])
-    table = md_table(["scene", "layer", "culled (the issue's)", "two-sided", "thesis"], rows)
-    return table, {p: float(np.mean(g)) if g else float("nan") for p, g in gaps.items()}
-
-
-def useful_table(results: list[dict], red: str) -> tuple[str, dict[str, int]]:
-    """Useful occluded samples, totals over the three images: NR (issue reading and
-    thesis reading) against both peelings; counts of scenes where NR ≥ peeling."""
-    rows, wins = [], {f"{reading}/{p}": 0 for reading in ("issue", "thesis") for p in PEELINGS}
-    for r in results:
-        m = r["metrics"]
-        nr = m[f"{red}/non_redundant"]["total"]
-        peel = [m[f"{red}/{p}"]["total"]["useful"] for p in PEELINGS]
-        cells = []
-        for reading, key in (("issue", "useful"), ("thesis", "useful_earlier")):
-            for p, u in zip(PEELINGS, peel, strict=True):
-                ok = nr[key] >= u
-                wins[f"{reading}/{p}"] += ok
-                cells.append(f"{nr[key] / u:.2f}" + ("" if ok else " **<1**") if u else "—")
-        avail = [f"{100 * m[f'{red}/{p}']['available_avg']:.2f}" for p in PEELINGS]
-        rows.append([r["scene"], f"{nr['useful']:,}", f"{nr['useful_earlier']:,}", *(f"{u:,}" for u in peel),
-                     *cells, " / ".join(avail)])
-    headers = ["scene", "NR, issue reading", "NR, thesis reading", "peel culled", "peel two-sided",
-               "NR/culled (issue r.)", "NR/two-sided (issue r.)", "NR/culled (thesis r.)",
-               "NR/two-sided (thesis r.)", "available avg culled / two-sided [%]"]
-    return md_table(headers, rows), wins
 
 
 def write_report(out: Path, args: argparse.Namespace, info: dict, results: list[dict], seconds: float) -> None:
@@ -119,7 +65,7 @@ def write_report(out: Path, args: argparse.Namespace, info: dict, results: list[
          "faces in both cases)."],
         seconds, info)
     gap_by_def = {}
-    for red in DEFINITIONS:
+    for red in THESIS_BY_DEFINITION:
         table, gaps = layer_table(results, red)
         gap_by_def[red] = gaps
         parts += [
@@ -131,7 +77,7 @@ def write_report(out: Path, args: argparse.Namespace, info: dict, results: list[
             f"two-sided {gaps['peeling_two_sided']:.1f} points.",
             "",
         ]
-    for red in DEFINITIONS:
+    for red in THESIS_BY_DEFINITION:
         table, wins = useful_table(results, red)
         parts += [
             f"## Useful occluded samples, {red} definition (totals over the three images)",
@@ -145,8 +91,8 @@ def write_report(out: Path, args: argparse.Namespace, info: dict, results: list[
         ]
     stronger = sum(r["metrics"][f"{red}/peeling"]["total"]["useful"]
                    >= r["metrics"][f"{red}/peeling_two_sided"]["total"]["useful"]
-                   for r in results for red in DEFINITIONS)
-    closer = {red: min(PEELINGS, key=lambda p, g=gap_by_def[red]: g[p]) for red in DEFINITIONS}
+                   for r in results for red in THESIS_BY_DEFINITION)
+    closer = {red: min(PEELINGS, key=lambda p, g=gap_by_def[red]: g[p]) for red in THESIS_BY_DEFINITION}
     name = {"peeling": "the culled peeling", "peeling_two_sided": "the two-sided peeling"}
     parts += [
         "## Reading",
@@ -160,7 +106,7 @@ def write_report(out: Path, args: argparse.Namespace, info: dict, results: list[
            "Table 2 (nest 2 %, grass 4 %, city 7 %) is matched on the closed models only by drawing back faces."
            if closer["pixel"] != closer["visibility"] else ".")
         + f" The culled peeling has at least as many useful occluded samples as the two-sided one on "
-        f"{stronger} of {n * len(DEFINITIONS)} scene × definition cases; `bench.sampling` keeps it, as the "
+        f"{stronger} of {n * len(THESIS_BY_DEFINITION)} scene × definition cases; `bench.sampling` keeps it, as the "
         "issue asks.",
         "* How far the variant moves a scene depends on how it is modelled: the nest's twigs (closed "
         "prisms) and the city's blocks are closed, so two-sided layer 1 is their inside. Our grass blades and "

@@ -20,7 +20,7 @@ at a time, everything else at its default:
 Frame times are single renders after one warm-up (medians of `repeat` where
 given) on the shared machine; compare within a table only.
 
-    .venv/bin/python bench/reflection_sweeps.py [--res 512] [--repeat 2]
+    python -m bench.reflection_sweeps [--res 512] [--repeat 2]
         (adds "sweeps" to bench/results/reflections.json and rewrites reflections.md)
 """
 
@@ -28,23 +28,20 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from bench.common import RESULTS_DIR, load_named_scene, md_table, write_json  # noqa: E402
-from bench.reflections import occlusion_metrics, report_from_json, view_camera  # noqa: E402
-from gl_passes.context import create_gl_context  # noqa: E402
-from gl_passes.reflections import ClusterReflections  # noqa: E402
-from gl_passes.upload import SceneGPU  # noqa: E402
-from reference.image_metrics import mean_abs_error  # noqa: E402
-from reference.raycast import RayCaster  # noqa: E402
-from reference.reflections import raytrace_reflections  # noqa: E402
-from scenes.builtin import make_builtin  # noqa: E402
+from bench.common import RESULTS_DIR, load_named_scene, write_json
+from bench.reflections import occlusion_metrics, report_from_json, view_camera
+from gl_passes.context import create_gl_context
+from gl_passes.reflections import ClusterReflections
+from gl_passes.upload import SceneGPU
+from reference.image_metrics import mean_abs_error
+from reference.raycast import RayCaster
+from reference.reflections import raytrace_reflections
+from scenes.builtin import make_builtin
 
 BIN_SCALES = (2.0, 1.5, 1.0, 0.5, 0.25)
 OUTPUT_RES = (2048, 1024, 512, 256)
@@ -141,70 +138,6 @@ def sweep_scene(gl, name: str, res: int, repeat: int, tables: set[str]) -> dict:
         refl.release()
         out["table18"] = rows
     return out
-
-
-def sweeps_markdown(sweeps: list[dict]) -> list[str]:
-    """Markdown for Tables 15–18 and 20 (empty when there are no sweeps)."""
-    if not sweeps:
-        return []
-
-    def f(x, d=2):
-        return f"{x:.{d}f}"
-
-    res = sweeps[0]["res"]
-    md = [f"## Parameter sweeps (Tables 15–18, 20; §4.7.2) at {res}² unless stated", "",
-          "`bench/reflection_sweeps.py`: the Table 12 view, one parameter at a time, single frames after a "
-          "warm-up on the shared machine (compare within a table). Thesis values (GTX 570) in the captions.", ""]
-    t = [s for s in sweeps if "table15" in s]
-    if t:
-        md += ["### Table 15: clusters (thesis: 156 / 141 / 123 / 86 / 32 clusters → 12 / 13 / 15 / 15 / 20 fps)",
-               "", "bin_scale multiplies the §4.3 bin counts (> 1: more than 13 × 8 bins on large reflectors, "
-               "for this sweep only). Occlusion error: the thesis's definition, per reflected ray.", "",
-               md_table(["scene", "bin_scale", "clusters", "fps ours", "occlusion error"],
-                        [[s["scene"], r["bin_scale"], r["clusters"], f(r["fps"], 3),
-                          f(r["occlusion_thesis_ray_pct"]) + " %"] for s in t for r in s["table15"]]), ""]
-    t = [s for s in sweeps if "table16" in s]
-    if t:
-        md += ["### Table 16: output resolution (thesis: 2048² / 1024² / 512² / 256² → 7.5 / 15 / 23 / 29 fps)", "",
-               md_table(["scene", "output", "fps ours"],
-                        [[s["scene"], f"{r['res']}²", f(r["fps"], 3)] for s in t for r in s["table16"]]), ""]
-    t = [s for s in sweeps if "table17" in s]
-    if t:
-        md += ["### Table 17: cluster image scale (thesis: 1/2 / 1 / 2 → 15 / 15 / 14 fps)", "",
-               md_table(["scene", "image scale", "fps ours", "occlusion error"],
-                        [[s["scene"], r["scale"], f(r["fps"], 3), f(r["occlusion_thesis_ray_pct"]) + " %"]
-                         for s in t for r in s["table17"]]), ""]
-    t = [s for s in sweeps if "tablelayers" in s]
-    if t:
-        md += ["### Cluster-image layers (beyond the thesis): the other objects' second surface", "",
-               "Non-planar clusters' images get a fourth layer, the second surface of the objects other than the "
-               "reflector (their shifted camera e_c is not on the rays, so what a ray meets can hide behind another "
-               "object seen from e_c); planar clusters (e_c = e0 on every ray) skip it. Occlusion error: the "
-               "thesis's definition, per reflected ray.", "",
-               md_table(["scene", "others' 2nd surface", "fps ours", "occlusion error"],
-                        [[s["scene"], "on" if r["others_peel"] else "off", f(r["fps"], 3),
-                          f(r["occlusion_thesis_ray_pct"]) + " %"] for s in t for r in s["tablelayers"]]), ""]
-    t = [s for s in sweeps if "table18" in s]
-    if t:
-        md += ["### Table 18: diffuse triangles (thesis: 289k / 162k / 132k / 63k → 10 / 12 / 15 / 15 fps)", "",
-               "Built-in detail 1, 0.5, 0.25 (the whole scene is re-tessellated); Embree = BVH build + trace.", "",
-               md_table(["scene", "detail", "triangles", "diffuse triangles", "fps ours", "fps Embree",
-                         "ours / Embree"],
-                        [[s["scene"], r["detail"], f"{r['triangles']:,}", f"{r['diffuse_triangles']:,}",
-                          f(r["fps_ours"], 3), f(r["fps_embree"], 3), f(r["fps_ours"] / r["fps_embree"]) + "×"]
-                         for s in t for r in s["table18"]]), ""]
-    t = [s for s in sweeps if "table20" in s]
-    if t:
-        md += ["### Table 20: glossy rays per reflective pixel (thesis, near-mirror: 8 / 49 rays → intersection "
-               "112 / 651 ms, Optix 1 / 0.4 fps, ours 6 / 1.4 fps)", "",
-               "Rays per G-buffer sample (the thesis's first-pass reflective pixel); Embree traces the same lobe "
-               "rays; MAE against that Embree image (0–255).", "",
-               md_table(["scene", "rays", "intersection [ms]", "fps ours", "fps Embree", "ours / Embree",
-                         "MAE", "MAE on reflective px"],
-                        [[s["scene"], r["rays"], f(r["intersection_ms"], 0), f(r["fps_ours"], 3),
-                          f(r["fps_embree"], 3), f(r["fps_ours"] / r["fps_embree"]) + "×", f(r["mae_255"]),
-                          f(r["mae_reflective_255"])] for s in t for r in s["table20"]]), ""]
-    return md
 
 
 def main(argv: list[str] | None = None) -> None:

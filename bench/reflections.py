@@ -32,7 +32,7 @@ a CPU-only shared machine (Mesa llvmpipe + embreex), where one 512² frame of
 either method takes seconds, so the paths have --frames frames (default 24) at
 --path-res (default 512², the output resolution of the issue) — the reason is run time, not method.
 
-    .venv/bin/python bench/reflections.py [--scenes living_room bathroom mirror] [--res 512]
+    python -m bench.reflections [--scenes living_room bathroom mirror] [--res 512]
         [--timing-res 512 2048] [--frames 24] [--path-res 512] [--repeat 3]
 """
 
@@ -40,36 +40,34 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from bench.common import (  # noqa: E402
+from bench.common import (
     RESULTS_DIR,
     load_named_scene,
     machine_info,
     machine_markdown,
     md_table,
+    span,
     write_json,
     write_text,
 )
-from gl_passes.context import create_gl_context  # noqa: E402
-from gl_passes.reflections import STEPS, ClusterReflections  # noqa: E402
-from gl_passes.upload import SceneGPU  # noqa: E402
-from reference.image_metrics import (  # noqa: E402
+from gl_passes.context import create_gl_context
+from gl_passes.reflections import STEPS, ClusterReflections
+from gl_passes.upload import SceneGPU
+from reference.image_metrics import (
     error_image,
     mean_abs_error,
     occlusion_error_mask,
     occlusion_error_percentage,
 )
-from reference.occlusion import captured_mask, uncaptured_error_mask, uncaptured_ray_percentage  # noqa: E402
-from reference.raycast import RayCaster  # noqa: E402
-from reference.reflections import envmap_reflections, raytrace_reflections  # noqa: E402
-from scenes.camera import flythrough_path, orbit_path  # noqa: E402
+from reference.occlusion import captured_by_clusters, uncaptured_error_mask, uncaptured_ray_percentage
+from reference.raycast import RayCaster
+from reference.reflections import envmap_reflections, raytrace_reflections
+from scenes.camera import flythrough_path, orbit_path
 
 
 def to_png(img: np.ndarray, path: Path) -> None:
@@ -96,9 +94,7 @@ def occlusion_metrics(ours, ref) -> tuple[dict, np.ndarray, np.ndarray]:
     agrees within 5 %)."""
     mask = ref.reflective
     strict = occlusion_error_mask(ours.ray_length, ref.ray_length, mask)
-    d = ours.diagnostics
-    cap = captured_mask(ref.hit_points_samples, d.cluster_of_sample, d.view_proj, d.viewports, d.layer_depths,
-                        ref.hit_normals_samples, d.clip_planes)
+    cap = captured_by_clusters(ours.diagnostics, ref.hit_points_samples, ref.hit_normals_samples)
     thesis = uncaptured_error_mask(ref.reflective_samples, ref.hit_points_samples, cap, ref.supersample) & mask
     pct = {"occlusion_pct": occlusion_error_percentage(strict, mask),
            "occlusion_thesis_ray_pct": uncaptured_ray_percentage(ref.reflective_samples, ref.hit_points_samples, cap),
@@ -194,15 +190,34 @@ OCCLUSION_METRICS_TEXT = (
     "true hit but our march found another length, or found a hit where Embree's ray escapes).")
 
 
-STEP_BREAKDOWN_TEXT = (
-    "What the breakdown says: Embree's cost grows with the rays (about 16× from 512² to 2048²), ours splits "
-    "into steps that grow with the samples (G-buffer, clustering, cluster cameras' extent passes, "
-    "intersection, resolve) and one that does not: the cluster depth images, every cluster's frustum-culled "
-    "triangles drawn into four layers, vertex-bound on llvmpipe's CPU vertex pipeline (69–123 clusters). At "
-    "512² that step is the largest and keeps us below Embree; at 2048² it is amortised and the per-ray "
-    "march (a few texel fetches per step; blocks without a possible hit skipped) costs about a third of "
-    "Embree's trace. The fourth layer (the other objects' second surface) adds 50–60 % to the depth-image "
-    "time and buys most of the drop in occlusion error (the layers sweep below).")
+#: One-off measurements the report's prose quotes (with how they were measured).
+NOTES_JSON = RESULTS_DIR / "reflections_notes.json"
+FRACTION_WORDS = {2: "half", 3: "a third", 4: "a quarter", 5: "a fifth"}
+
+
+def step_breakdown(timings: list[dict]) -> str:
+    """What the step breakdown says, its numbers from the timing rows of the rooms
+    (lowest and highest resolution) and NOTES_JSON."""
+    rooms = [t for t in timings if t["scene"] in ROOMS]
+    lo, hi = min(t["res"] for t in rooms), max(t["res"] for t in rooms)
+    at = {(t["scene"], t["res"]): t for t in rooms}
+    names = sorted({t["scene"] for t in rooms})
+    growth = [at[n, hi]["embree_trace_ms"] / at[n, lo]["embree_trace_ms"] for n in names]
+    clusters = [t["clusters"] for t in rooms]
+    share = np.mean([at[n, hi]["ours_ms"]["intersection"] / at[n, hi]["embree_trace_ms"] for n in names])
+    part = FRACTION_WORDS.get(round(1 / share), f"{100 * share:.0f} %")
+    layer_cost = json.loads(NOTES_JSON.read_text())["fourth_layer_depth_image_cost_pct"]["value"]
+    return (
+        f"What the breakdown says: Embree's cost grows with the rays (about {span(growth, '.0f', '–')}× "
+        f"from {lo}² to {hi}²), ours splits "
+        "into steps that grow with the samples (G-buffer, clustering, cluster cameras' extent passes, "
+        "intersection, resolve) and one that does not: the cluster depth images, every cluster's frustum-culled "
+        "triangles drawn into four layers, vertex-bound on llvmpipe's CPU vertex pipeline "
+        f"({min(clusters)}–{max(clusters)} clusters). At "
+        f"{lo}² that step is the largest and keeps us below Embree; at {hi}² it is amortised and the per-ray "
+        f"march (a few texel fetches per step; blocks without a possible hit skipped) costs about {part} of "
+        f"Embree's trace. The fourth layer (the other objects' second surface) adds {layer_cost} % to the depth-image "
+        "time and buys most of the drop in occlusion error (the layers sweep below).")
 
 
 def _mean_max(rows: list[dict], key: str) -> tuple[float, float, int] | None:
@@ -268,11 +283,73 @@ def done_when(quality: list[dict], timings: list[dict], paths: list[dict]) -> li
     return lines
 
 
+def sweeps_markdown(sweeps: list[dict]) -> list[str]:
+    """Markdown for Tables 15–18 and 20 (empty when there are no sweeps)."""
+    if not sweeps:
+        return []
+
+    def f(x, d=2):
+        return f"{x:.{d}f}"
+
+    res = sweeps[0]["res"]
+    md = [f"## Parameter sweeps (Tables 15–18, 20; §4.7.2) at {res}² unless stated", "",
+          "`bench/reflection_sweeps.py`: the Table 12 view, one parameter at a time, single frames after a "
+          "warm-up on the shared machine (compare within a table). Thesis values (GTX 570) in the captions.", ""]
+    t = [s for s in sweeps if "table15" in s]
+    if t:
+        md += ["### Table 15: clusters (thesis: 156 / 141 / 123 / 86 / 32 clusters → 12 / 13 / 15 / 15 / 20 fps)",
+               "", "bin_scale multiplies the §4.3 bin counts (> 1: more than 13 × 8 bins on large reflectors, "
+               "for this sweep only). Occlusion error: the thesis's definition, per reflected ray.", "",
+               md_table(["scene", "bin_scale", "clusters", "fps ours", "occlusion error"],
+                        [[s["scene"], r["bin_scale"], r["clusters"], f(r["fps"], 3),
+                          f(r["occlusion_thesis_ray_pct"]) + " %"] for s in t for r in s["table15"]]), ""]
+    t = [s for s in sweeps if "table16" in s]
+    if t:
+        md += ["### Table 16: output resolution (thesis: 2048² / 1024² / 512² / 256² → 7.5 / 15 / 23 / 29 fps)", "",
+               md_table(["scene", "output", "fps ours"],
+                        [[s["scene"], f"{r['res']}²", f(r["fps"], 3)] for s in t for r in s["table16"]]), ""]
+    t = [s for s in sweeps if "table17" in s]
+    if t:
+        md += ["### Table 17: cluster image scale (thesis: 1/2 / 1 / 2 → 15 / 15 / 14 fps)", "",
+               md_table(["scene", "image scale", "fps ours", "occlusion error"],
+                        [[s["scene"], r["scale"], f(r["fps"], 3), f(r["occlusion_thesis_ray_pct"]) + " %"]
+                         for s in t for r in s["table17"]]), ""]
+    t = [s for s in sweeps if "tablelayers" in s]
+    if t:
+        md += ["### Cluster-image layers (beyond the thesis): the other objects' second surface", "",
+               "Non-planar clusters' images get a fourth layer, the second surface of the objects other than the "
+               "reflector (their shifted camera e_c is not on the rays, so what a ray meets can hide behind another "
+               "object seen from e_c); planar clusters (e_c = e0 on every ray) skip it. Occlusion error: the "
+               "thesis's definition, per reflected ray.", "",
+               md_table(["scene", "others' 2nd surface", "fps ours", "occlusion error"],
+                        [[s["scene"], "on" if r["others_peel"] else "off", f(r["fps"], 3),
+                          f(r["occlusion_thesis_ray_pct"]) + " %"] for s in t for r in s["tablelayers"]]), ""]
+    t = [s for s in sweeps if "table18" in s]
+    if t:
+        md += ["### Table 18: diffuse triangles (thesis: 289k / 162k / 132k / 63k → 10 / 12 / 15 / 15 fps)", "",
+               "Built-in detail 1, 0.5, 0.25 (the whole scene is re-tessellated); Embree = BVH build + trace.", "",
+               md_table(["scene", "detail", "triangles", "diffuse triangles", "fps ours", "fps Embree",
+                         "ours / Embree"],
+                        [[s["scene"], r["detail"], f"{r['triangles']:,}", f"{r['diffuse_triangles']:,}",
+                          f(r["fps_ours"], 3), f(r["fps_embree"], 3), f(r["fps_ours"] / r["fps_embree"]) + "×"]
+                         for s in t for r in s["table18"]]), ""]
+    t = [s for s in sweeps if "table20" in s]
+    if t:
+        md += ["### Table 20: glossy rays per reflective pixel (thesis, near-mirror: 8 / 49 rays → intersection "
+               "112 / 651 ms, Optix 1 / 0.4 fps, ours 6 / 1.4 fps)", "",
+               "Rays per G-buffer sample (the thesis's first-pass reflective pixel); Embree traces the same lobe "
+               "rays; MAE against that Embree image (0–255).", "",
+               md_table(["scene", "rays", "intersection [ms]", "fps ours", "fps Embree", "ours / Embree",
+                         "MAE", "MAE on reflective px"],
+                        [[s["scene"], r["rays"], f(r["intersection_ms"], 0), f(r["fps_ours"], 3),
+                          f(r["fps_embree"], 3), f(r["fps_ours"] / r["fps_embree"]) + "×", f(r["mae_255"]),
+                          f(r["mae_reflective_255"])] for s in t for r in s["table20"]]), ""]
+    return md
+
+
 def write_report(out: Path, info: dict, quality: list[dict], timings: list[dict], paths: list[dict],
                  res: int, frames: int, path_res: int, sweeps: list[dict] | None = None) -> None:
     """reflections.md; sweeps: Tables 15–18, 20 from bench/reflection_sweeps.py."""
-    from bench.reflection_sweeps import sweeps_markdown
-
     def f(x, d=1):
         return f"{x:.{d}f}"
 
@@ -310,7 +387,7 @@ def write_report(out: Path, info: dict, quality: list[dict], timings: list[dict]
                    [[t["scene"], t["res"], t["clusters"], *(f(t["ours_ms"][k]) for k in STEPS),
                      f(t["ours_ms"]["total"]), f(t["embree_build_ms"]), f(t["embree_trace_ms"]),
                      f(t["fps_ours"], 2), f(t["fps_embree"], 2), f(t["speedup"], 2) + "×"] for t in timings]), "",
-          STEP_BREAKDOWN_TEXT, ""]
+          step_breakdown(timings), ""]
     if paths:
         md += [f"## Occlusion error and clusters along camera paths ({frames} frames per path at "
                f"{path_res}²; §4.7.1, Table 19)", "",

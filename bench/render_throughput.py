@@ -5,18 +5,14 @@ by side in one run (interleaved rounds, median) at 512² and 1024²; the figure 
 merit is the ratio Embree time / GL time. GL is timed twice: draw only (finished
 with ctx.finish) and draw + read-back of all seven buffers.
 
-    .venv/bin/python bench/render_throughput.py [--res 512 1024] [--repeat 5] [--scenes ...]
+    python -m bench.render_throughput [--res 512 1024] [--repeat 5] [--scenes ...]
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from bench.common import (  # noqa: E402
+from bench.common import (
     RESULTS_DIR,
     load_named_scene,
     machine_info,
@@ -27,12 +23,12 @@ from bench.common import (  # noqa: E402
     write_json,
     write_text,
 )
-from gl_passes.context import create_gl_context  # noqa: E402
-from gl_passes.gbuffer import GBufferPass  # noqa: E402
-from gl_passes.upload import SceneGPU  # noqa: E402
-from reference.raycast import RayCaster  # noqa: E402
-from scenes.builtin import BUILTIN_NAMES  # noqa: E402
-from scenes.camera import look_at_scene  # noqa: E402
+from gl_passes.context import create_gl_context
+from gl_passes.gbuffer import GBufferPass
+from gl_passes.upload import SceneGPU
+from reference.raycast import RayCaster
+from scenes.builtin import BUILTIN_NAMES
+from scenes.camera import look_at_scene
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -69,7 +65,7 @@ def main(argv: list[str] | None = None) -> None:
     info = machine_info(gl)
     md = "\n\n".join([
         "# Render throughput: GL G-buffer pass vs Embree primary rays",
-        "Command: `.venv/bin/python bench/render_throughput.py "
+        "Command: `python -m bench.render_throughput "
         f"--res {' '.join(map(str, args.res))} --repeat {args.repeat}`",
         machine_markdown(info),
         "Each cell is the median of the interleaved rounds (ms). *GL draw* = sky + geometry into the 7-target "

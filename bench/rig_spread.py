@@ -3,7 +3,7 @@
 Fig. 8 shows three reference eyes around the scene and the peeling eye at their
 centroid, with no angles. `bench.sampling` uses 20° between each eye and the
 rig's axis. This benchmark repeats its metrics for several spreads and reports,
-per spread, criteria (b) and (c) of issue 3 (`bench.sampling.criteria_rows`)
+per spread, criteria (b) and (c) of issue 3 (`bench.sampling_report.criteria_rows`)
 and the conventional images' redundancy, which depends on the rig and the scene
 only (not on NR or peeling), against the thesis's Tables 2 and 5: the spread
 whose conventional redundancy is closest to the thesis's is the one calibrated
@@ -15,18 +15,11 @@ Run `python -m bench.rig_spread --help`; results go to bench/results/rig_spread.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-import numpy as np
-
-if __package__ in (None, ""):  # `python bench/rig_spread.py`
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from bench.common import add_scene_args, md_table, report_head, sweep_main, write_text  # noqa: E402
-from bench.sampling import THESIS_T2, THESIS_T5, criteria_rows, measure_rig, verdict_counts, yes_no  # noqa: E402
-
-THESIS_CONV = {"pixel": THESIS_T2, "visibility": THESIS_T5}
+from bench.common import add_scene_args, md_table, report_head, sweep_main, write_text
+from bench.sampling import measure_rig
+from bench.sampling_report import THESIS_BY_DEFINITION, conv_gap, criteria_rows, verdict_counts, yes_no
 
 
 def run_spread(gl, scenes: list[str], spread: float, res: int, views: int, seed: int, progress: bool) -> list[dict]:
@@ -34,26 +27,18 @@ def run_spread(gl, scenes: list[str], spread: float, res: int, views: int, seed:
     return [measure_rig(gl, name, res, views, seed, spread, progress=progress) for name in scenes]
 
 
-def conv_gap(results: list[dict], red: str) -> float:
-    """Mean |ours − thesis| of the conventional images' redundant share of I1, I2 [points]."""
-    gaps = [abs(100 * r["metrics"][f"{red}/conventional"]["redundant_frac"][i]
-                - THESIS_CONV[red][r["scene"]]["conv"][i])
-            for r in results if r["scene"] in THESIS_CONV[red] for i in (1, 2)]
-    return float(np.mean(gaps)) if gaps else float("nan")
-
-
 def write_report(out: Path, args: argparse.Namespace, info: dict, runs: dict[float, list[dict]],
                  seconds: float) -> None:
-    gaps = {red: {s: conv_gap(r, red) for s, r in runs.items()} for red in THESIS_CONV}  # spread → points
+    gaps = {red: {s: conv_gap(r, red) for s, r in runs.items()} for red in THESIS_BY_DEFINITION}  # spread → points
     summary, detail = [], []
     for spread, results in runs.items():
         rows = criteria_rows(results, f"{spread:g}°")
-        for red in THESIS_CONV:
+        for red in THESIS_BY_DEFINITION:
             rr = [x for x in rows if x["definition"] == red]
             summary.append([f"{spread:g}°", red, f"{gaps[red][spread]:.1f}", *verdict_counts(rr)])
         for x in rows:
             conv = next(r for r in results if r["scene"] == x["scene"])["metrics"][f"{x['definition']}/conventional"]
-            t = THESIS_CONV[x["definition"]].get(x["scene"], {}).get("conv")
+            t = THESIS_BY_DEFINITION[x["definition"]].get(x["scene"], {}).get("conv")
             red_cell = " / ".join(f"{100 * conv['redundant_frac'][i]:.0f}" for i in (1, 2))
             detail.append([x["run"], x["scene"], x["definition"], red_cell + (f" ({t[1]} / {t[2]})" if t else ""),
                            " / ".join(f"{100 * v:.2f}" for v in x["avail_avg"]),

@@ -29,10 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-if __package__ in (None, ""):  # `python bench/sampling.py`
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from bench.common import (  # noqa: E402
+from bench.common import (
     RESULTS_DIR,
     Stopwatch,
     load_named_scene,
@@ -46,36 +43,23 @@ from bench.common import (  # noqa: E402
     write_json,
     write_text,
 )
+from bench.sampling_notes import criteria_notes, discussion, target_minutes_per_scene
+from bench.sampling_report import (
+    EARLIER_NOTE,
+    METHODS,
+    THESIS_T2,
+    THESIS_T4,
+    THESIS_T5,
+    THESIS_T6,
+    THESIS_T7,
+    criteria_tables,
+    ranking_table,
+    timing_table,
+    view_dependent_table,
+    view_independent_table,
+)
 
 DEFAULT_SCENES = ("nest", "grass", "city", "tree", "diorama")
-METHODS = ("conventional", "non_redundant", "peeling")
-METHOD_LABEL = {"conventional": "conventional", "non_redundant": "non-redundant", "peeling": "depth peeling"}
-
-# --- the thesis's numbers (§2.3.3), percent ------------------------------------------
-# Tables 2 / 5: conventional redundant per image; NR and peeling (occluded, useful).
-THESIS_T2 = {
-    "nest": {"conv": [0, 70, 80], "nr": [(0, 0), (62, 89), (76, 86)], "peel": [(10, 99), (46, 2), (52, 71)]},
-    "grass": {"conv": [0, 54, 69], "nr": [(0, 0), (56, 85), (75, 80)], "peel": [(15, 99), (51, 4), (71, 79)]},
-    "city": {"conv": [0, 82, 84], "nr": [(0, 0), (73, 40), (80, 23)], "peel": [(1, 100), (78, 7), (88, 8)]},
-    "tree": {"conv": [0, 23, 35], "nr": [(0, 0), (84, 99), (88, 98)], "peel": [(44, 99), (63, 98), (72, 97)]},
-}
-THESIS_T5 = {
-    "nest": {"conv": [0, 80, 87], "nr": [(0, 0), (55, 66), (66, 61)], "peel": [(10, 99), (39, 38), (45, 55)]},
-    "grass": {"conv": [0, 58, 74], "nr": [(0, 0), (48, 80), (73, 85)], "peel": [(15, 99), (48, 81), (69, 76)]},
-    "city": {"conv": [0, 87, 87], "nr": [(0, 0), (74, 29), (80, 9)], "peel": [(1, 100), (75, 10), (88, 6)]},
-    "tree": {"conv": [0, 49, 67], "nr": [(0, 0), (36, 92), (54, 96)], "peel": [(44, 99), (30, 95), (45, 94)]},
-}
-# Tables 4 / 6: available samples (avg, min) for conventional, NR, peeling.
-THESIS_T4 = {
-    "nest": [(90, 89), (93, 92), (92, 89)], "grass": [(86, 81), (96, 91), (93, 88)],
-    "city": [(97, 96), (98, 97), (96, 91)], "tree": [(55, 53), (59, 57), (55, 48)],
-}
-THESIS_T6 = {
-    "nest": [(95.25, 94.46), (99.84, 99.73), (99.50, 98.82)], "grass": [(86.61, 83.61), (99.72, 99.35), (99.57, 98.15)],
-    "city": [(98.91, 97.64), (99.82, 99.32), (99.37, 94.23)], "tree": [(85.36, 83.63), (98.61, 97.78), (97.65, 93.94)],
-}
-# Table 7: milliseconds for three 1024² images (GTX 570).
-THESIS_T7 = {"nest": (1.8, 3.6, 3.3), "grass": (1.7, 3.0, 3.2), "city": (1.6, 3.3, 2.7), "tree": (2.1, 6.4, 6.5)}
 
 
 # --- rig --------------------------------------------------------------------------
@@ -109,7 +93,7 @@ def render_sets(gl, sg, rc, cams, peel_cam, layers: int = 3) -> dict[str, list]:
 
     return {
         "conventional": di.conventional(gl, sg, cams),
-        "nr_pixel": di.non_redundant(gl, sg, cams, redundancy="pixel"),
+        "nr_pixel": di.non_redundant(gl, sg, cams),
         "nr_visibility": non_redundant_visibility(sg.scene, cams, rc),
         "peeling": di.depth_peeling(gl, sg, peel_cam, layers),
     }
@@ -354,454 +338,8 @@ def sweep_plots(sweep: dict, out_dir: Path) -> list[str]:
 
 # --- report -------------------------------------------------------------------------
 
-def _cell(ours: float, thesis: float | None, digits: int = 0) -> str:
-    s = f"{100 * ours:.{digits}f}"
-    return s if thesis is None else f"{s} ({thesis:g})"
-
-
-def _pair(occ: float, use: float, thesis: tuple | None) -> str:
-    s = f"{100 * occ:.0f} ({100 * use:.0f})"
-    return s if thesis is None else f"{s} · thesis {thesis[0]:g} ({thesis[1]:g})"
-
-
-def _earlier_fracs(m: dict, red: str) -> tuple[list[float], list[float]] | None:
-    """NR occluded samples under the thesis's literal reading (I_i vs C_0..C_{i-1})
-    as fractions of the conventional image C_i's samples (the view's scene
-    samples), and their useful share; None for runs without those counts."""
-    nr, cv = m[f"{red}/non_redundant"], m[f"{red}/conventional"]
-    if nr.get("occluded_earlier") is None:
-        return None
-    occ = [o / c if c else 0.0 for o, c in zip(nr["occluded_earlier"], cv["samples"], strict=True)]
-    use = [u / o if o else 0.0 for u, o in zip(nr["useful_earlier"], nr["occluded_earlier"], strict=True)]
-    return occ, use
-
-
-def view_independent_table(results: list[dict], red: str, thesis: dict) -> tuple[str, dict[str, list[float]]]:
-    """Table 2/5 with ours (thesis) cells; also |ours − thesis| in points: "all"
-    over every comparable cell (conventional redundancy; occluded and useful of
-    NR, issue reading, and peeling), "nr_all" / "nr_earlier" over NR's occluded
-    and useful cells of I1, I2 under each reading of "occluded" (issue: fractions
-    of the image's samples; thesis, literal item 2: fractions of C_i's samples).
-    """
-    diffs: dict[str, list[float]] = {"all": [], "nr_all": [], "nr_earlier": []}
-    rows = []
-    for r in results:
-        t = thesis.get(r["scene"])
-        m = r["metrics"]
-        conv = m[f"{red}/conventional"]["redundant_frac"]
-        cells = []
-        for i in range(3):
-            cells.append(_cell(conv[i], t["conv"][i] if t else None))
-            if t:
-                diffs["all"].append(abs(100 * conv[i] - t["conv"][i]))
-        rows.append([r["scene"], "conventional: redundant", *cells])
-        nr, pe = m[f"{red}/non_redundant"], m[f"{red}/peeling"]
-        # (row label, thesis key, gap lists: "all" over I0-I2, "nr_*" over I1-I2, occluded, useful)
-        variants = [("non-redundant: occluded (useful), issue reading", "nr", ("all", "nr_all"),
-                     nr["occluded_frac"], nr["useful_frac_of_occluded"])]
-        lit = _earlier_fracs(m, red)
-        if lit is not None:
-            variants.append(("non-redundant: occluded (useful), thesis reading ¹", "nr", ("nr_earlier",), *lit))
-        variants.append(("depth peeling: occluded (useful)", "peel", ("all",), pe["occluded_frac"],
-                         pe["useful_frac_of_occluded"]))
-        for label, key, gap_keys, occ, use in variants:
-            cells = []
-            for i in range(3):
-                th = t[key][i] if t else None
-                cells.append(_pair(occ[i], use[i], th))
-                if th:
-                    for k in gap_keys:
-                        if k == "all" or i > 0:
-                            diffs[k] += [abs(100 * occ[i] - th[0]), abs(100 * use[i] - th[1])]
-            rows.append([r["scene"], label, *cells])
-    return md_table(["scene", "metric [%]", "I0 (V0 / peel layer 0)", "I1", "I2"], rows), diffs
-
-
-EARLIER_NOTE = ("¹ Thesis reading (§2.3.2 item 2 read literally, `reference/sampling_metrics.py`): NR image I_i's "
-                "samples not captured by C_0..C_{i-1}, in percent of the conventional image C_i's samples (the "
-                "view's scene samples), useful in percent of those; the issue reading tests every image against "
-                "all of C_0..C_2 and divides by the image's own samples. Peeling layers are tested against all "
-                "of C_0..C_2 in both readings.")
-
-
-def view_dependent_table(results: list[dict], red: str, thesis: dict, digits: int) -> tuple[str, list[float]]:
-    diffs: list[float] = []
-    rows = []
-    for r in results:
-        t = thesis.get(r["scene"])
-        row = [r["scene"]]
-        for k, method in enumerate(METHODS):
-            mm = r["metrics"][f"{red}/{method}"]
-            th = t[k] if t else (None, None)
-            row += [_cell(mm["available_avg"], th[0], digits), _cell(mm["available_min"], th[1], digits)]
-            if t:
-                diffs += [abs(100 * mm["available_avg"] - th[0]), abs(100 * mm["available_min"] - th[1])]
-        rows.append(row)
-    head = ["scene"] + [f"{METHOD_LABEL[m]} {s}" for m in METHODS for s in ("avg", "min")]
-    return md_table(head, rows), diffs
-
-
-def timing_table(results: list[dict]) -> str:
-    rows = []
-    for r in results:
-        tm = r.get("timing")
-        if not tm:
-            continue
-        th = THESIS_T7.get(r["scene"])
-        for label in ("prim_id", "geom_shader"):
-            if label not in tm:
-                continue
-            t = tm[label]
-            thr = f"{th[1] / th[0]:.2f} / {th[1] / th[2]:.2f}" if th else "—"
-            rows.append([r["scene"], "gl_PrimitiveID" if label == "prim_id" else "geometry shader",
-                         f"{t['conventional_ms']:.1f}", f"{t['non_redundant_ms']:.1f}", f"{t['peeling_ms']:.1f}",
-                         f"{t['nr_over_conventional']:.2f}", f"{t['nr_over_peeling']:.2f}",
-                         f"{th[0]} / {th[1]} / {th[2]}" if th else "—", thr])
-    return md_table(["scene", "triangle id from", "conventional [ms]", "NR [ms]", "peeling [ms]", "NR/conv",
-                     "NR/peel", "thesis ms (conv / NR / peel)", "thesis NR/conv / NR/peel"], rows)
-
-
-DISCUSSION = """\
-### Why our numbers differ from the thesis
-
-* **Scenes.** The thesis's bird's nest, grass, city and tree models are not
-  available; ours are procedural stand-ins with the same triangle budgets
-  (`scenes/builtin`) but a different depth complexity. All metrics depend on
-  how much hidden, front-facing geometry lies behind what V0..V2 see, so
-  per-cell gaps of tens of points are expected; the orderings are what can be
-  compared (section "The thesis's claims, checked").
-* **Ground.** The nest and the tree stand on modest ground discs (1.4 × their
-  footprint); grass and city grounds are the patch and the street grid the
-  content covers. (Earlier runs used 1.5 m / 12 m ground quads around the
-  nest / tree: the plane filled the image corners with ground that NR images
-  mostly drop as redundant or keep as non-occluded, and lowered the NR
-  occluded fractions; the counts of useful occluded samples barely changed.)
-* **Tiny triangles and resolution.** The nest's twigs and the tree's leaves
-  are a few pixels or less at 512²: pixel redundancy (same triangle id at the
-  reprojected texel) then misses much of the true redundancy, so conventional
-  redundancy is lower, NR images keep visible samples that only differ by
-  triangle, and pixel-definition availability is low. The sweep (Figs 13-15)
-  shows pixel-definition values converging toward the visibility-definition
-  ones as the resolution grows, as §2.3.3 states; it also shows NR overtaking
-  the conventional set in pixel-definition availability only from 512² up.
-* **Rig.** Fig. 8 gives no numbers: we use `scenes.rig.fig8_rig` (eyes 20° off
-  a common axis at elevation 25°, fov 45°) framed on the scene without its
-  ground: the content box's bounding sphere just fits the narrowest view of the
-  rig (`scenes.rig.fit_distance`, 1.39 × the content diagonal), so every
-  reference, peeling and intermediate view holds the whole content. Clip
-  planes are fitted to the whole scene. Only the tree's ground disc reaches
-  past the peeling view: 0.5 % of the tree's intermediate-view samples lie
-  outside the peeling camera's frustum (inside all of V0..V2's), which lowers
-  peeling's available fraction on the tree by at most that much (measured at
-  128², 20 views; nest, grass, city: 0 %). A wider spread makes V1/V2 less
-  redundant and NR images less deep.
-* **Views.** Fewer intermediate views than the thesis's 1000 lower the useful
-  fraction slightly (a sample needed by a rare view can be missed) and raise
-  the minimum available fraction.
-* **Depth peeling.** Its first layer comes from the centroid, itself an
-  intermediate view, so its occluded samples are almost all useful; its deeper
-  layers are complete images of the hidden layers, so in absolute counts
-  peeling often collects more occluded samples than our sparse NR images.
-  The thesis's layer 1 is nearly useless on the nest, grass and city (2, 4,
-  7 % of its occluded samples, Table 2) where ours is not (80, 99, 46 % at
-  512², 200 views): peeling *without* back-face culling gives 6 % on our
-  closed nest and city models, its layer 1 being their inside
-  (`bench/results/peeling_sides.md`, `python -m bench.peeling_sides`). The
-  thesis's Table 5 layer-1 and layer-2 shares fit our culled peeling better
-  (mean gap 20 against 33 points), so no single peeling matches both
-  tables; we keep the culled peeling the issue asks for (it has more useful
-  occluded samples on every scene). Against the two-sided peeling, NR's
-  useful occluded samples under the issue's reading still trail on 4 / 4
-  scenes (pixel) and 2 / 4 (visibility).
-* **Definitions.** Where §2.3.2 is not precise we chose (see
-  `reference/sampling_metrics.py`): occluded is computed under both readings
-  (the issue's: not captured by any of the n conventional images, fraction of
-  the image's samples; the thesis's literal item 2: NR I_i against C_0..C_{i-1},
-  fraction of C_i's samples); visibility-definition availability compares with the
-  *layer* of what each image stores within one texel. Background pixels are
-  not samples. GL samples tested with Embree are not exactly consistent at
-  silhouettes: conventional images show ~1e-4 "occluded" samples and peeling
-  layers ~0.5-1 % visibility-redundant ones (float32 positions on thin twigs
-  and leaves, whose occlusion ray grazes the occluder's edge).
-* **Timing.** Table 7 in the thesis is a GTX 570; ours is Mesa llvmpipe on a
-  shared 2-core CPU, so absolute times are ~100× larger and only the ratios are
-  comparable. On llvmpipe the NR pass's extra cost (one reprojection and
-  texture fetch per previous image per fragment) is small against rasterising
-  and shading 50-113k triangles on the CPU, so NR/conventional is lower than
-  the thesis's 1.8-3.0; NR/peeling is close to the thesis's (≈1). The thesis
-  blames its geometry shader for the tree's cost; the geometry-shader variant
-  rows measure that set-up here. The machine is shared: with 5 rounds single
-  ratios moved by ±20 % between runs, hence the interleaved rounds stated
-  under "What was run" (compare the two variants of a scene).
-"""
-
-
-def ranking_table(results: list[dict]) -> str:
-    """The thesis's qualitative claims, checked per scene and definition: NR
-    images hold more useful occluded samples than peeling, and more available
-    samples per view than conventional images and peeling."""
-    rows = []
-    for r in results:
-        for red in ("pixel", "visibility"):
-            m = r["metrics"]
-            nr, pe, cv = (m[f"{red}/{k}"] for k in METHODS[1:] + METHODS[:1])
-            rows.append([
-                r["scene"], red,
-                f"{nr['total']['occluded']:,} / {pe['total']['occluded']:,}",
-                f"{nr['total']['useful']:,} / {pe['total']['useful']:,}",
-                yes_no(nr["total"]["useful"] > pe["total"]["useful"]),
-                f"{100 * nr['available_avg']:.1f} / {100 * cv['available_avg']:.1f} / {100 * pe['available_avg']:.1f}",
-                yes_no(nr["available_avg"] >= max(cv["available_avg"], pe["available_avg"])),
-            ])
-    return md_table(["scene", "definition", "occluded samples NR / peel", "useful samples NR / peel",
-                     "NR more useful", "available avg NR / conv / peel [%]", "NR most available"], rows)
-
 
 # --- issue 3's "Done when" -----------------------------------------------------------
-
-#: Issue 3, criterion (d): at 1024², NR time ≤ 2.5 × conventional and ≤ 1.3 × peeling.
-MAX_NR_OVER_CONV, MAX_NR_OVER_PEEL = 2.5, 1.3
-CRITERIA_SCENES = ("nest", "grass", "city", "tree")
-
-
-CRITERIA_NOTES = """\
-### What the criteria show, and why (measured)
-
-* **The issue's target configuration, 1024² with 1000 intermediate views**
-  (`sampling_1024_1000v/`: 105 min on this 2-core machine, 18-43 min per
-  scene, with the Embree reference caster split across threads), gives the
-  same verdicts as the 1024²/60-view run on every scene and definition: (a)
-  4 / 4; (b) with visibility 4 / 4, with pixel 1 / 4 (nest; NR trails the
-  conventional set on average by 0.21 / 0.72 / 0.86 points on grass / city /
-  tree, and on the minimum by 0.57 / 0.61 points on grass / tree); (c) with the
-  thesis's reading 4 / 4 under both definitions (NR 1.22-2.47× peeling's
-  useful occluded samples), with the issue's reading pixel 0 / 4, visibility
-  1 / 4 (city). From 60 to 1000 views the averages moved by at most 0.3
-  points; the minima fell by up to 0.3 points for NR and the conventional
-  set and by 0.3-2.2 points for peeling (views near the rig's corners see
-  past the centroid's layers); useful counts grew by 1-28 % (a sample needed
-  only by a rare view), for NR and peeling alike.
-* **(a) holds.** The visibility NR sets (Embree) have no visibility-redundant
-  sample. The GL pixel NR sets show 0-11 pixel-redundant samples out of
-  1e5-3e5 when the reference re-tests them, and every one is a texel-edge
-  tie: its projection lies within 1e-4 texel of a texel edge (measured on nest
-  and grass at 1024²), where GL's float32 Alg. 3 and the reference's float64
-  projection fall on neighbouring texels; at 2048² (12 views) one tree
-  sample in 6e5 lies 3.4e-3 texel from the edge (not counted as a tie: the
-  float32 error in texel units grows with the resolution); the same sets
-  rendered by Embree in float64 (`reference.visibility.non_redundant_reference`,
-  `bench/results/tessellation.md`) have none. (Until this run the visibility NR
-  sets also showed 0-1 such sample: `non_redundant_visibility` tested the
-  float64 hit point but stored it as float32, and an occlusion ray grazing an
-  edge could answer differently for the two; it now tests the stored point.)
-* **(b) holds with the visibility definition on all four scenes** at 512² and
-  1024² (NR ahead of conventional by 1.4-6.5 points and of peeling by 1.0-1.7
-  points on average; on the minimum by 2.8-8.0 and 2.3-5.5 points). **With
-  the pixel definition NR stays ahead of peeling but falls 0.15-1.5 points
-  below the conventional set**
-  on grass, city and tree (and on nest at 512²; at 1024² nest holds). The
-  mechanism, measured on grass and nest at 512² (10 views): per view NR loses
-  3.4 % (grass) / 2.4 % (nest) of the samples the conventional set makes
-  available and gains 2.4 % / 2.1 %; 100 % of the lost samples are on a
-  triangle that C1 or C2 holds at their texel and that NR dropped there as
-  pixel-redundant with an earlier image, while the frame sample's own
-  projection into that earlier image lands on a texel of another triangle
-  (silhouettes of thin blades, twigs and leaves, and building edges). Alg. 3
-  forces this, whatever the implementation: it keeps or drops a whole texel by
-  its centre, and in an 8×8 case counted by hand (offset scene,
-  `tests/test_sampling_metrics.py`) the NR set, with no redundant sample, makes
-  6 of a frame's 8 columns available where the conventional set makes all 8
-  (visibility definition: 8 and 8). It is
-  the pixel definition's texel granularity: the gap shrinks from 512² to
-  1024² (grass 0.98 → 0.15, city 1.09 → 0.54, tree 1.46 → 0.84 points; nest
-  −0.32 → +0.86) as pixel redundancy converges to visibility redundancy, and
-  at 2048² (12 views, `sampling_2048/`) (b) holds with the pixel definition on
-  nest, grass and city (NR ahead of conventional by 0.3-1.9 points) and the
-  tree ties (average −0.01 point, minimum +0.2). The gap belongs to Alg. 3,
-  not to our GL pass, and it follows the triangles' size against the texel
-  (`bench/results/tessellation.md`, `python -m bench.tessellation`, 1024², 60
-  views): the same NR sets rendered by Embree
-  (`reference.visibility.non_redundant_reference`) give the GL sets'
-  availability to ≤ 0.05 point; splitting every triangle into 4 and 16, with
-  the surfaces unchanged (visibility metrics move ≤ 0.14 point), takes (b)
-  with the pixel definition from 1 / 4 scenes to 0 / 4, and NR's average
-  lead over the conventional set from −0.84 … +0.86 points (as tessellated)
-  to −2.09 … −0.95 (16 triangles each). Finer triangles do not reproduce the
-  thesis's tree row either (its conventional set loses 30 points from Table 6
-  to Table 4, yet NR is 4 points ahead): our tree's conventional set loses
-  5-15 points that way (1× to 16×) and NR trails more the finer it gets.
-* **(c) holds with the thesis's reading of "occluded" on 4 / 4 scenes, under
-  both redundancy definitions, at 512² and at 1024² (NR ahead of peeling by
-  1.16-2.6× in useful occluded samples); with the issue's reading it fails
-  (pixel 0 / 4, visibility 1 / 4, city).** The two readings
-  (`reference/sampling_metrics.py`, both computed in every run): the issue
-  summarises occluded samples as "not captured by the conventional images of
-  V0..Vn-1"; §2.3.2 item 2 says, for an NR image from PPC_i, "not captured by
-  the conventional images of PPC_j, j = 0..i-1", and for peeling "by any
-  conventional image". We report both and judge (c) on the thesis's text,
-  which is the spec, for three measured reasons: (1) the thesis's own tree
-  row (conventional I1 23 % redundant, NR I1 84 % occluded) is impossible
-  under the issue's reading, where NR I1's first-layer samples (≥ 77 % of
-  C1's pixels) are captured by C1; (2) its NR cells are reproduced far better
-  under the literal reading, with percentages of C_i's samples: mean gap over
-  the NR occluded/useful cells 29.0 → 18.9 points (pixel, 512²), 26.7 → 17.9
-  (pixel, 1024²), 15.4 → 14.0 and 15.0 → 13.7 (visibility), e.g. nest NR I1
-  53 % (91 %) against the thesis's 62 % (89 %) at 1024²; (3) under the issue's
-  reading, an NR image's first-layer samples, seen from V_i and thus needed
-  by the views near V_i, never count, while peeling's layer L0 counts in
-  full although it is itself a conventional image of an intermediate view.
-  Why the issue's reading goes against NR on our scenes (measured, per-image
-  table above): *L0 is an intermediate view*, so its occluded samples are
-  ~100 % useful, and with the pixel definition it is inflated by reprojection
-  misses on sub-pixel triangles (L0 has 2.2-4.4× more occluded samples under
-  the pixel than the visibility definition on nest, tree and grass);
-  *our peeling layers 1-2 are far more useful than the thesis's* (useful
-  share of L1's occluded samples 80 / 99 / 46 / 75 % on nest, grass, city,
-  tree, pixel, 512², against 2 / 4 / 7 / 98 %): our occluders (twigs 4-10 mm,
-  blades, leaves) are thin against the rig's eye baseline; and *NR images
-  spend most samples on first-layer surfaces* V0 (or V0, V1) does not see.
-  Ground, framing and borders are not the cause (variant without ground: < 1 %
-  change; every view holds the content). The rig's spread, which Fig. 8 does
-  not give, moves the issue-reading verdict but does not rescue it
-  (`bench/results/rig_spread.md`, `python -m bench.rig_spread`, spreads
-  5-30°, 512², 100 views): with the pixel definition (c) holds on 0 / 4 scenes
-  at every spread; with the visibility definition on 3 / 4 at 5°, 2 / 4 at
-  10-15°, 1 / 4 at 20° and 0 / 4 at 30°; with the thesis's reading on 4 / 4 at
-  5-20°. (b) with the pixel definition fails at 512² at every spread. The
-  thesis's conventional redundancy does not pin the spread down (mean gap
-  12.6-15.1 points over the spreads, visibility; 16.2-22.6, pixel), so we keep
-  20° rather than pick the value that favours NR.
-* **(d) holds**: NR/conventional 1.16-1.32 and NR/peeling 0.91-1.07 at 1024²
-  with either triangle-id source (llvmpipe, 15 interleaved rounds; Table 7).
-  With 5 rounds one reading (grass, geometry shader) came out at NR/peeling
-  1.34: single ratios on this shared 2-core machine move by ±20 %.
-"""
-
-
-def yes_no(ok: bool) -> str:
-    """A criterion's verdict cell: "yes", or "**no**" in bold."""
-    return "yes" if ok else "**no**"
-
-
-def criteria_rows(results: list[dict], run: str) -> list[dict]:
-    """Criteria (a)-(c) per scene and redundancy definition of one run: (a) the
-    NR set has no redundant sample; (b) NR's available samples, average and
-    minimum over the intermediate views, ≥ conventional's and ≥ peeling's; (c) NR
-    holds at least as many useful occluded samples (totals over the 3 images)
-    as peeling."""
-    rows = []
-    for r in results:
-        if r["scene"] not in CRITERIA_SCENES:
-            continue
-        for red in ("pixel", "visibility"):
-            m = r["metrics"]
-            cv, nr, pe = (m[f"{red}/{k}"] for k in METHODS)
-            rows.append({
-                "scene": r["scene"], "run": run, "definition": red,
-                "a_nr_redundant": nr["total"]["redundant"],
-                "a_edge_ties": sum(nr.get("redundant_edge_ties") or [0]),
-                "a": nr["total"]["redundant"] == sum(nr.get("redundant_edge_ties") or [0]),
-                "avail_avg": (nr["available_avg"], cv["available_avg"], pe["available_avg"]),
-                "avail_min": (nr["available_min"], cv["available_min"], pe["available_min"]),
-                "b": (nr["available_avg"] >= max(cv["available_avg"], pe["available_avg"])
-                      and nr["available_min"] >= max(cv["available_min"], pe["available_min"])),
-                "useful": (nr["total"]["useful"], pe["total"]["useful"]),
-                "c": nr["total"]["useful"] >= pe["total"]["useful"],
-                # The thesis's literal reading of "occluded" (None for runs made before it was counted).
-                "useful_earlier": ((nr["total"]["useful_earlier"], pe["total"]["useful_earlier"])
-                                   if nr["total"].get("useful_earlier") is not None else None),
-                "c_earlier": (nr["total"]["useful_earlier"] >= pe["total"]["useful_earlier"]
-                              if nr["total"].get("useful_earlier") is not None else None),
-                "nr_images": {k: nr.get(k) for k in ("samples", "occluded", "useful", "occluded_earlier",
-                                                      "useful_earlier")},
-                "peel_images": {k: pe[k] for k in ("samples", "occluded", "useful")},
-            })
-    return rows
-
-
-def verdict_counts(rows: list[dict]) -> tuple[str, str, str]:
-    """'k / n' scenes where (b), (c) with the issue's reading and (c) with the
-    thesis's reading hold, over `criteria_rows` of one definition."""
-    n = len(rows)
-    return (f"{sum(bool(x['b']) for x in rows)} / {n}", f"{sum(bool(x['c']) for x in rows)} / {n}",
-            f"{sum(bool(x['c_earlier']) for x in rows)} / {n}")
-
-
-def criteria_tables(runs: list[tuple[str, list[dict]]], timing_results: list[dict]) -> tuple[str, dict]:
-    """Markdown for issue 3's criteria over several runs (label, results) and the
-    Table 7 timing, plus a JSON-ready summary."""
-    rows = [row for label, res in runs for row in criteria_rows(res, label)]
-    def useful_cell(pair: tuple[int, int] | None, ok: bool | None) -> str:
-        return "—" if pair is None else f"{pair[0]:,} / {pair[1]:,} · {yes_no(bool(ok))}"
-
-    table = md_table(
-        ["scene", "run", "definition", "(a) NR redundant", "available avg NR / conv / peel [%]",
-         "available min NR / conv / peel [%]", "(b) holds", "(c) useful occluded NR / peel, thesis reading",
-         "(c) useful occluded NR / peel, issue reading"],
-        [[r["scene"], r["run"], r["definition"],
-          f"{r['a_nr_redundant']:,}" + (f" ({r['a_edge_ties']:,} ties)" if r["a_edge_ties"] else "")
-          + f" · {yes_no(r['a'])}",
-          " / ".join(f"{100 * x:.2f}" for x in r["avail_avg"]), " / ".join(f"{100 * x:.2f}" for x in r["avail_min"]),
-          yes_no(r["b"]), useful_cell(r["useful_earlier"], r["c_earlier"]), useful_cell(r["useful"], r["c"])]
-         for r in rows])
-    counts = []
-    summary: dict = {"rows": [{k: v for k, v in r.items() if not k.endswith("_images")} for r in rows]}
-
-    def verdict(n: int | None, total: int) -> str:
-        return "—" if n is None else f"{n} / {total} ({'holds' if n >= 3 else '**fails**'}: needs ≥ 3)"
-
-    for label, _ in runs:
-        for red in ("pixel", "visibility"):
-            sel = [r for r in rows if r["run"] == label and r["definition"] == red]
-            nc, nb = sum(r["c"] for r in sel), sum(r["b"] for r in sel)
-            ne = None if any(r["c_earlier"] is None for r in sel) else sum(r["c_earlier"] for r in sel)
-            counts.append([label, red, f"{sum(r['a'] for r in sel)} / {len(sel)}", f"{nb} / {len(sel)}",
-                           verdict(ne, len(sel)), verdict(nc, len(sel))])
-            summary[f"{label}/{red}"] = {"a": sum(r["a"] for r in sel), "b": nb, "c": nc, "c_earlier": ne,
-                                         "scenes": len(sel)}
-    count_table = md_table(["run", "definition", "(a) scenes", "(b) scenes", "(c) scenes, thesis reading",
-                            "(c) scenes, issue reading"], counts)
-    trows = []
-    for r in timing_results:
-        tm = r.get("timing")
-        if r["scene"] not in CRITERIA_SCENES or not tm:
-            continue
-        for label in ("prim_id", "geom_shader"):
-            if label in tm:
-                t = tm[label]
-                ok = t["nr_over_conventional"] <= MAX_NR_OVER_CONV and t["nr_over_peeling"] <= MAX_NR_OVER_PEEL
-                trows.append([r["scene"], "gl_PrimitiveID" if label == "prim_id" else "geometry shader",
-                              f"{tm['res']}²", f"{t['nr_over_conventional']:.2f}", f"{t['nr_over_peeling']:.2f}",
-                              yes_no(ok)])
-                summary.setdefault("d", {})[f"{r['scene']}/{label}"] = ok
-    ttable = md_table(["scene", "triangle id from", "res", "NR / conv (≤ 2.5)", "NR / peel (≤ 1.3)", "(d) holds"],
-                      trows)
-    drows = []
-    for r in rows:
-        n, p = r["nr_images"], r["peel_images"]
-        def pair(xs: list[int] | None) -> str:
-            return "—" if xs is None else " / ".join(f"{x:,}" for x in xs[1:])
-
-        drows.append([r["scene"], r["run"], r["definition"], pair(n["samples"]), pair(n["occluded_earlier"]),
-                      pair(n["useful_earlier"]), pair(n["occluded"]), pair(n["useful"]),
-                      " / ".join(f"{x:,}" for x in p["samples"]), " / ".join(f"{x:,}" for x in p["occluded"]),
-                      " / ".join(f"{x:,}" for x in p["useful"])])
-    dtable = md_table(["scene", "run", "definition", "NR samples I1 / I2", "NR occluded I1 / I2 (thesis r.)",
-                       "NR useful I1 / I2 (thesis r.)", "NR occluded I1 / I2 (issue r.)",
-                       "NR useful I1 / I2 (issue r.)",
-                       "peel samples L0 / L1 / L2", "peel occluded L0 / L1 / L2", "peel useful L0 / L1 / L2"], drows)
-    md = ["Criteria (a)-(c) per scene and redundancy definition; (a) counts the NR set's samples redundant "
-          "with an earlier image of the set, and in parentheses those of them that are texel-edge float ties "
-          "(pixel definition: the projection is within 1e-3 texel of a texel edge, where GL's float32 Alg. 3 "
-          "and the reference's float64 test may pick neighbouring texels; `reference.sampling_metrics`); (a) "
-          "holds when every redundant sample is such a tie. Available samples in percent of the "
-          "intermediate view's samples (average and minimum over the views); useful occluded samples are "
-          "totals over the three images.", "", table, "", count_table, "",
-          *(["Criterion (d), Table 7 timing (median of interleaved rounds):", "", ttable, ""] if trows else
-            ["Criterion (d), Table 7 timing: not timed in this run.", ""]),
-          "Where the useful occluded samples come from (per image; NR I0 = C0 has none by construction; "
-          "peeling layer L0 is the conventional image of the centroid view):", "", dtable, ""]
-    return "\n".join(md), summary
 
 
 def write_report(args, info: dict, results: list[dict], sweep: dict | None, sweep_pngs: list[str],
@@ -860,7 +398,7 @@ def write_report(args, info: dict, results: list[dict], sweep: dict | None, swee
            "Runs: " + "; ".join(f"{label} ({'this file' if k == 0 else 'see ' + e['_path']})"
                                 for k, ((label, _), e) in enumerate(zip(runs, [{}] + list(extra_runs or []),
                                                                           strict=True))) + ".", "",
-           crit_md, CRITERIA_NOTES, ""]
+           crit_md, criteria_notes(), ""]
     md += ["## Table 2: view-independent metrics, pixel definition [%]", "", t2, "", gap(d2), ""]
     md += ["## Table 4: available samples, pixel definition [%]", "", t4, "", gap(d4), ""]
     md += ["## Table 5: view-independent metrics, visibility definition [%]", "", t5, "", gap(d5), ""]
@@ -904,7 +442,7 @@ def write_report(args, info: dict, results: list[dict], sweep: dict | None, swee
         md += ["", md_table(["res", "conv red. px I1", "px I2", "vis I1", "vis I2", "NR occ. px I1", "px I2",
                              "vis I1", "vis I2", "NR useful px I1", "px I2", "vis I1", "vis I2",
                              "avail. px conv", "NR", "peel"], rows), ""]
-    md += [DISCUSSION, "## Stage times [s]", "",
+    md += [discussion(), "## Stage times [s]", "",
            md_table(["stage", "seconds"], [[k, f"{v:.1f}"] for k, v in stage_seconds.items()]), ""]
     write_text(args.out / "sampling.md", "\n".join(md))
     if not write_json_file:
@@ -929,10 +467,11 @@ def why_reduced(res: int, views: int) -> str:
     """The report's sentence on how this run relates to the issue's target."""
     if (res, views) == (1024, 1000):
         return "This run is the target configuration."
+    minutes = target_minutes_per_scene() or "tens of"  # measured by the target run, when it is there
     return (f"This run uses {res}² and {views} views: on this shared 2-core machine the Embree casts of 1000 "
-            "intermediate views per scene (plus the visibility-definition layer walks) at 1024² take 17-43 min per "
-            "scene (`sampling_1024_1000v/`, run scene by scene and joined with --merge), so the defaults are sized "
-            "to finish within about 10 minutes; pass --res 1024 --views 1000 for the target.")
+            "intermediate views per scene (plus the visibility-definition layer walks) at 1024² take "
+            f"{minutes} min per scene (`sampling_1024_1000v/`, run scene by scene and joined with --merge), so the "
+            "defaults are sized to finish within about 10 minutes; pass --res 1024 --views 1000 for the target.")
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:

@@ -8,7 +8,7 @@ midpoint subdivision (`subdivided`): the surfaces, and so every metric of the
 visibility definition, stay the same (the report checks it), while the pixel
 definition sees triangles 2^L times smaller along each edge. Criterion (b) (NR's
 available samples ≥ conventional's and peeling's, average and minimum) is then
-judged per level with `bench.sampling.criteria_rows`. Beside the GL set, the
+judged per level with `bench.sampling_report.criteria_rows`. Beside the GL set, the
 same NR set is rendered by Embree (`reference.visibility.non_redundant_reference`)
 and measured alike, with criterion (a) counted for both.
 
@@ -24,18 +24,25 @@ Run `python -m bench.tessellation --help`; results go to bench/results/tessellat
 from __future__ import annotations
 
 import argparse
-import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-if __package__ in (None, ""):  # `python bench/tessellation.py`
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from bench.common import add_scene_args, md_table, report_head, sweep_main, write_text  # noqa: E402
-from bench.sampling import THESIS_T4, THESIS_T6, criteria_rows, measure_rig, metric_jobs, verdict_counts, yes_no  # noqa: E402
-from scenes.model import Scene  # noqa: E402
+from bench.common import add_scene_args, md_table, report_head, sweep_main, write_text
+from bench.sampling import measure_rig, metric_jobs
+from bench.sampling_report import (
+    criteria_rows,
+    granularity_loss,
+    lead_ranges,
+    redundant_counts,
+    reference_gap,
+    thesis_granularity_loss,
+    verdict_counts,
+    visibility_drift,
+    yes_no,
+)
+from scenes.model import Scene
 
 
 def subdivided(scene: Scene, levels: int) -> Scene:
@@ -73,69 +80,6 @@ def run_level(gl, scenes: list[str], level: int, res: int, views: int, seed: int
     """`bench.sampling`-shaped results (scene, triangles, metrics) at one subdivision level."""
     return [measure_rig(gl, name, res, views, seed, jobs=metric_jobs_with_reference, extra_sets=reference_set,
                         progress=progress, prepare=lambda s: subdivided(s, level)) for name in scenes]
-
-
-def granularity_loss(result: dict) -> float:
-    """Conventional set's available samples, pixel minus visibility definition,
-    average over the views [points]: what triangle ids against texels cost."""
-    m = result["metrics"]
-    return 100 * (m["pixel/conventional"]["available_avg"] - m["visibility/conventional"]["available_avg"])
-
-
-def thesis_granularity_loss(scene: str) -> float | None:
-    """The same for the thesis's scene: Table 4 − Table 6, conventional average [points]."""
-    if scene not in THESIS_T4:
-        return None
-    return THESIS_T4[scene][0][0] - THESIS_T6[scene][0][0]
-
-
-def visibility_drift(runs: dict[int, list[dict]]) -> float:
-    """Largest change of any visibility-definition available sample (average or
-    minimum, any method, any scene) from level 0 [points]: ≈ 0 when the
-    subdivision kept the surfaces."""
-    base = {r["scene"]: r["metrics"] for r in runs[min(runs)]}
-    drift = 0.0
-    for results in runs.values():
-        for r in results:
-            for method in ("conventional", "non_redundant", "peeling"):
-                a, b = r["metrics"][f"visibility/{method}"], base[r["scene"]][f"visibility/{method}"]
-                for key in ("available_avg", "available_min"):
-                    drift = max(drift, 100 * abs(a[key] - b[key]))
-    return drift
-
-
-def redundant_counts(runs: dict[int, list[dict]]) -> tuple[int, int, int]:
-    """Criterion (a) over every scene and level, pixel definition: (redundant
-    samples of the GL NR sets, of them texel-edge ties, redundant samples of the
-    Embree NR sets)."""
-    gl = ties = ref = 0
-    for results in runs.values():
-        for r in results:
-            m = r["metrics"]
-            gl += m["pixel/non_redundant"]["total"]["redundant"]
-            ties += sum(m["pixel/non_redundant"].get("redundant_edge_ties") or [0])
-            ref += m.get("pixel/non_redundant_reference", {}).get("total", {}).get("redundant", 0)
-    return gl, ties, ref
-
-
-def lead_ranges(runs: dict[int, list[dict]]) -> dict[int, tuple[float, float]]:
-    """Per level: (min, max) over the scenes of NR − conventional available
-    samples, pixel definition, average over the views [points]."""
-    out = {}
-    for k, results in runs.items():
-        lead = [100 * (r["metrics"]["pixel/non_redundant"]["available_avg"]
-                       - r["metrics"]["pixel/conventional"]["available_avg"]) for r in results]
-        out[k] = (min(lead), max(lead))
-    return out
-
-
-def reference_gap(runs: dict[int, list[dict]]) -> float:
-    """Largest |GL − Embree| NR availability under the pixel definition (average or
-    minimum, any scene and level) [points]; NaN without the reference set."""
-    gaps = [100 * abs(r["metrics"]["pixel/non_redundant"][key] - r["metrics"]["pixel/non_redundant_reference"][key])
-            for results in runs.values() for r in results if "pixel/non_redundant_reference" in r["metrics"]
-            for key in ("available_avg", "available_min")]
-    return max(gaps) if gaps else float("nan")
 
 
 def write_report(out: Path, args: argparse.Namespace, info: dict, runs: dict[int, list[dict]],

@@ -1,23 +1,20 @@
 """Render a thumbnail of every built-in scene (local shading, GL G-buffer) for the README.
 
-    .venv/bin/python bench/thumbnails.py [--res 256]
+    python -m bench.thumbnails [--res 256]
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from bench.common import RESULTS_DIR  # noqa: E402
-from gl_passes.context import create_gl_context  # noqa: E402
-from gl_passes.gbuffer import GBufferPass  # noqa: E402
-from gl_passes.upload import SceneGPU  # noqa: E402
-from scenes.builtin import BUILTIN_NAMES, make_builtin  # noqa: E402
-from scenes.camera import look_at_scene  # noqa: E402
-from service.image_io import encode_png  # noqa: E402
+from bench.common import RESULTS_DIR
+from gl_passes.context import create_gl_context
+from gl_passes.gbuffer import GBufferPass
+from gl_passes.upload import SceneGPU
+from scenes.builtin import BUILTIN_NAMES, make_builtin
+from scenes.camera import look_at_scene
+from service.image_io import encode_png
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -6,8 +6,9 @@
   image i is rendered with the triangle-id textures and view-projection matrices
   of images j < i bound; a fragment that reprojects into some I_j onto a texel
   holding its own triangle id is discarded before it writes depth, so the depth
-  test keeps the nearest *non-redundant* fragment. `redundancy="visibility"`
-  (Alg. 2) is delegated to the Embree reference.
+  test keeps the nearest *non-redundant* fragment. Visibility redundancy
+  (Alg. 2) is Embree's: `reference.visibility.non_redundant_visibility` (this
+  package never imports `reference`; callers pick the definition).
 * `depth_peeling`: classic depth peeling from one viewpoint (§2.3.1: the same
   shader, the test being "strictly behind the previous layer at this pixel").
 
@@ -34,6 +35,7 @@ import numpy as np
 
 from gl_passes.context import GLContext
 from gl_passes.readback import read_texture
+from gl_passes.releasable import Releasable
 from gl_passes.shaders import program
 from gl_passes.uniforms import set_camera, set_uniform
 from gl_passes.upload import SceneGPU
@@ -84,7 +86,7 @@ class _SizeTargets:
             t.release()
 
 
-class DepthImageRenderer:
+class DepthImageRenderer(Releasable):
     """Programs and per-size render targets for depth-image sets on `gl`'s thread.
 
     vs_project: where the non-redundant test projects a fragment into the
@@ -295,32 +297,19 @@ def conventional(gl: GLContext, scene_gpu: SceneGPU, cameras: Sequence[Camera], 
 
 
 def non_redundant(gl: GLContext, scene_gpu: SceneGPU, cameras: Sequence[Camera], res: int | None = None,
-                  redundancy: str = "pixel", renderer: DepthImageRenderer | None = None) -> list[DepthImage]:
-    """Non-redundant depth images (thesis Alg. 1), rendered in camera order.
-
-    redundancy="pixel": the pixel-redundancy test (Alg. 3) in the fragment
-    shader — a fragment of image i is discarded when its world position,
-    projected with PPC_j into I_j (j < i, inside I_j's frustum), lands on a texel
-    whose triangle id is the fragment's own; the z-buffer then keeps the
-    nearest non-redundant fragment. Image 0 is the conventional image.
-    redundancy="visibility": Alg. 2 (visibility redundancy), computed by the
-    Embree reference `reference.visibility.non_redundant_visibility`.
+                  renderer: DepthImageRenderer | None = None) -> list[DepthImage]:
+    """Non-redundant depth images (thesis Alg. 1) with pixel redundancy (Alg. 3),
+    rendered in camera order: a fragment of image i is discarded when its world
+    position, projected with PPC_j into I_j (j < i, inside I_j's frustum), lands
+    on a texel whose triangle id is the fragment's own; the z-buffer then keeps
+    the nearest non-redundant fragment. Image 0 is the conventional image.
+    (Visibility redundancy, Alg. 2, is the Embree reference's:
+    `reference.visibility.non_redundant_visibility`.)
 
     cameras: n ≤ MAX_IMAGES (16) pinhole cameras; res: square res×res override.
     Returns n DepthImages (H,W[,3]); tri_id 0 / depth +inf where image i has no
     non-redundant sample."""
     cams = prepare_cameras(scene_gpu, cameras, res)
-    if redundancy == "visibility":
-        try:
-            from reference.visibility import non_redundant_visibility
-        except ImportError as exc:
-            raise NotImplementedError(
-                "redundancy='visibility' needs reference.visibility.non_redundant_visibility "
-                f"(the Embree implementation of Alg. 2), which is not available: {exc}"
-            ) from exc
-        return non_redundant_visibility(scene_gpu.scene, cams)
-    if redundancy != "pixel":
-        raise ValueError(f"redundancy must be 'pixel' or 'visibility', got {redundancy!r}")
     return _run(gl, renderer, "non_redundant", scene_gpu, cams)
 
 

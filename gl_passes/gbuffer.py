@@ -12,6 +12,7 @@ import numpy as np
 
 from gl_passes.context import GLContext
 from gl_passes.readback import read_texture
+from gl_passes.releasable import Releasable
 from gl_passes.shaders import program
 from gl_passes.uniforms import set_camera
 from gl_passes.upload import SceneGPU
@@ -45,7 +46,7 @@ class RenderTarget:
             t.release()
 
 
-class GBufferPass:
+class GBufferPass(Releasable):
     """Renders G-buffers on `gl`'s thread; holds one RenderTarget per size in use."""
 
     def __init__(self, gl: GLContext) -> None:

@@ -91,10 +91,11 @@ from gl_passes.clustering import ClusteringPass
 from gl_passes.context import GLContext
 from gl_passes.gbuffer import GBufferPass
 from gl_passes.readback import read_texture
+from gl_passes.releasable import Releasable
 from gl_passes.shaders import compute_program, program
 from gl_passes.uniforms import set_uniform
 from gl_passes.upload import SceneGPU
-from scenes.buffers import ReflectionBuffers
+from scenes.buffers import ClusterDiagnostics, ReflectionBuffers
 from scenes.camera import Camera
 from scenes.glossy import FADE_FRACTION, lobe_offsets
 
@@ -111,31 +112,6 @@ CONTINUITY = 0.0  # crossing rule (off by default): max relative depth jump betw
 SLOPE = 0.0  # surface-crossing rule (opt-in, e.g. 10): steepest surface, tan of its angle to the view ray
 NEAR_STEPS = 0  # near-origin rule (opt-in, e.g. 4): in the ray's first texels a hit needs a refined crossing
 STEPS = ("gbuffer", "clustering", "cluster_cameras", "depth_images", "intersection", "resolve")
-
-
-@dataclass
-class ClusterDiagnostics:
-    """What the cluster depth images hold, for the thesis's occlusion-error test
-    (§4.4 / §4.7.1: a reflected ray meets an object the cluster image did not
-    sample; reference.occlusion.captured_mask). Arrays are numpy, row 0 = top.
-
-    cluster_of_sample (ss·H, ss·W) int32: each sample's cluster (index into the
-    result's cameras and the arrays below), −1 for non-reflective samples;
-    layer_depths (N_LAYERS = 4, Ha, Wa) float32: the used atlas area of the layers
-    (other objects; the cluster's reflector; the reflector's second surface; the
-    other objects' second surface), each texel
-    the linear depth along its cluster camera's axis (= clip w of view_proj;
-    BACKGROUND_DEPTH where empty); viewports (K, 4) int64 (x, y, w, h) of each
-    cluster image in layer_depths with y its TOP row (w = h = 0: no image, invalid
-    camera); view_proj (K, 4, 4) float64 (its NDC z bounds near/far);
-    clip_planes (K, 4) float64 (n, c): the image holds only n·X ≥ c (the fitting
-    plane clip)."""
-
-    cluster_of_sample: np.ndarray
-    layer_depths: np.ndarray
-    viewports: np.ndarray
-    view_proj: np.ndarray
-    clip_planes: np.ndarray
 
 
 @dataclass
@@ -156,7 +132,7 @@ class ClusterReflectionResult(ReflectionBuffers):
     diagnostics: ClusterDiagnostics | None = None
 
 
-class ClusterReflections:
+class ClusterReflections(Releasable):
     """Reflection renderer on `gl`'s thread. Parameters: max_resolution caps a
     cluster image's side; resolution_scale multiplies the texel density derived
     from the cluster's projected sample spacing; bin_scale and bin_rule set the §4.3

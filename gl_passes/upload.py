@@ -14,11 +14,13 @@ import moderngl
 import numpy as np
 
 from gl_passes.context import GLContext
+from gl_passes.releasable import Releasable
 from scenes.model import Scene
 
 
-class SceneGPU:
-    """GPU copy of a Scene. Call `release()` when done (frees buffers and VAOs)."""
+class SceneGPU(Releasable):
+    """GPU copy of a Scene. Call `release()` when done (frees buffers and VAOs), or
+    use it as a context manager: `with SceneGPU(gl, scene) as sg: ...`."""
 
     def __init__(self, gl: GLContext, scene: Scene) -> None:
         gl.check_thread()

@@ -67,6 +67,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from scenes.buffers import ClusterDiagnostics
+
 #: Relative depth tolerance of the captured test (module docstring).
 CAPTURE_REL_TOL = 0.01
 #: Distance from the tangent plane, in texel footprints at the point (module docstring).
@@ -187,6 +189,17 @@ def captured_mask(hit_points: np.ndarray, cluster_of_sample: np.ndarray, view_pr
             hit[idx] |= match.any(axis=0)
         out[sel] = hit
     return out.reshape(cl.shape)
+
+
+def captured_by_clusters(diagnostics: ClusterDiagnostics, hit_points: np.ndarray,
+                         hit_normals: np.ndarray | None = None, **tolerances: float) -> np.ndarray:
+    """`captured_mask` of a reflection frame's cluster images, as the GL pass records
+    them (scenes.buffers.ClusterDiagnostics): hit_points, hit_normals (ss·H, ss·W, 3)
+    the true (Embree) mirror-ray hits per sample; tolerances: rel_tol, plane_tol,
+    radius. Returns (ss·H, ss·W) bool."""
+    d = diagnostics
+    return captured_mask(hit_points, d.cluster_of_sample, d.view_proj, d.viewports, d.layer_depths, hit_normals,
+                         d.clip_planes, **tolerances)
 
 
 def uncaptured_error_mask(reflective_samples: np.ndarray, hit_points_samples: np.ndarray, captured: np.ndarray,

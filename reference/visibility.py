@@ -214,7 +214,7 @@ def non_redundant_reference(scene: Scene, cameras: Sequence[Camera], redundancy:
     "visible"). Image 0 is a plain ray cast. Vectorised over pixels: one Embree
     batch per layer. Cameras without near/far get them fitted to the scene
     bounds. The pixel variant is the GL-independent reference of
-    `gl_passes.depth_images.non_redundant(redundancy="pixel")`."""
+    `gl_passes.depth_images.non_redundant`."""
     if redundancy not in REDUNDANCY:
         raise ValueError(f"redundancy must be one of {REDUNDANCY}, got {redundancy!r}")
     rc = caster or RayCaster(scene)

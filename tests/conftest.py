@@ -1,14 +1,12 @@
-"""Shared fixtures: one GL context for the test session (created on the main thread)."""
+"""Shared fixtures: one GL context for the test session (created on the main thread),
+and pytester for the plugin's own tests. Test modules import helpers from
+tests/helpers.py, never from this file (pytest loads it under its own name)."""
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import pytest
 
-SHARED_SCENES = Path(os.environ.get("DEPTHVIEW_SHARED_SCENES",
-                                    Path(__file__).resolve().parents[2] / "shared" / "scenes"))
+pytest_plugins = ("pytester",)
 
 
 @pytest.fixture(scope="session")
@@ -24,14 +22,5 @@ def gl():
 def gbuffer_pass(gl):
     from gl_passes.gbuffer import GBufferPass
 
-    p = GBufferPass(gl)
-    yield p
-    p.release()
-
-
-def shared_scene(relpath: str) -> Path:
-    """Path of a real model in ../shared/scenes; skips the test when absent."""
-    p = SHARED_SCENES / relpath
-    if not p.exists():
-        pytest.skip(f"{p} not present")
-    return p
+    with GBufferPass(gl) as p:
+        yield p

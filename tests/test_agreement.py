@@ -4,13 +4,14 @@ relative and colour within 1/255."""
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from gl_passes.upload import SceneGPU
 from reference.raycast import RayCaster
 from scenes.builtin import BUILTIN_NAMES, make_builtin
 from scenes.camera import look_at_scene
+from service.image_check import assert_images_close
+from tests.helpers import assert_depth_close
 
 RES = 256
 
@@ -19,17 +20,11 @@ RES = 256
 def test_gbuffer_agrees_with_embree(name, gl, gbuffer_pass):
     scene = make_builtin(name)
     cam = look_at_scene(scene.bounds, azimuth=30.0, elevation=30.0, distance=0.9, width=RES, height=RES)
-    sg = SceneGPU(gl, scene)
-    try:
+    with SceneGPU(gl, scene) as sg:
         g = gbuffer_pass.render(sg, cam)
-    finally:
-        sg.release()
     r = RayCaster(scene).gbuffer(cam)
     agree = g.tri_id == r.tri_id
-    both = agree & g.mask
     assert g.mask.mean() > 0.2, "camera should see a good part of the scene"
     assert agree.mean() >= 0.99, f"{name}: ids agree on {agree.mean():.4%}"
-    rel = np.abs(g.depth[both] - r.depth[both]) / r.depth[both]
-    assert rel.max() <= 1e-4, f"{name}: depth rel err {rel.max():.2e}"
-    col = np.abs(g.color[agree] - r.color[agree]).max()
-    assert col <= 1 / 255, f"{name}: colour err {col * 255:.3f}/255"
+    assert_depth_close(g.depth, r.depth, 1e-4, mask=agree & g.mask)
+    assert_images_close(g.color, r.color, tolerance=1 / 255, max_bad_fraction=0.0, mask=agree, name="color")

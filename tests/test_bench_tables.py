@@ -1,11 +1,11 @@
-"""Benchmark helpers (bench.peeling_sides, bench.rig_spread, bench.sampling,
-bench.tessellation) on hand-made numbers and a small scene."""
+"""Benchmark report helpers (bench.sampling_report: the tables of bench.peeling_sides,
+bench.rig_spread, bench.sampling, bench.tessellation) on hand-made numbers and a small scene."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from bench.peeling_sides import layer_table, useful_table
+from bench.sampling_report import layer_table, useful_table
 
 
 def _m(useful: int, useful_earlier: int = 0, occ=(0.1, 0.5, 0.6), use=(0.9, 0.02, 0.7), avail: float = 0.9) -> dict:
@@ -41,7 +41,7 @@ def test_layer_table_gap_to_the_thesis():
 
 
 def test_rig_spread_conventional_gap_is_the_mean_over_i1_i2():
-    from bench.rig_spread import conv_gap
+    from bench.sampling_report import conv_gap
 
     # thesis nest, conventional redundant I1, I2: 70, 80 % (Table 2); 80, 87 % (Table 5)
     nest = {"scene": "nest", "metrics": {"pixel/conventional": {"redundant_frac": [0.0, 0.60, 0.90]},
@@ -53,7 +53,7 @@ def test_rig_spread_conventional_gap_is_the_mean_over_i1_i2():
 
 
 def test_verdict_counts_counts_scenes_per_criterion():
-    from bench.sampling import verdict_counts
+    from bench.sampling_report import verdict_counts
 
     rows = [{"b": True, "c": False, "c_earlier": True}, {"b": False, "c": False, "c_earlier": True},
             {"b": True, "c": True, "c_earlier": None}]
@@ -61,7 +61,7 @@ def test_verdict_counts_counts_scenes_per_criterion():
 
 
 def test_granularity_loss_is_pixel_minus_visibility_availability():
-    from bench.tessellation import granularity_loss, thesis_granularity_loss
+    from bench.sampling_report import granularity_loss, thesis_granularity_loss
 
     r = {"metrics": {"pixel/conventional": {"available_avg": 0.785},
                      "visibility/conventional": {"available_avg": 0.925}}}
@@ -103,7 +103,7 @@ def _tess_run(scene: str, nr: float, conv: float, ref: float, vis: float) -> dic
 
 
 def test_tessellation_summaries_on_hand_made_runs():
-    from bench.tessellation import lead_ranges, reference_gap, visibility_drift
+    from bench.sampling_report import lead_ranges, reference_gap, visibility_drift
 
     runs = {0: [_tess_run("nest", 0.90, 0.89, 0.9004, 0.95), _tess_run("tree", 0.80, 0.81, 0.80, 0.96)],
             1: [_tess_run("nest", 0.84, 0.85, 0.84, 0.951), _tess_run("tree", 0.70, 0.72, 0.7002, 0.96)]}
@@ -114,10 +114,60 @@ def test_tessellation_summaries_on_hand_made_runs():
 
 
 def test_tessellation_redundant_counts_add_up_over_levels():
-    from bench.tessellation import redundant_counts
+    from bench.sampling_report import redundant_counts
 
     def run(gl: int, ties: list[int], ref: int) -> dict:
         return {"metrics": {"pixel/non_redundant": {"total": {"redundant": gl}, "redundant_edge_ties": ties},
                             "pixel/non_redundant_reference": {"total": {"redundant": ref}}}}
 
     assert redundant_counts({0: [run(5, [0, 3, 2], 0), run(2, [0, 1, 0], 1)], 1: [run(4, [0, 4, 0], 0)]}) == (11, 10, 1)
+
+
+def _copy_results(dst):
+    """The canonical results the sampling prose reads (bench.sampling_notes.FILES and
+    the target run's parts) copied under dst."""
+    import shutil
+
+    from bench.common import RESULTS_DIR
+    from bench.sampling_notes import FILES
+
+    for rel in [*FILES.values(), *(f"sampling_1024_1000v/{s}/sampling.json"
+                                   for s in ("nest", "grass", "city", "tree", "diorama"))]:
+        (dst / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(RESULTS_DIR / rel, dst / rel)
+
+
+def test_sampling_prose_numbers_follow_the_results(tmp_path):
+    """The reports' prose is computed from the JSON results: no placeholder is left,
+    a changed result changes the quoted number, and without the results it says so."""
+    import json
+    import re
+
+    from bench.sampling_notes import criteria_notes, discussion
+
+    _copy_results(tmp_path)
+    before = criteria_notes(tmp_path) + discussion(tmp_path)
+    assert not re.search(r"\{[a-z_0-9]+\}", before)
+    assert "80 / 99 / 46 / 75 %" in before and "(80, 99, 46 % at" in before
+    main = json.loads((tmp_path / "sampling.json").read_text())
+    nest = next(r for r in main["scenes"] if r["scene"] == "nest")
+    nest["metrics"]["pixel/peeling"]["useful_frac_of_occluded"][1] = 0.123
+    (tmp_path / "sampling.json").write_text(json.dumps(main))
+    after = " ".join((criteria_notes(tmp_path) + discussion(tmp_path)).split())
+    assert "12 / 99 / 46 / 75 %" in after and "(12, 99, 46 % at" in after
+    (tmp_path / "rig_spread.json").unlink()
+    assert "missing (rig_spread.json)" in criteria_notes(tmp_path)
+
+
+def test_reflection_step_breakdown_from_the_timing_rows():
+    from bench.reflections import step_breakdown
+
+    def row(scene, res, clusters, trace, intersection):
+        return {"scene": scene, "res": res, "clusters": clusters, "embree_trace_ms": trace,
+                "ours_ms": {"intersection": intersection}}
+
+    text = step_breakdown([row("living_room", 512, 60, 100.0, 50.0), row("living_room", 2048, 61, 1500.0, 740.0),
+                           row("bathroom", 512, 110, 80.0, 40.0), row("bathroom", 2048, 115, 1440.0, 730.0),
+                           row("mirror", 512, 1, 10.0, 1.0)])
+    assert "(about 15–18× from 512² to 2048²)" in text and "(60–115 clusters)" in text
+    assert "costs about half of Embree's trace" in text

@@ -2,39 +2,26 @@
 
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
 import threading
 
 import numpy as np
 import pytest
-import trimesh
 
 from gl_passes.context import GLContextError, create_gl_context
 from gl_passes.gbuffer import GBufferPass
 from gl_passes.upload import SceneGPU
 from reference.raycast import RayCaster
-from scenes import Camera, Material, Scene, SceneObject, look_at_scene
+from scenes import Camera, look_at_scene
+from service.image_check import assert_images_close
 from tests.gl_leaks import gl_object_growth
-
-
-def sphere_on_slab() -> Scene:
-    s = trimesh.creation.icosphere(4)
-    b = trimesh.creation.box((3, 0.2, 3))
-    b.apply_translation((0, -1.2, 0))
-    return Scene([SceneObject("sphere", s.vertices, s.faces, material=Material((0.8, 0.2, 0.2), 0.5, 0.1)),
-                  SceneObject("slab", b.vertices, b.faces, material=Material((0.3, 0.6, 0.3)))], name="t")
-
-
-def quad_scene(facing_camera: bool) -> Scene:
-    """A 2×2 quad in the plane z = 0, front face toward +z when facing_camera."""
-    v = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float32)
-    f = np.array([[0, 1, 2], [0, 2, 3]])
-    if not facing_camera:
-        f = f[:, ::-1]
-    return Scene([SceneObject("quad", v, f, normals=np.tile([0, 0, 1.0], (4, 1)))])
+from tests.helpers import (
+    assert_depth_close,
+    osmesa_render_agreement,
+    quad_scene,
+    run_isolated,
+    sphere_on_slab,
+    worker_context_loss,
+)
 
 
 def test_context_is_gl43_core_and_names_renderer(gl):
@@ -58,43 +45,38 @@ def test_unknown_backend_is_a_clear_error():
 
 
 def test_osmesa_backend_renders_same_as_reference():
-    """The OSMesa path in a fresh process (a second context type must not disturb ours)."""
-    code = (
-        "import json, numpy as np\n"
-        "from tests.test_gl_core import sphere_on_slab\n"
-        "from gl_passes.context import create_gl_context\n"
-        "from gl_passes.gbuffer import GBufferPass\nfrom gl_passes.upload import SceneGPU\n"
-        "from reference.raycast import RayCaster\nfrom scenes import look_at_scene\n"
-        "sc = sphere_on_slab(); gl = create_gl_context()\n"
-        "cam = look_at_scene(sc.bounds, width=96, height=64)\n"
-        "g = GBufferPass(gl).render(SceneGPU(gl, sc), cam); r = RayCaster(sc).gbuffer(cam)\n"
-        "print(json.dumps({'backend': gl.backend, 'agree': float((g.tri_id == r.tri_id).mean())}))\n"
-    )
-    env = {**os.environ, "DEPTHVIEW_GL": "osmesa"}
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120,
-                         cwd=os.path.dirname(os.path.dirname(__file__)))
-    assert out.returncode == 0, out.stderr
-    res = json.loads(out.stdout.strip().splitlines()[-1])
+    """The OSMesa path in its own process (a second context type must not disturb ours)."""
+    res = run_isolated(osmesa_render_agreement, env={"DEPTHVIEW_GL": "osmesa"})
     assert res["backend"] == "osmesa"
     assert res["agree"] >= 0.99
 
 
+def test_lost_context_fails_jobs_not_the_process():
+    """The render worker's context released under it (a lost context), in its own
+    process: the next frame's job raises to its caller, the worker thread lives on
+    and shuts down, and the process exits normally (no crash)."""
+    res = run_isolated(worker_context_loss)
+    assert res["first"] > 0.1
+    assert res["error"] is not None
+    assert res["alive"] and res["stopped"]
+
+
 def test_gbuffer_matches_reference_sphere(gl, gbuffer_pass):
     sc = sphere_on_slab()
-    sg = SceneGPU(gl, sc)
     cam = look_at_scene(sc.bounds, distance=0.7, width=160, height=120)
-    g = gbuffer_pass.render(sg, cam)
+    with SceneGPU(gl, sc) as sg:
+        g = gbuffer_pass.render(sg, cam)
     r = RayCaster(sc).gbuffer(cam)
-    sg.release()
     agree = g.tri_id == r.tri_id
     assert agree.mean() >= 0.99
     m = agree & g.mask
     assert m.sum() > 0.3 * m.size
-    np.testing.assert_allclose(g.depth[m], r.depth[m], rtol=1e-4)
-    assert np.abs(g.color[m] - r.color[m]).max() < 1 / 255
-    assert np.abs(g.color[~g.mask & ~r.mask] - r.color[~g.mask & ~r.mask]).max() < 1 / 255
-    np.testing.assert_allclose(g.normal[m], r.normal[m], atol=1e-3)
-    np.testing.assert_allclose(g.position[m], r.position[m], atol=1e-3 * sc.diagonal)
+    assert_depth_close(g.depth, r.depth, 1e-4, mask=m)
+    every = {"max_bad_fraction": 0.0}  # every pixel within the tolerance
+    assert_images_close(g.color, r.color, tolerance=1 / 255, mask=m, name="color", **every)
+    assert_images_close(g.color, r.color, tolerance=1 / 255, mask=~g.mask & ~r.mask, name="sky", **every)
+    assert_images_close(g.normal, r.normal, tolerance=1e-3, mask=m, name="normal", **every)
+    assert_images_close(g.position, r.position, tolerance=1e-3 * sc.diagonal, mask=m, name="position", **every)
     assert set(np.unique(g.obj_id)) == {0, 1, 2}
     np.testing.assert_array_equal(g.specular[g.obj_id == 1], 0.5)
     np.testing.assert_allclose(g.glossiness[g.obj_id == 1], 0.1, rtol=1e-6)
@@ -105,9 +87,10 @@ def test_hand_computable_quad_depth_ids_and_orientation(gl, gbuffer_pass):
     """Camera at z = 4 looking at a quad at z = 0: depth 4 everywhere on it,
     triangle ids 1/2 split along the diagonal; the quad shifted up shows in the top rows."""
     sc = quad_scene(True)
-    sg = SceneGPU(gl, sc)
     cam = Camera((0, 0, 4), (0, 0, 0), fov=60, width=64, height=64).fit_clip(sc.bounds)
-    g = gbuffer_pass.render(sg, cam)
+    up = Camera((0, -0.9, 4), (0, -0.9, 0), fov=60, width=64, height=64).fit_clip(sc.bounds)
+    with SceneGPU(gl, sc) as sg:
+        g, g2 = gbuffer_pass.render(sg, cam), gbuffer_pass.render(sg, up)
     np.testing.assert_allclose(g.depth[g.mask], 4.0, rtol=1e-5)
     assert set(np.unique(g.tri_id[g.mask])) == {1, 2}
     # Triangle 1 = (v0, v1, v2) is the lower-right half in the image (row 0 = top).
@@ -116,25 +99,29 @@ def test_hand_computable_quad_depth_ids_and_orientation(gl, gbuffer_pass):
     half = 32 / (4 * np.tan(np.radians(30)))
     rows = np.where(g.mask.any(axis=1))[0]
     assert abs((rows.max() - rows.min() + 1) - 2 * half) <= 2
-    up = Camera((0, -0.9, 4), (0, -0.9, 0), fov=60, width=64, height=64).fit_clip(sc.bounds)
-    g2 = gbuffer_pass.render(sg, up)
     assert g2.mask[:10].any() and not g2.mask[-10:].any()  # quad moved up in the image
-    sg.release()
 
 
 def test_back_face_culling_switch(gl, gbuffer_pass):
     sc = quad_scene(False)
-    sg = SceneGPU(gl, sc)
     cam = Camera((0, 0, 4), (0, 0, 0), fov=60, width=32, height=32).fit_clip(sc.bounds)
-    assert not gbuffer_pass.render(sg, cam, cull_back_faces=True).mask.any()
-    g = gbuffer_pass.render(sg, cam, cull_back_faces=False)
+    with SceneGPU(gl, sc) as sg:
+        culled, g = (gbuffer_pass.render(sg, cam, cull_back_faces=c) for c in (True, False))
+    assert not culled.mask.any()
     assert abs(g.mask.mean() - (2 / (8 * np.tan(np.radians(30)))) ** 2) < 0.03
     # Back face seen: shading normal flipped toward the viewer.
     np.testing.assert_allclose(g.normal[g.mask], np.tile([0, 0, -1.0], (g.mask.sum(), 1)), atol=1e-6)
     r = RayCaster(sc).gbuffer(cam, cull_back_faces=False)
     assert (r.tri_id == g.tri_id).mean() > 0.99
     assert not RayCaster(sc).gbuffer(cam).mask.any()
-    sg.release()
+
+
+def test_scene_upload_is_released_by_its_with_block(gl):
+    """`with SceneGPU(...)` frees the buffers on exit, also when the block raises."""
+    with pytest.raises(KeyError), SceneGPU(gl, quad_scene(True)) as sg:
+        assert type(sg.vbo.mglo).__name__ == "Buffer"
+        raise KeyError("inside the block")
+    assert {type(b.mglo).__name__ for b in (sg.vbo, sg.ibo)} == {"InvalidObject"}
 
 
 def test_occlusion_queries_hand_checked():

@@ -4,24 +4,14 @@ from __future__ import annotations
 
 import io
 import json
-import os
 import struct
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from scenes.loaders import SUPPORTED_FORMATS, SceneLoadError, TriangleLimitError, load_scene, load_scene_bytes
 from scenes.model import Scene
-
-SCENES = Path(os.environ.get("DEPTHVIEW_SHARED_SCENES", Path(__file__).resolve().parents[2] / "shared" / "scenes"))
-
-
-def shared(relpath: str) -> Path:
-    p = SCENES / relpath
-    if not p.exists():
-        pytest.skip(f"{p} not present")
-    return p
+from tests.helpers import shared_scene
 
 
 def srgb_to_linear(c):
@@ -62,7 +52,7 @@ def outward_fraction(o) -> tuple[float, float]:
 # real models
 # --------------------------------------------------------------------------------------
 def test_diorama_glb_objects_and_materials():
-    scene = load_scene(shared("macross_diorama/scene.glb"))
+    scene = load_scene(shared_scene("macross_diorama/scene.glb"))
     check_geometry(scene)
     assert scene.name == "scene"
     assert len(scene.objects) >= 5  # one mesh with 24 primitives -> 24 objects
@@ -79,7 +69,7 @@ def test_diorama_glb_objects_and_materials():
 
 
 def test_glb_bytes_equals_path_load():
-    path = shared("macross_diorama/scene.glb")
+    path = shared_scene("macross_diorama/scene.glb")
     a = load_scene(path)
     b = load_scene_bytes(path.read_bytes(), "glb", name="diorama")
     assert b.name == "diorama"
@@ -91,7 +81,7 @@ def test_glb_bytes_equals_path_load():
 
 def test_quaternius_trees_materials_split():
     for stem in ("Birch_8", "Pine_1", "Tree_3"):
-        scene = load_scene(shared(f"quaternius_trees/{stem}.obj"))
+        scene = load_scene(shared_scene(f"quaternius_trees/{stem}.obj"))
         check_geometry(scene)
         assert len(scene.objects) == 2, stem  # bark + leaves, one usemtl each
         names = " ".join(o.name for o in scene.objects)
@@ -101,7 +91,7 @@ def test_quaternius_trees_materials_split():
             assert o.material.albedo == (0.64, 0.64, 0.64)
             assert (o.material.specular, o.material.glossiness) == (0.0, 1.0)
     # the Pine's 329 OBJ faces (quads and a 10-gon) fan-triangulate to 664 triangles
-    assert load_scene(shared("quaternius_trees/Pine_1.obj")).n_triangles == 664
+    assert load_scene(shared_scene("quaternius_trees/Pine_1.obj")).n_triangles == 664
 
 
 @pytest.mark.parametrize(
@@ -109,7 +99,7 @@ def test_quaternius_trees_materials_split():
     [("teapot/teapot.obj", 6320), ("spot/spot.obj", 5856), ("stanford_bunny/stanford-bunny.obj", 69451)],
 )
 def test_obj_without_normals_gets_computed_normals(relpath, n_tri):
-    scene = load_scene(shared(relpath))
+    scene = load_scene(shared_scene(relpath))
     check_geometry(scene)
     assert len(scene.objects) == 1
     assert scene.n_triangles <= n_tri and scene.n_triangles >= n_tri - 50  # a few degenerate faces may go
@@ -132,7 +122,7 @@ def test_obj_without_normals_gets_computed_normals(relpath, n_tri):
 def test_too_many_objects_merge_by_material(monkeypatch):
     import scenes.loaders as loaders
 
-    path = shared("quaternius_trees/Birch_8.obj")
+    path = shared_scene("quaternius_trees/Birch_8.obj")
     full = load_scene(path)
     monkeypatch.setattr(loaders, "_MAX_OBJECTS", 1)
     merged = load_scene(path)  # both objects share Kd 0.64 -> one object
@@ -141,7 +131,7 @@ def test_too_many_objects_merge_by_material(monkeypatch):
     np.testing.assert_array_equal(np.sort(merged.vertices, axis=0), np.sort(full.vertices, axis=0))
     np.testing.assert_array_equal(merged.vertices[merged.faces], full.vertices[full.faces])
     with pytest.raises(SceneLoadError, match="distinct materials"):
-        load_scene(shared("macross_diorama/scene.glb"))
+        load_scene(shared_scene("macross_diorama/scene.glb"))
 
 
 def test_obj_mtl_kd_and_pbr_keys(tmp_path):
@@ -350,13 +340,13 @@ def test_unsupported_format():
 
 
 def test_max_triangles():
-    glb = shared("macross_diorama/scene.glb")
+    glb = shared_scene("macross_diorama/scene.glb")
     with pytest.raises(SceneLoadError, match=r"102,822 triangles, limit is 100,000") as info:
         load_scene(glb, max_triangles=100_000)
     assert isinstance(info.value, TriangleLimitError)
     assert (info.value.n_triangles, info.value.limit) == (102_822, 100_000)
     assert load_scene(glb, max_triangles=102_822).n_triangles == 102_822
-    bunny = shared("stanford_bunny/stanford-bunny.obj")
+    bunny = shared_scene("stanford_bunny/stanford-bunny.obj")
     with pytest.raises(SceneLoadError, match=r"69,451 triangles, limit is 1,000"):
         load_scene(bunny, max_triangles=1_000)
 

@@ -8,7 +8,21 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from reference.occlusion import EMPTY_DEPTH, captured_mask, uncaptured_error_mask, uncaptured_ray_percentage
+from reference.occlusion import (
+    EMPTY_DEPTH,
+    captured_by_clusters,
+    captured_mask,
+    uncaptured_error_mask,
+    uncaptured_ray_percentage,
+)
+from tests.helpers import (
+    assert_images_equal,
+    mirror_camera,
+    mirror_object_scene,
+    planar_mirror_scene,
+    props,
+    sphere_mesh,
+)
 
 EMPTY = 1e30
 N_FRONT = np.array([0.0, 0.0, 1.0])  # a surface facing the camera (which looks down −z)
@@ -180,36 +194,28 @@ def test_uncaptured_pixels_aggregate_like_the_strict_metric():
 def refl(gl):
     from gl_passes.reflections import ClusterReflections
 
-    r = ClusterReflections(gl)
-    yield r
-    r.release()
+    with ClusterReflections(gl) as r:
+        yield r
 
 
 def _render_both(gl, refl, scene, size: int = 96):
     from gl_passes.upload import SceneGPU
     from reference.reflections import raytrace_reflections
-    from tests.test_reflections import default_camera
 
-    cam = default_camera(size).fit_clip(scene.bounds)
-    sg = SceneGPU(gl, scene)
-    try:
+    cam = mirror_camera(size).fit_clip(scene.bounds)
+    with SceneGPU(gl, scene) as sg:
         ours = refl.render(sg, cam, diagnostics=True)
         plain = refl.render(sg, cam)
-    finally:
-        sg.release()
     return ours, plain, raytrace_reflections(scene, cam)
 
 
 def _captured(ours, ref) -> np.ndarray:
-    d = ours.diagnostics
-    return captured_mask(ref.hit_points_samples, d.cluster_of_sample, d.view_proj, d.viewports, d.layer_depths,
-                         ref.hit_normals_samples, d.clip_planes)
+    return captured_by_clusters(ours.diagnostics, ref.hit_points_samples, ref.hit_normals_samples)
 
 
 def test_planar_mirror_has_no_thesis_occlusion_error(gl, refl):
     from gl_passes.reflections import N_LAYERS
     from reference.image_metrics import occlusion_error_percentage
-    from tests.test_reflections import planar_mirror_scene
 
     ours, plain, ref = _render_both(gl, refl, planar_mirror_scene())
     assert plain.diagnostics is None
@@ -244,7 +250,6 @@ def test_sphere_errors_are_points_hidden_from_the_cluster_camera(gl, refl):
     from reference.image_metrics import occlusion_error_percentage
     from reference.raycast import RayCaster
     from scenes import Scene
-    from tests.test_reflections import _props, mirror_object_scene, sphere_mesh
 
     ours, _, ref = _render_both(gl, refl, mirror_object_scene(sphere_mesh(), "sphere"))
     d = ours.diagnostics
@@ -252,11 +257,11 @@ def test_sphere_errors_are_points_hidden_from_the_cluster_camera(gl, refl):
     mask = uncaptured_error_mask(ref.reflective_samples, ref.hit_points_samples, cap, 2)
     pct = occlusion_error_percentage(mask, ref.reflective)
     assert 0.0 < pct < 10.0, pct
-    props = RayCaster(Scene(_props(), name="props"))
+    prop_caster = RayCaster(Scene(props(), name="props"))
     hits = ref.reflective_samples & np.isfinite(ref.hit_points_samples[..., 0]) & (d.cluster_of_sample >= 0)
     x, n = ref.hit_points_samples[hits], ref.hit_normals_samples[hits].astype(np.float64)
     k, c = d.cluster_of_sample[hits], cap[hits]
-    on_prop = props.intersect(x + 1e-3 * n, -n, 2e-3).hit
+    on_prop = prop_caster.intersect(x + 1e-3 * n, -n, 2e-3).hit
     clip = np.einsum("mij,mj->mi", d.view_proj[k], np.c_[x, np.ones(len(x))])
     inside = (clip[:, 3] > 0) & np.all(np.abs(clip[:, :3] / clip[:, 3:]) <= 1, axis=1)
     visible = np.zeros(len(x), bool)
@@ -265,7 +270,7 @@ def test_sphere_errors_are_points_hidden_from_the_cluster_camera(gl, refl):
         e = ours.cameras[ci].center
         v = x[sel] - e
         dist = np.linalg.norm(v, axis=1)
-        h = props.cast_from(e, v / dist[:, None])
+        h = prop_caster.cast_from(e, v / dist[:, None])
         visible[sel] = h.hit & (np.abs(h.t - dist) <= 0.01 * dist) & (np.sum(n[sel] * v, axis=1) < 0)
     use = inside & on_prop
     assert use.sum() > 1000 and (~c[use]).sum() > 0
@@ -285,26 +290,22 @@ def test_others_second_surface_captures_hidden_hits(gl, refl):
     from scenes.builtin import make_builtin
     from scenes.camera import flythrough_path
 
-    off = ClusterReflections(gl, others_peel=False)
     rates = []
-    try:
+    with ClusterReflections(gl, others_peel=False) as off:
         for name in ("living_room", "bathroom"):
             scene = make_builtin(name)
-            sg = SceneGPU(gl, scene)
-            try:
+            with SceneGPU(gl, scene) as sg:
                 for frame in (1, 3):
                     cam = flythrough_path(scene.bounds, 8, width=64, height=64)[frame]
                     with4, with3 = refl.render(sg, cam, diagnostics=True), off.render(sg, cam, diagnostics=True)
                     ref = raytrace_reflections(scene, cam)
-                    assert np.array_equal(with4.diagnostics.layer_depths[:3], with3.diagnostics.layer_depths[:3])
+                    for layer in range(3):
+                        assert_images_equal(with4.diagnostics.layer_depths[layer],
+                                            with3.diagnostics.layer_depths[layer], f"{name}_{frame}_layer{layer}")
                     for x, y, w, h in with3.diagnostics.viewports:
                         assert (with3.diagnostics.layer_depths[3, y:y + h, x:x + w] >= EMPTY_DEPTH).all()
                     rates.append([uncaptured_ray_percentage(ref.reflective_samples, ref.hit_points_samples,
                                                             _captured(o, ref)) for o in (with3, with4)])
-            finally:
-                sg.release()
-    finally:
-        off.release()
     r = np.asarray(rates)
     assert np.all(r[:, 1] <= r[:, 0]), r
     assert r[:, 1].sum() < 0.5 * r[:, 0].sum(), r

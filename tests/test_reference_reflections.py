@@ -22,6 +22,8 @@ from scenes.camera import Camera
 from scenes.glossy import fade_weight, glossy_far, lobe_directions
 from scenes.model import Material, Scene, SceneObject
 from scenes.shading import local_shade, sky
+from service.image_check import assert_images_close
+from tests.helpers import assert_images_equal
 
 SUN = tuple(np.array([0.35, 0.85, 0.4]) / np.linalg.norm([0.35, 0.85, 0.4]))  # unit, as Scene stores it
 
@@ -100,6 +102,12 @@ def slab(o: np.ndarray, d: np.ndarray):
     return np.where(hit, tin, np.inf), axis, sign
 
 
+def assert_within(actual: np.ndarray, expected: np.ndarray, atol: float, mask: np.ndarray, name: str) -> None:
+    """Every masked pixel of `actual` within atol of `expected` (error images on failure)."""
+    __tracebackhide__ = True
+    assert_images_close(actual, expected, tolerance=atol, max_bad_fraction=0.0, mask=mask, name=name)
+
+
 def expected_planar_mirror(cam: Camera, ss: int):
     """Per sample: (on_mirror (N,), reflected colour (N,3), face key (N,) int or -1
     for sky, safe (N,) hit point not within 1e-3 of a face edge), with the
@@ -160,12 +168,12 @@ def test_planar_mirror_reflects_box_by_mirrored_eye(mirror_box_result):
     assert sel.sum() >= 40, "the box should appear in the mirror"
     assert len(np.unique(key_b[:, 0, :, 0][sel])) >= 2, "at least two box faces should be reflected"
     assert np.all(res.reflective[sel]) and np.allclose(res.specular[sel], 1.0)
-    np.testing.assert_allclose(res.reflected[sel], expect[sel], atol=1e-6)
-    np.testing.assert_allclose(res.color[sel], expect[sel], atol=1e-6)  # s = 1: colour = reflected
+    assert_within(res.reflected, expect, 1e-6, sel, "reflected")
+    assert_within(res.color, expect, 1e-6, sel, "color")  # s = 1: colour = reflected
     # Mirror pixels that see only the sky: average of sky over the 4 mirrored directions.
     sky_px = all_on & (key_b < 0).all(axis=(1, 3))
     assert sky_px.sum() > 100
-    np.testing.assert_allclose(res.color[sky_px], expect[sky_px], atol=1e-6)
+    assert_within(res.color, expect, 1e-6, sky_px, "sky")
     # Ray length: |Q − P| to the box face, +inf into the sky.
     assert np.all(np.isinf(res.ray_length[sky_px]))
     assert np.all(np.isfinite(res.ray_length[sel]))
@@ -200,11 +208,11 @@ def test_half_specular_is_exact_average(mirror_box_scene, mirror_box_result):
     inner = blocks(on, CAM, 2).all(axis=(1, 3))
     assert inner.sum() > 500
     np.testing.assert_allclose(res.specular[inner], 0.5)
-    np.testing.assert_allclose(res.color[inner], 0.5 * res.diffuse[inner] + 0.5 * res.reflected[inner], atol=1e-6)
+    assert_within(res.color, 0.5 * res.diffuse + 0.5 * res.reflected, 1e-6, inner, "color")
     # the diffuse part is the mirror's own local shading; the reflected part does not depend on s
     diff = local_shade(np.asarray(MIRROR_ALBEDO, np.float32), np.array([[0, 1, 0]], np.float32), np.asarray(SUN))[0]
-    np.testing.assert_allclose(res.diffuse[inner], np.broadcast_to(diff, res.diffuse[inner].shape), atol=1e-6)
-    np.testing.assert_array_equal(res.reflected[inner], mirror_box_result.reflected[inner])
+    assert_within(res.diffuse, np.broadcast_to(diff, res.diffuse.shape), 1e-6, inner, "diffuse")
+    assert_images_equal(res.reflected, mirror_box_result.reflected, "reflected", mask=inner)
 
 
 def test_mirror_facing_empty_space_reflects_sky():
@@ -219,14 +227,14 @@ def test_mirror_facing_empty_space_reflects_sky():
     on = (d[:, 1] < 0) & (np.abs(p[:, 0]) < MIRROR_HALF) & (np.abs(p[:, 2]) < MIRROR_HALF)
     inner = blocks(on, cam, 2).all(axis=(1, 3))
     assert inner.sum() > 600
-    np.testing.assert_allclose(res.color[inner], expect[inner], atol=1e-6)
-    np.testing.assert_allclose(res.reflected[inner], expect[inner], atol=1e-6)
+    assert_within(res.color, expect, 1e-6, inner, "color")
+    assert_within(res.reflected, expect, 1e-6, inner, "reflected")
     assert np.all(np.isinf(res.ray_length[inner]))
     # pixels beyond the mirror's far edge see the sky directly
     outside = blocks(~on, cam, 2).all(axis=(1, 3))
     assert outside.sum() > 20 and not res.reflective[outside].any()
     direct = blocks(sky(d, np.asarray(SUN)).astype(np.float64), cam, 2).mean(axis=(1, 3))
-    np.testing.assert_allclose(res.color[outside], direct[outside], atol=1e-6)
+    assert_within(res.color, direct, 1e-6, outside, "direct_sky")
 
 
 def test_envmap_baseline_is_sky_of_mirror_direction(mirror_box_scene):
@@ -236,8 +244,8 @@ def test_envmap_baseline_is_sky_of_mirror_direction(mirror_box_scene):
     expect = blocks(sky(r, np.asarray(SUN)).astype(np.float64), CAM, 2).mean(axis=(1, 3))
     assert inner.sum() > 500
     # the box is ignored: every mirror pixel shows the sky in the mirror direction
-    np.testing.assert_allclose(res.reflected[inner], expect[inner], atol=1e-6)
-    np.testing.assert_allclose(res.color[inner], expect[inner], atol=1e-6)
+    assert_within(res.reflected, expect, 1e-6, inner, "reflected")
+    assert_within(res.color, expect, 1e-6, inner, "color")
     assert np.all(np.isinf(res.ray_length[res.reflective]))
     assert np.all(np.isnan(res.ray_length[~res.reflective]))
     assert np.isnan(res.hit_points_samples).all() and np.isnan(res.hit_normals_samples).all()
@@ -249,14 +257,14 @@ def test_supersample_equals_block_average_of_double_resolution(mirror_box_scene)
     b = raytrace_reflections(mirror_box_scene, cam.with_size(40, 32), supersample=1)
     for name in ("color", "diffuse"):
         avg = blocks(getattr(b, name).reshape(-1, 3), cam, 2).astype(np.float64).sum(axis=(1, 3)) / 4
-        np.testing.assert_array_equal(getattr(a, name), avg.astype(np.float32))
-    np.testing.assert_array_equal(a.specular, (blocks(b.specular.reshape(-1), cam, 2).astype(np.float64)
-                                               .sum(axis=(1, 3)) / 4).astype(np.float32))
+        assert_images_equal(getattr(a, name), avg.astype(np.float32), name)
+    assert_images_equal(a.specular, (blocks(b.specular.reshape(-1), cam, 2).astype(np.float64)
+                                     .sum(axis=(1, 3)) / 4).astype(np.float32), "specular")
     np.testing.assert_array_equal(a.reflective, blocks(b.reflective.reshape(-1), cam, 2).any(axis=(1, 3)))
     np.testing.assert_array_equal(a.ray_length_samples, b.ray_length)
     full = blocks(b.reflective.reshape(-1), cam, 2).all(axis=(1, 3))
     avg_r = blocks(b.reflected.reshape(-1, 3), cam, 2).astype(np.float64).sum(axis=(1, 3)) / 4
-    np.testing.assert_array_equal(a.reflected[full], avg_r[full].astype(np.float32))
+    assert_images_equal(a.reflected, avg_r.astype(np.float32), "reflected", mask=full)
 
 
 # --- below-surface rule ------------------------------------------------------------
@@ -279,7 +287,7 @@ def test_below_surface_rule_reflects_about_geometric_normal():
     for fn in (envmap_reflections, raytrace_reflections):
         res = fn(scene, cam, supersample=1)
         np.testing.assert_array_equal(res.reflective, on)
-        np.testing.assert_allclose(res.reflected[on], expect[on], atol=2e-5)
+        assert_within(res.reflected, expect, 2e-5, on, fn.__name__)
 
 
 # --- glossy -------------------------------------------------------------------------
@@ -318,8 +326,8 @@ def test_glossy_beyond_far_gives_diffuse():
     res = raytrace_reflections(scene, CAM, supersample=1, glossy_rays=8)
     on = res.reflective
     assert on.sum() > 500
-    np.testing.assert_allclose(res.reflected[on], res.diffuse[on], atol=1e-6)
-    np.testing.assert_allclose(res.color[on], res.diffuse[on], atol=1e-6)
+    assert_within(res.reflected, res.diffuse, 1e-6, on, "reflected")
+    assert_within(res.color, res.diffuse, 1e-6, on, "color")
     assert np.all(np.isinf(res.ray_length[on]))
 
 

@@ -272,12 +272,9 @@ def test_gl_pixel_nr_has_no_pixel_redundancy(gl, boxes):
     from gl_passes.upload import SceneGPU
 
     scene, rc, cams, _, _, _ = boxes
-    sg = SceneGPU(gl, scene)
-    try:
+    with SceneGPU(gl, scene) as sg:
         conv = depth_images.conventional(gl, sg, cams)
-        nr = depth_images.non_redundant(gl, sg, cams, redundancy="pixel")
-    finally:
-        sg.release()
+        nr = depth_images.non_redundant(gl, sg, cams)
     m = sampling_metrics(scene, nr, conv, [], redundancy="pixel", caster=rc)
     assert m.redundant[0] == 0 and m.redundant[1] <= 0.002 * m.samples[1]
     # C is captured by pixel-NR too (Fig. 12, first column).
@@ -339,9 +336,6 @@ def test_gl_pixel_nr_offset_scene_as_counted(gl, offset):
     from gl_passes.upload import SceneGPU
 
     scene, _, cams, _ = offset
-    sg = SceneGPU(gl, scene)
-    try:
-        nr = depth_images.non_redundant(gl, sg, cams, redundancy="pixel")
-    finally:
-        sg.release()
+    with SceneGPU(gl, scene) as sg:
+        nr = depth_images.non_redundant(gl, sg, cams)
     assert _columns(nr[0]) == list("BBBBBABB") and _columns(nr[1]) == list("----B--B")

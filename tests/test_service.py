@@ -4,7 +4,6 @@ Images are tiny (≤ 64×64) to keep the file fast on a software rasteriser."""
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import os
@@ -21,12 +20,12 @@ from fastapi.testclient import TestClient
 
 from gl_passes.upload import SceneGPU
 from scenes.builtin import BUILTIN_NAMES, make_builtin
-from scenes.camera import Camera, look_at_scene
+from scenes.camera import Camera
 from service import image_io
-from service.app import create_app
 from service.config import Settings
 from service.store import builtin_id
 from service.worker import JobExpired, RenderWorker, WorkerUnavailable
+from tests.helpers import assert_images_equal, frame_camera, obj_text, service, shared_scene, wait_ready
 
 ROOT = Path(__file__).resolve().parents[1]
 FRAME_SCENE = "cornell"  # small built-in used for frames
@@ -34,45 +33,8 @@ W, H = 48, 32
 
 
 # --- helpers ---------------------------------------------------------------------------
-def obj_text(n_quads: int = 1, z: float = 0.0) -> bytes:
-    """A strip of n unit quads (2 triangles each) in the plane z, front faces toward +z."""
-    lines = []
-    for i in range(n_quads):
-        lines += [f"v {i} 0 {z}", f"v {i + 1} 0 {z}", f"v {i + 1} 1 {z}", f"v {i} 1 {z}"]
-    for i in range(n_quads):
-        b = 4 * i + 1
-        lines += [f"f {b} {b + 1} {b + 2}", f"f {b} {b + 2} {b + 3}"]
-    return ("\n".join(lines) + "\n").encode()
-
-
-def wait_ready(client: TestClient, timeout: float = 20.0) -> dict:
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < timeout:
-        r = client.get("/readyz")
-        if r.status_code == 200:
-            return r.json()
-        time.sleep(0.02)
-    raise AssertionError(f"service not ready: {r.json()}")
-
-
-@contextlib.contextmanager
-def service(data_dir: Path, ready: bool = True, **overrides) -> Iterator[TestClient]:
-    app = create_app(Settings(data_dir=data_dir, **overrides))
-    with TestClient(app) as client:
-        if ready:
-            wait_ready(client)
-        yield client
-
-
-def frame_camera(scene_name: str = FRAME_SCENE) -> dict:
-    """A camera (JSON) looking at a built-in scene from outside its bounds."""
-    scene = make_builtin(scene_name)
-    cam = look_at_scene(scene.bounds, azimuth=20.0, elevation=15.0, distance=1.0, fov=50.0)
-    return {"eye": list(cam.eye), "target": list(cam.target), "up": [0.0, 1.0, 0.0], "fov": 50.0}
-
-
 def frame(client: TestClient, sid: str, camera: dict | None = None, **body) -> object:
-    payload = {"camera": camera or frame_camera(), "width": W, "height": H, **body}
+    payload = {"camera": camera or frame_camera(FRAME_SCENE), "width": W, "height": H, **body}
     return client.post(f"/scenes/{sid}/frames", json=payload)
 
 
@@ -205,13 +167,11 @@ def test_png_frame_matches_a_direct_gbuffer_render(client, cornell_id, gl, gbuff
     scene = make_builtin(FRAME_SCENE)
     camera = Camera(tuple(cam["eye"]), tuple(cam["target"]), tuple(cam["up"]), cam["fov"], W, H)
     camera = camera.fit_clip(scene.bounds)
-    gpu = SceneGPU(gl, scene)
-    try:
+    with SceneGPU(gl, scene) as gpu:
         gb = gbuffer_pass.render(gpu, camera)
-    finally:
-        gpu.release()
     assert (gb.tri_id > 0).mean() > 0.2
-    assert image_io.encode_png(gb.color) == r.content
+    assert_images_equal(img, image_io.decode_png(image_io.encode_png(gb.color)))
+    assert image_io.encode_png(gb.color) == r.content  # and the very bytes
 
 
 def test_mirror_frame_has_geometry(client):
@@ -237,7 +197,7 @@ def test_exr_frame_has_all_channels(client, cornell_id):
     assert int(ch["id"].max()) <= n_tris
     # PNG and EXR describe the same frame.
     png = image_io.decode_png(frame(client, cornell_id).content)
-    assert np.array_equal(png, image_io.decode_png(image_io.encode_png(ch["RGB"])))
+    assert_images_equal(png, image_io.decode_png(image_io.encode_png(ch["RGB"])))
 
 
 # --- uploads ----------------------------------------------------------------------------------
@@ -570,8 +530,6 @@ def test_cli_render_writes_png_and_rejects_bad_camera(tmp_path):
 
 
 def test_upload_a_real_model(client):
-    from conftest import shared_scene
-
     path = shared_scene("teapot/teapot.obj")
     data = path.read_bytes()
     r = client.post("/scenes", files={"file": (path.name, data)})

@@ -13,7 +13,7 @@ from scenes.builtin import make_builtin
 from scenes.camera import Camera
 from scenes.rig import fig8_rig
 from service import image_io
-from tests.test_service import frame_camera, service
+from tests.helpers import assert_images_equal, frame_camera, service
 
 RES = 40
 
@@ -38,12 +38,12 @@ def test_rig_nr_set_as_exr_matches_direct_render(client, gl):
     assert [name for name, _ in parts] == ["image_0", "image_1", "image_2"]
     scene = make_builtin("cornell")
     cams, _ = fig8_rig(scene.bounds, RES, RES)
-    sg = SceneGPU(gl, scene)
-    direct = non_redundant(gl, sg, cams)
-    sg.release()
-    for (_, ch), im in zip(parts, direct, strict=True):
+    with SceneGPU(gl, scene) as sg:
+        direct = non_redundant(gl, sg, cams)
+    for k, ((_, ch), im) in enumerate(zip(parts, direct, strict=True)):
         np.testing.assert_array_equal(ch["id"], im.tri_id)
-        np.testing.assert_array_equal(ch["Z"], im.depth)
+        assert_images_equal(ch["Z"], im.depth, f"depth_{k}")
+        assert_images_equal(ch["RGB"], im.color, f"color_{k}")
     assert (parts[1][1]["id"] > 0).sum() < (direct[0].tri_id > 0).sum()  # later NR images hold fewer samples
 
 
@@ -58,10 +58,10 @@ def test_conventional_npz_with_given_cameras(client, gl):
     assert z["view"].shape == (2, 4, 4)
     scene = make_builtin("cornell")
     direct_cam = Camera(tuple(cam["eye"]), tuple(cam["target"]), tuple(cam["up"]), cam["fov"], RES, RES)
-    sg = SceneGPU(gl, scene)
-    direct = conventional(gl, sg, [direct_cam])[0]
-    sg.release()
+    with SceneGPU(gl, scene) as sg:
+        direct = conventional(gl, sg, [direct_cam])[0]
     np.testing.assert_array_equal(z["tri_id"][0], direct.tri_id)
+    assert_images_equal(z["color"][0], direct.color)
 
 
 def test_peeling_layers_and_metrics_json(client):

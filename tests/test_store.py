@@ -23,18 +23,7 @@ from service.store import (
     upload_id,
     validate_id,
 )
-
-
-def obj_text(n_quads: int = 1, z: float = 0.0) -> bytes:
-    """A strip of n unit quads (2 triangles each) in the plane z, facing +z."""
-    lines = []
-    for i in range(n_quads):
-        x = float(i)
-        lines += [f"v {x} 0 {z}", f"v {x + 1} 0 {z}", f"v {x + 1} 1 {z}", f"v {x} 1 {z}"]
-    for i in range(n_quads):
-        b = 4 * i + 1
-        lines += [f"f {b} {b + 1} {b + 2}", f"f {b} {b + 2} {b + 3}"]
-    return ("\n".join(lines) + "\n").encode()
+from tests.helpers import obj_text
 
 
 @pytest.fixture

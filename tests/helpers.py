@@ -1,0 +1,310 @@
+"""Scene builders and helpers shared by the test modules: tests import this module
+(as `tests.helpers`), never each other nor conftest.
+
+* real models: `shared_scene` (../shared/scenes, skips when absent);
+* GL core: `sphere_on_slab`, `quad_scene`;
+* depth images: `box` (flat-faced), `figure11_scene`;
+* reflections: `props`, `planar_mirror_scene`, `mirror_object_scene`, `sphere_mesh`,
+  `vase_mesh`, `mirror_camera`;
+* service: `obj_text`, `service` (a TestClient of a fresh app), `frame_camera`;
+* the plugin: `write_small_glb`;
+* GL scenarios that could take the process down (another context type, a lost
+  context) run in a fresh interpreter: `run_isolated(scenario)`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import trimesh
+
+from scenes import Camera, Material, Scene, SceneObject
+from scenes.builtin import make_builtin
+from scenes.camera import look_at_scene
+from service.image_check import assert_images_close
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED_SCENES = Path(os.environ.get("DEPTHVIEW_SHARED_SCENES", ROOT.parent / "shared" / "scenes"))
+
+
+def shared_scene(relpath: str) -> Path:
+    """Path of a real model in ../shared/scenes; skips the test when absent."""
+    p = SHARED_SCENES / relpath
+    if not p.exists():
+        pytest.skip(f"{p} not present")
+    return p
+
+
+def assert_depth_close(actual: np.ndarray, expected: np.ndarray, rtol: float, mask: np.ndarray | None = None,
+                       name: str = "log_depth") -> None:
+    """Depth maps (H,W) equal within the relative tolerance rtol on every (masked)
+    pixel, through assert_images_close on ln(depth) (error images on failure):
+    |ln a − ln b| ≤ ln(1 + rtol) admits a/b in [1/(1 + rtol), 1 + rtol], no more
+    than |a − b| ≤ rtol·b does; +inf = +inf (background) is no error."""
+    __tracebackhide__ = True
+    with np.errstate(divide="ignore", invalid="ignore"):
+        la, lb = np.log(np.asarray(actual, np.float64)), np.log(np.asarray(expected, np.float64))
+    assert_images_close(la, lb, tolerance=float(np.log1p(rtol)), max_bad_fraction=0.0, mask=mask, name=name)
+
+
+def assert_images_equal(actual: np.ndarray, expected: np.ndarray, name: str | None = None,
+                        mask: np.ndarray | None = None) -> None:
+    """Images equal pixel for pixel (+inf = +inf and NaN = NaN count as equal),
+    through assert_images_close (error images on failure)."""
+    __tracebackhide__ = True
+    assert_images_close(actual, expected, tolerance=0.0, max_bad_fraction=0.0, mask=mask, name=name)
+
+
+# --- GL core ---------------------------------------------------------------------------
+
+def sphere_on_slab() -> Scene:
+    s = trimesh.creation.icosphere(4)
+    b = trimesh.creation.box((3, 0.2, 3))
+    b.apply_translation((0, -1.2, 0))
+    return Scene([SceneObject("sphere", s.vertices, s.faces, material=Material((0.8, 0.2, 0.2), 0.5, 0.1)),
+                  SceneObject("slab", b.vertices, b.faces, material=Material((0.3, 0.6, 0.3)))], name="t")
+
+
+def quad_scene(facing_camera: bool) -> Scene:
+    """A 2×2 quad in the plane z = 0, front face toward +z when facing_camera."""
+    v = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float32)
+    f = np.array([[0, 1, 2], [0, 2, 3]])
+    if not facing_camera:
+        f = f[:, ::-1]
+    return Scene([SceneObject("quad", v, f, normals=np.tile([0, 0, 1.0], (4, 1)))])
+
+
+# --- depth images ------------------------------------------------------------------------
+
+def box(name: str, lo: tuple, hi: tuple, albedo: tuple = (0.7, 0.7, 0.7)) -> SceneObject:
+    """Axis-aligned box with flat faces; every face is split along the diagonal
+    from its (min, min) to its (max, max) corner (CCW seen from outside)."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    verts, faces, normals = [], [], []
+    for k in range(3):
+        u, v = (k + 1) % 3, (k + 2) % 3
+        for sign in (1, -1):
+            uv = [(0, 0), (1, 0), (1, 1), (0, 1)] if sign > 0 else [(0, 0), (0, 1), (1, 1), (1, 0)]
+            base = len(verts)
+            for a, b in uv:
+                p = np.where(np.arange(3) == k, hi[k] if sign > 0 else lo[k], 0.0)
+                p[u] = hi[u] if a else lo[u]
+                p[v] = hi[v] if b else lo[v]
+                verts.append(p)
+                normals.append(np.eye(3)[k] * sign)
+            faces += [[base, base + 1, base + 2], [base, base + 2, base + 3]]
+    return SceneObject(name, np.array(verts), np.array(faces), normals=np.array(normals),
+                       material=Material(albedo))
+
+
+def figure11_scene() -> Scene:
+    """The thesis's Fig. 11 scene: boxes A (objects id 1), B, C, D (4), seen by
+    cameras on the line z = 10 (tests/test_depth_images.py, Figs 11-12)."""
+    return Scene([
+        box("A", (-0.3, -1.5, 4.9), (0.3, 1.5, 5.1), (0.8, 0.3, 0.3)),
+        box("B", (-0.2, -1.5, 1.9), (1.2, 3.5, 2.1), (0.3, 0.8, 0.3)),
+        box("C", (-0.2, -0.5, -0.3), (0.2, 0.5, 0.0), (0.3, 0.3, 0.8)),
+        box("D", (-2.2, -1.5, 4.9), (-1.2, 1.5, 5.1), (0.8, 0.8, 0.3)),
+    ], name="figure11")
+
+
+# --- reflections -----------------------------------------------------------------------
+
+MIRROR = Material((0.9, 0.9, 0.9), 1.0, 0.0)
+FLOOR = Material((0.6, 0.58, 0.55))
+
+
+def prop_box(name: str, center, size, mat: Material) -> SceneObject:
+    """An axis-aligned box of `size` centred at `center` (trimesh's, outward faces)."""
+    b = trimesh.creation.box(size)
+    b.apply_translation(center)
+    return SceneObject(name, b.vertices, b.faces, material=mat)
+
+
+def props() -> list[SceneObject]:
+    """A floor and a few coloured objects around the origin."""
+    s = trimesh.creation.icosphere(3, radius=0.3)
+    s.apply_translation((-0.9, 0.3, 0.8))
+    return [prop_box("floor", (0, -0.05, 0), (6, 0.1, 6), FLOOR),
+            prop_box("red", (1.2, 0.4, 0.4), (0.5, 0.8, 0.5), Material((0.7, 0.1, 0.1))),
+            prop_box("green", (0.2, 0.5, -1.6), (1.6, 1.0, 0.3), Material((0.1, 0.6, 0.1))),
+            SceneObject("ball", s.vertices, s.faces, material=Material((0.15, 0.25, 0.75)))]
+
+
+def planar_mirror_scene() -> Scene:
+    """A 2.4 × 1.6 mirror quad (s = 1, g = 0) in the plane z = −1.2 facing +z."""
+    v = np.array([[-1.2, 0.1, -1.2], [1.2, 0.1, -1.2], [1.2, 1.7, -1.2], [-1.2, 1.7, -1.2]], np.float32)
+    quad = SceneObject("mirror", v, [[0, 1, 2], [0, 2, 3]], normals=np.tile([0, 0, 1.0], (4, 1)), material=MIRROR)
+    others = [o for o in props() if o.name != "green"]
+    return Scene([quad, *others], name="planar_mirror")
+
+
+def mirror_object_scene(mesh: trimesh.Trimesh, name: str, material: Material = MIRROR) -> Scene:
+    """`mesh` scaled to ~1.2 units, standing on the floor at the origin, among the props."""
+    m = mesh.copy()
+    ext = m.bounds[1] - m.bounds[0]
+    m.apply_scale(1.2 / float(ext.max()))
+    lo, hi = m.bounds
+    m.apply_translation((-(lo[0] + hi[0]) / 2, -lo[1], -(lo[2] + hi[2]) / 2))
+    return Scene([SceneObject(name, m.vertices, m.faces, material=material), *props()], name=name)
+
+
+def sphere_mesh() -> trimesh.Trimesh:
+    """An icosphere (level 4, 5120 triangles) of radius 0.6 at the origin."""
+    return trimesh.creation.icosphere(4, radius=0.6)
+
+
+def vase_mesh(n_around: int = 64, n_up: int = 48) -> trimesh.Trimesh:
+    """Closed surface of revolution about +Y with a bulge and a neck (outward CCW faces)."""
+    t = np.linspace(0.0, 1.0, n_up)
+    radius = 0.25 + 0.22 * np.sin(np.pi * t * 1.2) ** 2 - 0.1 * t
+    y = 1.4 * t
+    a = np.linspace(0, 2 * np.pi, n_around, endpoint=False)
+    verts = np.stack([np.outer(radius, np.cos(a)), np.repeat(y[:, None], n_around, 1),
+                      np.outer(radius, np.sin(a))], -1).reshape(-1, 3)
+    faces = []
+    for i in range(n_up - 1):
+        for j in range(n_around):
+            p, q = i * n_around + j, i * n_around + (j + 1) % n_around
+            faces += [[p, p + n_around, q], [q, p + n_around, q + n_around]]
+    bottom, top = len(verts), len(verts) + 1
+    verts = np.vstack([verts, [[0, 0, 0], [0, y[-1], 0]]])
+    for j in range(n_around):
+        faces += [[bottom, j, (j + 1) % n_around]]
+        k = (n_up - 1) * n_around
+        faces += [[top, k + (j + 1) % n_around, k + j]]
+    m = trimesh.Trimesh(verts, np.asarray(faces), process=True)
+    trimesh.repair.fix_normals(m)
+    return m
+
+
+def mirror_camera(size: int = 96) -> Camera:
+    """The reflection tests' view of the mirror scenes, size × size pixels."""
+    return Camera((1.0, 1.6, 3.2), (0.0, 0.55, 0.0), fov=40, width=size, height=size)
+
+
+# --- service -----------------------------------------------------------------------------
+
+def obj_text(n_quads: int = 1, z: float = 0.0) -> bytes:
+    """A strip of n unit quads (2 triangles each) in the plane z, front faces toward +z."""
+    lines = []
+    for i in range(n_quads):
+        lines += [f"v {i} 0 {z}", f"v {i + 1} 0 {z}", f"v {i + 1} 1 {z}", f"v {i} 1 {z}"]
+    for i in range(n_quads):
+        b = 4 * i + 1
+        lines += [f"f {b} {b + 1} {b + 2}", f"f {b} {b + 2} {b + 3}"]
+    return ("\n".join(lines) + "\n").encode()
+
+
+def wait_ready(client: Any, timeout: float = 20.0) -> dict:
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        r = client.get("/readyz")
+        if r.status_code == 200:
+            return r.json()
+        time.sleep(0.02)
+    raise AssertionError(f"service not ready: {r.json()}")
+
+
+@contextlib.contextmanager
+def service(data_dir: Path, ready: bool = True, **overrides) -> Iterator[Any]:
+    """A TestClient of a fresh app on `data_dir` (settings overridden), ready unless
+    ready=False."""
+    from fastapi.testclient import TestClient
+
+    from service.app import create_app
+    from service.config import Settings
+
+    app = create_app(Settings(data_dir=data_dir, **overrides))
+    with TestClient(app) as client:
+        if ready:
+            wait_ready(client)
+        yield client
+
+
+def frame_camera(scene_name: str = "cornell") -> dict:
+    """A camera (JSON) looking at a built-in scene from outside its bounds."""
+    scene = make_builtin(scene_name)
+    cam = look_at_scene(scene.bounds, azimuth=20.0, elevation=15.0, distance=1.0, fov=50.0)
+    return {"eye": list(cam.eye), "target": list(cam.target), "up": [0.0, 1.0, 0.0], "fov": 50.0}
+
+
+# --- the plugin --------------------------------------------------------------------------
+
+def write_small_glb(path: Path, ball_radius: float = 0.5) -> Path:
+    """A small GLB (≈ 1.3k triangles): a grey slab under a ball of `ball_radius`."""
+    scene = trimesh.Scene()
+    slab = trimesh.creation.box((2.0, 0.2, 2.0))
+    slab.apply_translation((0.0, -0.6, 0.0))
+    scene.add_geometry(slab, "slab")
+    scene.add_geometry(trimesh.creation.icosphere(3, radius=ball_radius), "ball")
+    scene.export(path)
+    return path
+
+
+# --- GL scenarios in their own process -----------------------------------------------------
+
+def run_isolated(scenario: Callable[[], dict], env: dict[str, str] | None = None, timeout: float = 120.0) -> dict:
+    """Run scenario() — a module-level function returning a JSON-able dict — in a
+    fresh interpreter (environment overrides `env`), so a scenario that crashes
+    the process fails this test instead of ending the run. Returns its dict."""
+    code = (f"import json\nfrom {scenario.__module__} import {scenario.__qualname__} as s\n"
+            "print(json.dumps(s()))\n")
+    out = subprocess.run([sys.executable, "-c", code], env={**os.environ, **(env or {})}, cwd=ROOT,
+                         capture_output=True, text=True, timeout=timeout)
+    if out.returncode != 0:
+        how = f"killed by signal {-out.returncode}" if out.returncode < 0 else f"exit status {out.returncode}"
+        raise AssertionError(f"{scenario.__qualname__} failed in its process ({how}):\n{out.stderr[-4000:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def osmesa_render_agreement() -> dict:
+    """Scenario: the G-buffer of sphere_on_slab on a fresh context (run with
+    DEPTHVIEW_GL=osmesa) against Embree: {"backend", "agree": share of equal ids}."""
+    from gl_passes.context import create_gl_context
+    from gl_passes.gbuffer import GBufferPass
+    from gl_passes.upload import SceneGPU
+    from reference.raycast import RayCaster
+
+    sc = sphere_on_slab()
+    gl = create_gl_context()
+    cam = look_at_scene(sc.bounds, width=96, height=64)
+    with GBufferPass(gl) as gp, SceneGPU(gl, sc) as sg:
+        g = gp.render(sg, cam)
+    r = RayCaster(sc).gbuffer(cam)
+    backend = gl.backend
+    gl.release()
+    return {"backend": backend, "agree": float((g.tri_id == r.tri_id).mean())}
+
+
+def worker_context_loss() -> dict:
+    """Scenario: the render worker's context is lost (released under it) between
+    two frames: {"first": coverage of the frame before, "error": what the frame
+    after raised (None if it did not), "alive": worker thread alive after,
+    "stopped": stop() finished}."""
+    from service.worker import RenderWorker, frame_job
+
+    sc = make_builtin("cornell")
+    cam = look_at_scene(sc.bounds, width=32, height=24).fit_clip(sc.bounds)
+    w = RenderWorker(queue_size=4).start()
+    assert w.wait_ready(60), w.startup_error
+    first = w.submit(frame_job("a", sc, cam)).result(60)
+    w.submit(lambda state: state.gl.ctx.release()).result(60)  # the context is gone
+    try:
+        w.submit(frame_job("b", sc, cam)).result(60)
+        error = None
+    except Exception as exc:  # noqa: BLE001 - reported to the test
+        error = f"{type(exc).__name__}: {exc}"
+    alive = w.alive
+    w.stop()
+    return {"first": float(first.mask.mean()), "error": error, "alive": alive, "stopped": not w.alive}
