@@ -10,6 +10,7 @@ import moderngl
 import numpy as np
 
 from gl_passes.context import GLContext
+from gl_passes.releasable import Releasable
 
 #: Bytes per vertex: vec3 position + one uint of packed RGBA8 colour.
 VERTEX_BYTES = 16
@@ -35,7 +36,7 @@ def unpack_vertices(records: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return rec[:, :3].copy(), rgba
 
 
-class MeshGPU:
+class MeshGPU(Releasable):
     """Indexed mesh in GL buffers. `vbo` holds `n_vertices` records, `ibo`
     `n_triangles` × 3 uint32 indices (either may be larger than that: only the
     prefix is used). Owns the buffers: call `release()`."""
@@ -89,8 +90,3 @@ class MeshGPU:
         self.vbo.release()
         self.ibo.release()
 
-    def __enter__(self) -> MeshGPU:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.release()

@@ -45,6 +45,7 @@ from gl_passes.bindings import Units
 from gl_passes.context import GLContext
 from gl_passes.depth_images import DepthImageRenderer, prepare_cameras
 from gl_passes.mesh_gpu import VERTEX_BYTES, MeshGPU, pack_vertices
+from gl_passes.releasable import Releasable
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
 from gl_passes.upload import SceneGPU
@@ -114,7 +115,7 @@ def _image_words(img: DepthImage) -> tuple[np.ndarray, np.ndarray]:
     return a, b
 
 
-class Reconstructor:
+class Reconstructor(Releasable):
     """Compute programs and scratch images for reconstructions on `gl`'s thread.
     `release()` frees the scratch images (programs are cached on the context)."""
 
@@ -129,11 +130,6 @@ class Reconstructor:
     def release(self) -> None:
         self.gl.check_thread()
 
-    def __enter__(self) -> Reconstructor:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.release()
 
     # --- helpers -----------------------------------------------------------------
     def _upload(self, img: DepthImage) -> tuple[moderngl.Texture, moderngl.Texture]:

@@ -45,6 +45,7 @@ import numpy as np
 
 from gl_passes.bindings import Units
 from gl_passes.context import GLContext
+from gl_passes.releasable import Releasable
 from gl_passes.shaders import compute_program, program
 from scenes.lights import light_camera
 from scenes.model import AreaLight
@@ -192,7 +193,7 @@ def _draw(occluder: Occluder, prog: moderngl.Program, instances: int,
         occluder.draw(prog, **kw)
 
 
-class SoftShadowPass:
+class SoftShadowPass(Releasable):
     """Shadow maps of an area light's k×k samples and per-point visibility bits
     (Alg. 5) on `gl`'s thread. Owns a depth atlas and the point buffers (reused
     across calls, grown when needed): call `release()` or use it as a context
@@ -239,11 +240,6 @@ class SoftShadowPass:
         self.fbo.release()
         self.atlas.release()
 
-    def __enter__(self) -> SoftShadowPass:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.release()
 
     # --- steps -----------------------------------------------------------------------
     def _upload(self, points: np.ndarray, normals: np.ndarray, mask: np.ndarray) -> int:

@@ -26,7 +26,7 @@ from reference.raycast import RayCaster
 from scenes import Camera, Material, Scene, SceneObject
 from scenes.builtin.geometry import make_object, uv_sphere
 from tests.gl_leaks import gl_object_growth
-from tests.test_depth_images import box, figure11_scene
+from tests.helpers import box, figure11_scene
 
 HYBRID = ReconstructionSettings()
 W, H = 40, 30
@@ -55,7 +55,7 @@ def screen_rects(rects: list[tuple[float, float, float, float]], depth: float, n
 
 def reconstruct(gl, scene: Scene, cams: list[Camera], method: str = "conventional",
                 settings: ReconstructionSettings = HYBRID):
-    with SceneGPU(gl, scene) if hasattr(SceneGPU, "__enter__") else _Owned(SceneGPU(gl, scene)) as sg:
+    with SceneGPU(gl, scene) as sg:
         ss = render_set(gl, sg, method, cams)
     meshes = reconstruct_set(gl, ss, settings)
     try:
@@ -63,17 +63,6 @@ def reconstruct(gl, scene: Scene, cams: list[Camera], method: str = "conventiona
     finally:
         for m in meshes:
             m.release()
-
-
-class _Owned:
-    def __init__(self, obj) -> None:
-        self.obj = obj
-
-    def __enter__(self):
-        return self.obj
-
-    def __exit__(self, *exc) -> None:
-        self.obj.release()
 
 
 def edge_counts(tri: np.ndarray) -> Counter:
@@ -260,7 +249,7 @@ def test_compact_keeps_the_surface_within_its_bound(gl):
 def test_glb_has_one_node_per_image_with_vertex_colours(gl):
     scene = figure11_scene()
     cams = [Camera((x, 0.0, 10.0), (0.0, 0.0, 0.0), fov=40.0, width=48, height=48) for x in (-2.0, 2.0)]
-    with _Owned(SceneGPU(gl, scene)) as sg:
+    with SceneGPU(gl, scene) as sg:
         ss = render_set(gl, sg, "non_redundant", cams)
     meshes = reconstruct_set(gl, ss, HYBRID)
     try:

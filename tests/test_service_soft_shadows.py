@@ -13,7 +13,7 @@ from scenes.builtin import make_builtin
 from scenes.camera import look_at_scene
 from scenes.lights import default_area_light, light_camera
 from service import image_io
-from tests.test_service import service
+from tests.helpers import service
 
 RES = 40
 SCENE = "city"
