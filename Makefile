@@ -1,7 +1,7 @@
 # depthview: `make serve` and `make test` each do the whole idempotent setup first.
 VENV ?= .venv
 PY := $(VENV)/bin/python
-APT_PKGS := libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6
+APT_PKGS := libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6 g++ python3-dev
 HOST ?= 0.0.0.0
 PORT ?= 8000
 
