@@ -10,7 +10,7 @@ import moderngl
 import numpy as np
 
 from gl_passes.context import GLContext
-from gl_passes.releasable import Releasable
+from gl_passes.indexed import IndexedBuffers
 
 #: Bytes per vertex: vec3 position + one uint of packed RGBA8 colour.
 VERTEX_BYTES = 16
@@ -36,18 +36,15 @@ def unpack_vertices(records: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return rec[:, :3].copy(), rgba
 
 
-class MeshGPU(Releasable):
+class MeshGPU(IndexedBuffers):
     """Indexed mesh in GL buffers. `vbo` holds `n_vertices` records, `ibo`
     `n_triangles` × 3 uint32 indices (either may be larger than that: only the
     prefix is used). Owns the buffers: call `release()`."""
 
     def __init__(self, gl: GLContext, vbo: moderngl.Buffer, ibo: moderngl.Buffer, n_vertices: int,
                  n_triangles: int) -> None:
-        gl.check_thread()
-        self.gl = gl
-        self.vbo, self.ibo = vbo, ibo
+        super().__init__(gl, vbo, ibo)
         self.n_vertices, self.n_triangles = int(n_vertices), int(n_triangles)
-        self._vaos: dict[int, moderngl.VertexArray] = {}
 
     @classmethod
     def from_arrays(cls, gl: GLContext, positions: np.ndarray, triangles: np.ndarray,
@@ -60,12 +57,8 @@ class MeshGPU(Releasable):
         ibo = gl.ctx.buffer(tri.tobytes() or b"\0" * 12)
         return cls(gl, vbo, ibo, len(rec), len(tri))
 
-    def vao(self, prog: moderngl.Program) -> moderngl.VertexArray:
-        key = prog.glo
-        if key not in self._vaos:
-            self._vaos[key] = self.gl.ctx.vertex_array(
-                prog, [(self.vbo, "3f 4x", "in_position")], index_buffer=self.ibo, index_element_size=4)
-        return self._vaos[key]
+    def vertex_format(self, prog: moderngl.Program) -> tuple[str, ...]:
+        return ("3f 4x", "in_position")
 
     def draw(self, prog: moderngl.Program, instances: int = 1) -> None:
         """Draw every triangle with `prog` (which reads `in_position`)."""
@@ -81,12 +74,3 @@ class MeshGPU(Releasable):
         tri = np.frombuffer(self.ibo.read(size=nt * 12) if nt else b"", np.uint32).reshape(-1, 3)
         pos, rgba = unpack_vertices(rec)
         return pos, rgba, tri.copy()
-
-    def release(self) -> None:
-        self.gl.check_thread()
-        for v in self._vaos.values():
-            v.release()
-        self._vaos.clear()
-        self.vbo.release()
-        self.ibo.release()
-

@@ -14,38 +14,30 @@ import moderngl
 import numpy as np
 
 from gl_passes.context import GLContext
-from gl_passes.releasable import Releasable
+from gl_passes.indexed import IndexedBuffers
 from scenes.model import Scene
 
 
-class SceneGPU(Releasable):
+class SceneGPU(IndexedBuffers):
     """GPU copy of a Scene. Call `release()` when done (frees buffers and VAOs), or
     use it as a context manager: `with SceneGPU(gl, scene) as sg: ...`."""
 
     def __init__(self, gl: GLContext, scene: Scene) -> None:
         gl.check_thread()
-        self.gl = gl
         self.scene = scene
         interleaved = np.hstack([scene.vertices, scene.normals]).astype(np.float32)
-        self.vbo = gl.ctx.buffer(interleaved.tobytes())
-        self.ibo = gl.ctx.buffer(scene.faces.astype(np.uint32).tobytes())
-        self._vaos: dict[int, moderngl.VertexArray] = {}
+        super().__init__(gl, gl.ctx.buffer(interleaved.tobytes()),
+                         gl.ctx.buffer(scene.faces.astype(np.uint32).tobytes()))
         off = scene.face_offsets
         self.ranges = [(int(off[k]), int(off[k + 1] - off[k])) for k in range(len(scene.objects))]
         self.object_bounds = np.array(
             [[o.vertices.min(axis=0), o.vertices.max(axis=0)] for o in scene.objects], dtype=np.float64
         )
 
-    def vao(self, prog: moderngl.Program) -> moderngl.VertexArray:
-        """Vertex array binding this scene's buffers to `prog` (cached per program)."""
-        key = prog.glo
-        if key not in self._vaos:
-            attrs = [a for a in ("in_position", "in_normal") if a in prog]
-            fmt = "3f 3f" if len(attrs) == 2 else "3f 12x"
-            self._vaos[key] = self.gl.ctx.vertex_array(
-                prog, [(self.vbo, fmt, *attrs)], index_buffer=self.ibo, index_element_size=4
-            )
-        return self._vaos[key]
+    def vertex_format(self, prog: moderngl.Program) -> tuple[str, ...]:
+        """Interleaved position and normal; the normal skipped when `prog` has no in_normal."""
+        attrs = [a for a in ("in_position", "in_normal") if a in prog]
+        return ("3f 3f" if len(attrs) == 2 else "3f 12x", *attrs)
 
     def draw(self, prog: moderngl.Program, objects: Iterable[int] | None = None, materials: bool = True,
              instances: int = 1) -> None:
@@ -70,10 +62,3 @@ class SceneGPU(Releasable):
                         prog[name].value = value
             vao.render(moderngl.TRIANGLES, vertices=3 * count, first=3 * first, instances=instances)
 
-    def release(self) -> None:
-        self.gl.check_thread()
-        for v in self._vaos.values():
-            v.release()
-        self._vaos.clear()
-        self.vbo.release()
-        self.ibo.release()
