@@ -205,6 +205,12 @@ def test_tiny_fov_and_huge_coordinates_name_the_real_problem(client):
     assert r.status_code == 422 and "light center coordinate" in json.dumps(r.json())
 
 
+def test_a_long_format_name_is_not_echoed(client):
+    r = client.post("/scenes?format=" + "q" * 5000, content=b"v 0 0 0\n",
+                    headers={"content-type": "application/octet-stream"})
+    assert r.status_code == 415 and len(r.content) < 300 and "q" * 16 in r.json()["detail"]
+
+
 def test_ply_declaring_more_vertices_than_it_holds_is_422_saying_so(client):
     ply = (b"ply\nformat ascii 1.0\nelement vertex 5000000\nproperty float x\nproperty float y\n"
            b"property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"

@@ -75,10 +75,14 @@ async def _read_limited(request: Request, limit: int, what: str) -> bytes:
     return bytes(buf)
 
 
+#: Longest format name repeated in an error (the store names an unsupported format).
+FORMAT_EXCERPT = 16
+
+
 def _format_from(fmt: str | None, filename: str | None) -> str:
     if fmt:
-        return fmt.strip().lower().lstrip(".")
-    suffix = PurePath(filename or "").suffix.lower().lstrip(".")
+        return fmt.strip().lower().lstrip(".")[:FORMAT_EXCERPT]
+    suffix = PurePath(filename or "").suffix.lower().lstrip(".")[:FORMAT_EXCERPT]
     if not suffix:
         raise HTTPException(415, "cannot tell the scene format: upload a file whose name ends in .glb, .gltf, "
                                  ".obj or .ply, or give a 'format' field")
