@@ -1,6 +1,7 @@
-"""Depth-image sets for the service (thesis Ch. 2): the GL job, the Embree-only
-paths, encoding and the §2.3.2 metrics. GL work runs only inside the job on the
-worker thread; Embree work (visibility redundancy, metrics) runs off it."""
+"""Depth-image sets for the service (thesis Ch. 2): the plan, the Embree-only
+paths, encoding and the §2.3.2 metrics. GL work runs only inside the job
+(`service.jobs.set_job`) on the worker thread; Embree work (visibility redundancy,
+metrics) runs off it."""
 
 from __future__ import annotations
 

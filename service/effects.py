@@ -1,6 +1,6 @@
 """Frame effects for the service: reflections by method (thesis Ch. 4).
 
-`cluster` and `envmap` run as GL jobs on the worker thread (gl_passes.reflections);
+`cluster` and `envmap` run as GL jobs on the worker thread (`service.jobs.reflection_job`);
 `raytrace` is the Embree reference and runs in the thread pool, never on the GL
 thread. All return linear colour (H,W,3) plus the reflection buffers for EXR."""
 

@@ -1,8 +1,9 @@
 """Soft shadows and reconstructions for the service (thesis Ch. 3, Alg. 4–5).
 
 GL work (G-buffer, reference images, reconstruction, shadow maps) runs only in
-the worker jobs below, on the worker thread; the Embree truth (`raytrace`) and
-the shading run off it. The settings are the benchmark's (`bench/soft_shadows.py`):
+the worker jobs (`service.jobs.soft_shadow_job`, `reconstruction_job`), on the
+worker thread; the Embree truth (`raytrace`) and the shading here run off it.
+The settings are the benchmark's (`bench/soft_shadows.py`):
 `ShadowSettings` with its default shadow-map resolution, reference images of
 `resolution`² from the light's 4 corners (peeling: 4 layers from its centre),
 `ReconstructionSettings` defaults per kind.
