@@ -68,12 +68,12 @@ def set_bytes(req: DepthImagesRequest) -> tuple[int, str]:
 
 
 def reconstruction_bytes(req: ReconstructionRequest) -> tuple[int, str]:
-    """(estimated bytes, terms) of a reconstruction request (meshes, then the GLB)."""
+    """(estimated bytes, terms) of a reconstruction request (meshes and the GLB)."""
     if req.method == "peeling":
         n = req.layers
     else:
         n = len(req.cameras) if req.cameras is not None else LIGHT_IMAGES
-    return 2 * _reconstruction(n, req.resolution), f"{n} reconstructed images of {req.resolution}²"
+    return _reconstruction(n, req.resolution), f"{n} reconstructed images of {req.resolution}²"
 
 
 def check_budget(settings: Settings, estimate: tuple[int, str]) -> None:

@@ -45,15 +45,18 @@ request alone, before the scene is loaded or a job queued (``service.budget``;
 W×H the image size, n the number of images, r the reconstruction resolution, k the
 light samples per side, S the shadow-map resolution 1024):
 
-* frame: W·H·``FRAME_BYTES_PER_PIXEL`` (160 B: G-buffer readback, float copies, encoding);
+* frame: W·H·``FRAME_BYTES_PER_PIXEL`` (176 B: G-buffer readback, float copies, encoding);
   with reflections ×4 (2×2 supersampling; glossy lobes are traced in fixed-size chunks);
 * soft shadows: the frame + W·H·2·(k²/8 + 8) B of visibility bits + n·r²·
   ``RECONSTRUCTION_BYTES_PER_SAMPLE`` (n = 4 images, none for ``geometry`` and ``raytrace``;
-  160 B per sample: its quad's vertices, colours and indices on CPU and GPU)
+  192 B per sample: the sample and its offset image, its quad on CPU and GPU)
   + S²·min(k², 16)·4 B of shadow-map atlas (not for ``raytrace``);
-* reconstruction: n·r²·``RECONSTRUCTION_BYTES_PER_SAMPLE`` + the same again for the GLB;
-* depth-image set: n·W·H·``SET_BYTES_PER_PIXEL`` (104 B, measured: 16 × 2048² took
-  6.8 GB), doubled with ``metrics`` (the conventional images beside the set).
+* reconstruction: n·r²·``RECONSTRUCTION_BYTES_PER_SAMPLE`` (the GLB included);
+* depth-image set: n·W·H·``SET_BYTES_PER_PIXEL`` (128 B), doubled with ``metrics``
+  (the conventional images beside the set).
+
+The costs were measured (see the constants); 4 GiB admits every single-image limit
+(a 4096² frame, 4 reconstructed images at 2048²) and refuses 16 images at 2048².
 """
 
 from __future__ import annotations
@@ -70,16 +73,21 @@ ENV_PREFIX = "DEPTHVIEW_"
 MIB = 1024 * 1024
 
 # Per-unit costs of the memory-budget estimate (``max_job_bytes``; formulas in the
-# module docstring, applied by ``service.budget``).
+# module docstring, applied by ``service.budget``). Calibrated by the peak resident
+# memory a request added to a warm service on llvmpipe (GPU memory is host memory there),
+# city scene: a 2048² EXR frame +693 MiB (173 B/px); cluster reflections at 1024² in
+# the mirror scene +636 MiB (606 B/px, under the 4 × 176 estimated); 3 conventional
+# depth images at 1024² +395 MiB (132 B/px; the issue's 16 × 2048² set took 6.8 GB,
+# 101 B/px); a 4-image conventional reconstruction at 1024² with its GLB +767 MiB
+# (183 B/sample); 512² soft shadows over a 4-image NR reconstruction at 1024² +826 MiB.
 #: Bytes per frame pixel: G-buffer readback (RGB, depth, normal, position, ids, mask),
 #: the float copies made while shading and the encoded image.
-FRAME_BYTES_PER_PIXEL = 160
-#: Bytes per pixel of one image of a depth-image set; measured: a 16-layer set at
-#: 2048² took 6.8 GB, 101 B per pixel and image.
-SET_BYTES_PER_PIXEL = 104
-#: Bytes per reference-image sample of a reconstruction: the sample's quad (4 vertices
-#: of position and colour, 2 triangles) on the CPU and on the GPU, and the readback.
-RECONSTRUCTION_BYTES_PER_SAMPLE = 160
+FRAME_BYTES_PER_PIXEL = 176
+#: Bytes per pixel of one image of a depth-image set.
+SET_BYTES_PER_PIXEL = 128
+#: Bytes per reference-image sample of a reconstruction: the sample and its offset
+#: image, its quad (vertices, colours, indices) on the CPU and the GPU, the readback.
+RECONSTRUCTION_BYTES_PER_SAMPLE = 192
 #: Side of each soft-shadow map (gl_passes.shadows.ShadowSettings) and the most maps
 #: rendered at once into one atlas (maps_per_draw), float32 depth.
 SHADOW_MAP_RESOLUTION = 1024
