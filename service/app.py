@@ -87,7 +87,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     for router in (service_routes.probes, service_routes.metrics_router, scenes.router, renders.frames,
                    renders.reconstructions, renders.depth_images):
         app.include_router(router)
-    app.add_middleware(RequestGuard, settings=settings, metrics=app.state.metrics)
+    app.add_middleware(RequestGuard, settings=settings, metrics=app.state.metrics,
+                       templates=lambda: list(app.openapi()["paths"]))
     if settings.cors_origins:  # outermost, so refusals (401, 413) carry the CORS headers too
         app.add_middleware(CORSMiddleware, allow_origins=list(settings.cors_origins), allow_methods=["*"],
                            allow_headers=["Authorization", "Content-Type"],

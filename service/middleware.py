@@ -25,7 +25,9 @@ from __future__ import annotations
 
 import asyncio
 import json
+import re
 import time
+from collections.abc import Callable
 from typing import Any
 
 import h11
@@ -55,8 +57,26 @@ def body_limit(settings: Settings, scope: Scope) -> tuple[int, str]:
 class RequestGuard:
     """Body size limit, body read timeout and request metrics (see the module doc)."""
 
-    def __init__(self, app: ASGIApp, settings: Settings, metrics: Metrics) -> None:
+    def __init__(self, app: ASGIApp, settings: Settings, metrics: Metrics,
+                 templates: Callable[[], list[str]] = list) -> None:
         self.app, self.settings, self.metrics = app, settings, metrics
+        self._templates = templates
+        self._patterns: list[tuple[re.Pattern[str], str]] | None = None
+
+    def route_label(self, scope: Scope, status: int) -> str:
+        """The route template of a request for the metrics: the matched route's, else
+        the template its path fits (a 405 matched no route), else the path of a
+        successful answer (docs), else "(unmatched)" — never an unbounded set of ids."""
+        route = getattr(scope.get("route"), "path", None)
+        if route is not None:
+            return route
+        if self._patterns is None:
+            self._patterns = [(re.compile("^" + re.sub(r"\\\{[^/]+?\\\}", "[^/]+", re.escape(t)) + "$"), t)
+                              for t in self._templates()]
+        for pattern, template in self._patterns:
+            if pattern.match(scope["path"]):
+                return template
+        return scope["path"] if status < 400 else "(unmatched)"
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
@@ -103,11 +123,9 @@ class RequestGuard:
                     scope = {**scope, "method": "GET"}
                 await self.app(scope, receive_wrapper, send_wrapper)
         finally:
-            route = getattr(scope.get("route"), "path", None)
-            if route is None:  # Starlette's own routes (docs) set no route; 404s must not add label values
-                route = scope["path"] if state["status"] != 404 else "(unmatched)"
-            method = "HEAD" if scope["method"] == "GET" and state.get("head") else scope["method"]
-            self.metrics.request(method, route, state["status"], time.perf_counter() - t0)
+            method = "HEAD" if state["head"] else scope["method"]
+            self.metrics.request(method, self.route_label(scope, state["status"]), state["status"],
+                                 time.perf_counter() - t0)
 
     @staticmethod
     def _content_length_refusal(scope: Scope, limit: int, limit_words: str) -> tuple[int, str] | None:

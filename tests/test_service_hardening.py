@@ -390,6 +390,9 @@ def test_metrics_cover_routes_steps_workers_and_every_error(tmp_path):
         assert c.post(f"/scenes/{CORNELL}/frames", json=frame_body(width=5000)).status_code == 422
         assert c.get(f"/scenes/{UNKNOWN}").status_code == 404
         assert c.get("/nowhere").status_code == 404
+        assert c.post(f"/scenes/{CORNELL}").status_code == 405  # no route matched: labelled by template
+        assert c.head("/scenes").status_code == 200
+        assert c.get("/openapi.json").status_code == 200
         text = c.get("/metrics").text
     v = _values(text)
 
@@ -401,7 +404,11 @@ def test_metrics_cover_routes_steps_workers_and_every_error(tmp_path):
     assert delta(f'depthview_responses_total{{method="POST",route="{route}",status="400"}}') == 1
     assert delta('depthview_responses_total{method="GET",route="/scenes/{scene_id}",status="404"}') == 1
     assert delta('depthview_responses_total{method="GET",route="(unmatched)",status="404"}') == 1
-    assert delta('depthview_http_errors_total{class="4xx"}') == 5
+    assert delta('depthview_responses_total{method="POST",route="/scenes/{scene_id}",status="405"}') == 1
+    assert delta('depthview_responses_total{method="HEAD",route="/scenes",status="200"}') == 1
+    assert delta('depthview_responses_total{method="GET",route="/openapi.json",status="200"}') == 1
+    assert not [k for k in v if CORNELL in k or UNKNOWN in k]  # ids never become label values
+    assert delta('depthview_http_errors_total{class="4xx"}') == 6
     assert delta('depthview_http_errors_total{class="5xx"}') == 0
     assert delta(f'depthview_request_seconds_count{{method="POST",route="{route}"}}') == 4
     assert v[f'depthview_request_seconds_bucket{{method="POST",route="{route}",le="+Inf"}}'] == 4
