@@ -40,6 +40,8 @@ log = logging.getLogger("depthview.service")
 
 #: Longest excerpt of an input value an error message repeats (characters).
 EXCERPT_CHARS = 80
+#: Longest error message (a loader's or a library's message may quote its input).
+DETAIL_CHARS = 500
 
 #: Store/loader error → status (first match wins).
 STORE_STATUS: tuple[tuple[type[Exception] | tuple[type[Exception], ...], int], ...] = (
@@ -77,6 +79,11 @@ def _json_safe(obj: Any) -> Any:
 json_safe = _json_safe
 
 
+def short(detail: str) -> str:
+    """`detail`, cut to DETAIL_CHARS."""
+    return detail if len(detail) <= DETAIL_CHARS else f"{detail[:DETAIL_CHARS]}… (message cut)"
+
+
 def store_status(exc: Exception) -> int:
     for types, status in STORE_STATUS:
         if isinstance(exc, types):
@@ -89,7 +96,7 @@ async def store_error(request: Request, exc: Exception) -> JSONResponse:
     status = store_status(exc)
     if status >= 500:
         log.error("%s", exc)
-    return JSONResponse({"detail": str(exc)}, status_code=status)
+    return JSONResponse({"detail": short(str(exc))}, status_code=status)
 
 
 async def validation_error(request: Request, exc: Exception) -> JSONResponse:
@@ -113,7 +120,8 @@ async def http_error(request: Request, exc: Exception) -> JSONResponse:
     headers = dict(exc.headers or {})
     if exc.status_code == 405:
         headers["Allow"] = ", ".join(allowed_methods(request.app, request.scope))
-    return JSONResponse({"detail": exc.detail}, status_code=exc.status_code, headers=headers or None)
+    detail = short(exc.detail) if isinstance(exc.detail, str) else exc.detail
+    return JSONResponse({"detail": detail}, status_code=exc.status_code, headers=headers or None)
 
 
 #: Methods a 405 may list in Allow.

@@ -211,6 +211,19 @@ def test_a_long_format_name_is_not_echoed(client):
     assert r.status_code == 415 and len(r.content) < 300 and "q" * 16 in r.json()["detail"]
 
 
+def test_a_long_store_or_loader_message_is_cut(tmp_path, monkeypatch):
+    from scenes.loaders import SceneLoadError
+
+    with service(tmp_path, ready=False) as c:
+        def quoting(scene_id):  # a library message quoting a long piece of its input
+            raise SceneLoadError("malformed OBJ: could not convert " + "9" * 5000)
+
+        monkeypatch.setattr(c.app.state.store, "get_meta", quoting)
+        r = c.get(f"/scenes/{CORNELL}")
+        assert r.status_code == 422 and r.json()["detail"].endswith("… (message cut)")
+        assert len(r.json()["detail"]) < 520
+
+
 def test_ply_declaring_more_vertices_than_it_holds_is_422_saying_so(client):
     ply = (b"ply\nformat ascii 1.0\nelement vertex 5000000\nproperty float x\nproperty float y\n"
            b"property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
@@ -319,6 +332,16 @@ def test_stalled_body_is_408_and_closed(live_server):
     assert data.startswith(b"HTTP/1.1 408 "), data[:200]
     assert b"connection: close" in data.lower() and b"DEPTHVIEW_BODY_TIMEOUT_S" in data
     assert 0.3 < waited < 4.0
+
+
+def test_an_announced_large_body_is_refused_before_it_is_sent(live_server):
+    head = (f"POST /scenes/{CORNELL}/depth-images HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+            f"Content-Length: {200 * 2**20}\r\n\r\n").encode()
+    with socket.create_connection(live_server, timeout=5) as s:
+        s.sendall(head + b"{")  # 200 MiB announced, one byte sent
+        data, waited = _read_until_closed(s)
+    assert data.startswith(b"HTTP/1.1 413 ") and b"DEPTHVIEW_MAX_JSON_BYTES" in data and waited < 2.0
+    assert len(data) < 1000
 
 
 def test_a_prompt_client_is_served_and_kept_alive(live_server):
