@@ -126,6 +126,7 @@ def _load(data: bytes, fmt: str, name: str, max_triangles: int | None, resolver:
         _check_limit(_obj_triangle_count(data), max_triangles, estimate=False)
     else:
         _check_limit(_ply_face_count(data), max_triangles, estimate=True)
+        _ply_check_body(data)
 
     tm_scene = _trimesh_load(data, fmt, label, resolver)
     try:
@@ -300,6 +301,44 @@ def _ply_face_count(data: bytes) -> int | None:
         raise SceneLoadError("malformed PLY: missing 'ply' magic or 'end_header'")
     match = re.search(rb"^element[ \t]+face[ \t]+(\d+)", data[:end], re.MULTILINE)
     return int(match.group(1)) if match else None
+
+
+#: Bytes of the PLY scalar types.
+_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
+              "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+
+
+def _ply_check_body(data: bytes) -> None:
+    """Refuse a PLY whose header declares more elements than its body can hold
+    (before trimesh allocates arrays for the declared counts). Binary: the body must
+    hold at least count × row size per element (a list property counts its length
+    field only); ASCII: at least one line per declared element."""
+    end = data.find(b"end_header", 0, 1 << 16)
+    header = data[:end].decode("latin-1")
+    body_start = data.find(b"\n", end) + 1 if data.find(b"\n", end) >= 0 else len(data)
+    body = data[body_start:]
+    fmt, elements = "", []  # [(name, count, min row bytes)]
+    for line in header.splitlines():
+        words = line.split()
+        if len(words) >= 2 and words[0] == "format":
+            fmt = words[1]
+        elif len(words) >= 3 and words[0] == "element" and words[2].isdigit():
+            elements.append([words[1], int(words[2]), 0])
+        elif len(words) >= 3 and words[0] == "property" and elements:
+            size_type = words[2] if words[1] == "list" else words[1]
+            elements[-1][2] += _PLY_SIZES.get(size_type, 1)
+    declared = " and ".join(f"{count:,} {name!r}" for name, count, _ in elements) + " elements"
+    if fmt == "ascii":
+        rows = sum(count for _, count, _ in elements)
+        lines = sum(1 for ln in body.splitlines() if ln.strip())
+        if lines < rows:
+            raise SceneLoadError(f"malformed PLY: the header declares {declared} ({rows:,} rows) but the body "
+                                 f"has {lines:,} lines")
+    elif fmt.startswith("binary"):
+        need = sum(count * row for _, count, row in elements)
+        if len(body) < need:
+            raise SceneLoadError(f"malformed PLY: the header declares {declared}, at least {need:,} bytes, "
+                                 f"but the body has {len(body):,} bytes")
 
 
 # --------------------------------------------------------------------------------------

@@ -15,12 +15,16 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from service.config import Settings
+
+#: Seconds an idle keep-alive connection stays open (uvicorn's timeout_keep_alive).
+KEEP_ALIVE_S = 5
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -30,8 +34,10 @@ def _parser() -> argparse.ArgumentParser:
     s = sub.add_parser("serve", help="run the HTTP service (uvicorn)")
     s.add_argument("--host", default=None, help="bind address (default 127.0.0.1 or DEPTHVIEW_HOST)")
     s.add_argument("--port", type=int, default=None, help="port (default 8000 or DEPTHVIEW_PORT)")
-    s.add_argument("--data-dir", type=Path, default=None, help="scene store directory (default ./data)")
-    s.add_argument("--gl-backend", choices=("egl", "osmesa"), default=None, help="GL backend (default: EGL)")
+    s.add_argument("--data-dir", type=Path, default=None,
+                   help="scene store directory (default ./data or DEPTHVIEW_DATA_DIR)")
+    s.add_argument("--gl-backend", choices=("egl", "osmesa"), default=None,
+                   help="GL backend (default: DEPTHVIEW_GL, else EGL with OSMesa fallback)")
     s.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))
 
     r = sub.add_parser("render", help="render one frame to a PNG or EXR file (in-process)")
@@ -124,14 +130,30 @@ def cmd_scenes(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_serve(args: argparse.Namespace) -> int:
+def serve_settings(args: argparse.Namespace, environ: Mapping[str, str] | None = None) -> Settings:
+    """Settings of ``depthview serve``: DEPTHVIEW_* variables, overridden by the options given."""
+    return Settings.from_env(environ, host=args.host, port=args.port, data_dir=args.data_dir,
+                             gl_backend=args.gl_backend)
+
+
+def server_config(settings: Settings, log_level: str = "info") -> Any:
+    """The uvicorn configuration of the service: one process (the GL context lives on
+    the app's render worker thread), the h11 protocol with a header read timeout, and
+    uvicorn's keep-alive timeout for idle connections."""
     import uvicorn
 
     from service.app import create_app
+    from service.middleware import header_timeout_protocol
 
-    settings = Settings.from_env(host=args.host, port=args.port, data_dir=args.data_dir, gl_backend=args.gl_backend)
-    # One process: the GL context lives on the app's render worker thread.
-    uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level=args.log_level, workers=1)
+    return uvicorn.Config(create_app(settings), host=settings.host, port=settings.port, log_level=log_level,
+                          workers=1, http=header_timeout_protocol(settings.header_timeout_s),
+                          timeout_keep_alive=KEEP_ALIVE_S)
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    uvicorn.Server(server_config(serve_settings(args), args.log_level)).run()
     return 0
 
 

@@ -21,15 +21,49 @@ job_timeout_s          120                          how long a handler waits for
 retry_after_s          1                            value of the ``Retry-After`` header on 503
 scene_cache_size       8                            parsed Scene objects kept in memory (LRU)
 gpu_cache_size         4                            scenes kept uploaded on the GPU (LRU, worker)
-gl_backend             unset (EGL, OSMesa fallback) ``egl`` or ``osmesa``
+gl_backend             unset (EGL, OSMesa fallback) ``egl`` or ``osmesa`` (``DEPTHVIEW_GL``, or
+                                                    ``DEPTHVIEW_GL_BACKEND``)
 gl_device              unset                        EGL device index
+max_json_bytes         1 MiB (1048576)              largest request body of every endpoint but a
+                                                    scene upload (Content-Length or counted) → 413
+max_job_bytes          4 GiB (4294967296)           memory budget of one render request, estimated
+                                                    up front by ``service.budget`` → 422 naming the
+                                                    estimate and the budget (formulas below)
+header_timeout_s       10                           seconds a connection may take to send a request's
+                                                    headers (from connect or the previous response)
+                                                    before it is closed
+body_timeout_s         30                           seconds the service waits for the next chunk of a
+                                                    request body → 408 and the connection is closed
+token                  unset (no authentication)    bearer token every endpoint but /healthz, /readyz
+                                                    and the docs requires (401 otherwise)
+cors_origins           unset (no CORS headers)      comma-separated origins allowed cross-origin
+                                                    requests (``*`` for any)
 =====================  ===========================  ===============================================
+
+The memory budget (``max_job_bytes``) is checked against an estimate made from the
+request alone, before the scene is loaded or a job queued (``service.budget``;
+W×H the image size, n the number of images, r the reconstruction resolution, k the
+light samples per side, S the shadow-map resolution 1024):
+
+* frame: W·H·``FRAME_BYTES_PER_PIXEL`` (176 B: G-buffer readback, float copies, encoding);
+  with reflections ×4 (2×2 supersampling; glossy lobes are traced in fixed-size chunks);
+* soft shadows: the frame + W·H·2·(k²/8 + 8) B of visibility bits + n·r²·
+  ``RECONSTRUCTION_BYTES_PER_SAMPLE`` (n = 4 images, none for ``geometry`` and ``raytrace``;
+  192 B per sample: the sample and its offset image, its quad on CPU and GPU)
+  + S²·min(k², 16)·4 B of shadow-map atlas (not for ``raytrace``);
+* reconstruction: n·r²·``RECONSTRUCTION_BYTES_PER_SAMPLE`` (the GLB included);
+* depth-image set: n·W·H·``SET_BYTES_PER_PIXEL`` (128 B), doubled with ``metrics``
+  (the conventional images beside the set).
+
+The costs were measured (see the constants); 4 GiB admits every single-image limit
+(a 4096² frame, 4 reconstructed images at 2048²) and refuses 16 images at 2048².
 """
 
 from __future__ import annotations
 
 import dataclasses
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -37,6 +71,27 @@ from typing import Any
 ENV_PREFIX = "DEPTHVIEW_"
 
 MIB = 1024 * 1024
+
+# Per-unit costs of the memory-budget estimate (``max_job_bytes``; formulas in the
+# module docstring, applied by ``service.budget``). Calibrated by the peak resident
+# memory a request added to a warm service on llvmpipe (GPU memory is host memory there),
+# city scene: a 2048² EXR frame +693 MiB (173 B/px); cluster reflections at 1024² in
+# the mirror scene +636 MiB (606 B/px, under the 4 × 176 estimated); 3 conventional
+# depth images at 1024² +395 MiB (132 B/px; the issue's 16 × 2048² set took 6.8 GB,
+# 101 B/px); a 4-image conventional reconstruction at 1024² with its GLB +767 MiB
+# (183 B/sample); 512² soft shadows over a 4-image NR reconstruction at 1024² +826 MiB.
+#: Bytes per frame pixel: G-buffer readback (RGB, depth, normal, position, ids, mask),
+#: the float copies made while shading and the encoded image.
+FRAME_BYTES_PER_PIXEL = 176
+#: Bytes per pixel of one image of a depth-image set.
+SET_BYTES_PER_PIXEL = 128
+#: Bytes per reference-image sample of a reconstruction: the sample and its offset
+#: image, its quad (vertices, colours, indices) on the CPU and the GPU, the readback.
+RECONSTRUCTION_BYTES_PER_SAMPLE = 192
+#: Side of each soft-shadow map (gl_passes.shadows.ShadowSettings) and the most maps
+#: rendered at once into one atlas (maps_per_draw), float32 depth.
+SHADOW_MAP_RESOLUTION = 1024
+SHADOW_MAPS_PER_DRAW = 16
 
 
 @dataclass(frozen=True)
@@ -77,50 +132,86 @@ class Settings:
     gl_backend: str | None = None
     #: EGL device index; None = default device (DEPTHVIEW_GL_DEVICE).
     gl_device: int | None = None
+    #: Largest request body of every endpoint except scene uploads (413 above it).
+    max_json_bytes: int = MIB
+    #: Memory budget of one render request in bytes, estimated up front (422 above it).
+    max_job_bytes: int = 4 * 1024 * MIB
+    #: Seconds a connection may take to deliver a request's headers before it is closed.
+    header_timeout_s: float = 10.0
+    #: Seconds to wait for the next chunk of a request body (408 and close after it).
+    body_timeout_s: float = 30.0
+    #: Bearer token required by every endpoint but /healthz, /readyz and the docs; None = open.
+    token: str | None = None
+    #: Origins allowed cross-origin requests (CORS); empty = no CORS headers at all.
+    cors_origins: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "data_dir", Path(self.data_dir))
+        if isinstance(self.cors_origins, str):
+            object.__setattr__(self, "cors_origins", _origins(self.cors_origins))
+        object.__setattr__(self, "cors_origins", tuple(self.cors_origins))
+        if self.token is not None and not self.token.strip():
+            raise ValueError("setting token must not be blank (leave it unset for no authentication)")
         for name in ("max_upload_bytes", "max_triangles", "max_width", "max_height", "max_pixels",
-                     "queue_size", "scene_cache_size", "gpu_cache_size"):
+                     "queue_size", "scene_cache_size", "gpu_cache_size", "max_json_bytes", "max_job_bytes"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"setting {name} must be >= 1, got {getattr(self, name)!r}")
-        if not self.job_timeout_s > 0:
-            raise ValueError(f"setting job_timeout_s must be > 0, got {self.job_timeout_s!r}")
+        for name in ("job_timeout_s", "header_timeout_s", "body_timeout_s"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"setting {name} must be > 0, got {getattr(self, name)!r}")
         if self.gl_backend is not None and self.gl_backend not in ("egl", "osmesa"):
             raise ValueError(f"setting gl_backend must be 'egl' or 'osmesa', got {self.gl_backend!r}")
 
     @classmethod
-    def from_env(cls, environ: dict[str, str] | None = None, **overrides: Any) -> Settings:
-        """Settings from ``DEPTHVIEW_<FIELD>`` variables; keyword overrides win.
+    def from_env(cls, environ: Mapping[str, str] | None = None, **overrides: Any) -> Settings:
+        """Settings from ``DEPTHVIEW_<FIELD>`` variables; keyword overrides that are
+        not None win (a CLI option left unset leaves the variable in force).
 
-        ``DEPTHVIEW_GL`` / ``DEPTHVIEW_GL_DEVICE`` (the GL core's own variables) are
-        left to ``create_gl_context``; ``DEPTHVIEW_GL_BACKEND`` sets gl_backend here."""
+        gl_backend also reads ``DEPTHVIEW_GL`` (the GL core's own variable, which wins
+        over ``DEPTHVIEW_GL_BACKEND``); gl_device is ``DEPTHVIEW_GL_DEVICE``."""
         env = os.environ if environ is None else environ
         values: dict[str, Any] = {}
         for f in dataclasses.fields(cls):
-            if f.name in overrides:
+            if overrides.get(f.name) is not None:
+                values[f.name] = overrides[f.name]
                 continue
-            raw = env.get(ENV_PREFIX + f.name.upper())
-            if raw is None or raw == "":
-                continue
-            values[f.name] = _convert(f.name, raw)
-        values.update({k: v for k, v in overrides.items() if v is not None})
+            for var in _ENV_NAMES.get(f.name, (ENV_PREFIX + f.name.upper(),)):
+                raw = env.get(var)
+                if raw is not None and raw.strip() != "":
+                    values[f.name] = _convert(f.name, raw, var)
+                    break
+        unknown = set(overrides) - {f.name for f in dataclasses.fields(cls)}
+        if unknown:
+            raise TypeError(f"unknown settings {sorted(unknown)}")
         return cls(**values)
 
 
+#: Fields read from other variables than DEPTHVIEW_<FIELD> (first one set wins).
+_ENV_NAMES = {"gl_backend": (ENV_PREFIX + "GL", ENV_PREFIX + "GL_BACKEND")}
+
+
+def _origins(raw: str) -> tuple[str, ...]:
+    return tuple(o.strip().rstrip("/") for o in raw.split(",") if o.strip())
+
+
 _INT_FIELDS = {"port", "max_upload_bytes", "max_triangles", "max_width", "max_height", "max_pixels",
-               "queue_size", "retry_after_s", "scene_cache_size", "gpu_cache_size", "gl_device"}
-_FLOAT_FIELDS = {"job_timeout_s"}
+               "queue_size", "retry_after_s", "scene_cache_size", "gpu_cache_size", "gl_device", "max_json_bytes",
+               "max_job_bytes"}
+_FLOAT_FIELDS = {"job_timeout_s", "header_timeout_s", "body_timeout_s"}
 
 
-def _convert(name: str, raw: str) -> Any:
+def _convert(name: str, raw: str, var: str) -> Any:
     try:
         if name in _INT_FIELDS:
             return int(raw.replace("_", ""))
         if name in _FLOAT_FIELDS:
             return float(raw)
     except ValueError as exc:
-        raise ValueError(f"{ENV_PREFIX}{name.upper()}={raw!r} is not a number") from exc
+        raise ValueError(f"{var}={raw[:40]!r} is not a number") from exc
     if name == "data_dir":
         return Path(raw)
+    if name == "gl_backend":
+        return raw.strip().lower()
+    if name == "cors_origins":
+        return _origins(raw)
     return raw

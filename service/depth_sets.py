@@ -1,15 +1,14 @@
-"""Depth-image sets for the service (thesis Ch. 2): the GL job, the Embree-only
-paths, encoding and the §2.3.2 metrics. GL work runs only inside the job on the
-worker thread; Embree work (visibility redundancy, metrics) runs off it."""
+"""Depth-image sets for the service (thesis Ch. 2): the plan, the Embree-only
+paths, encoding and the §2.3.2 metrics. GL work runs only inside the job
+(`service.jobs.set_job`) on the worker thread; Embree work (visibility redundancy,
+metrics) runs off it."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from gl_passes.depth_images import DepthImageRenderer, conventional, depth_peeling, non_redundant
 from reference.sampling_metrics import sampling_metrics
 from reference.visibility import non_redundant_visibility
 from scenes.camera import Camera
@@ -46,30 +45,6 @@ def plan_set(scene: Scene, method: str, redundancy: str, cameras: list[Camera] |
             centroid = tuple(np.mean([c.eye for c in cams], axis=0))
             peel = Camera(centroid, c0.target, c0.up, c0.fov, width, height).fit_clip(scene.bounds)
     return SetPlan(method, redundancy, cams, peel, layers)
-
-
-def set_job(scene_key: str, scene: Scene, plan: SetPlan, want_conventional: bool
-            ) -> Callable[[object], tuple[list[DepthImage] | None, list[DepthImage] | None]]:
-    """Worker job: (the set rendered by GL — None when it is Embree-only —, the
-    conventional images of the reference cameras when wanted)."""
-
-    def run(state: object) -> tuple[list[DepthImage] | None, list[DepthImage] | None]:
-        gpu = state.scene_gpu(scene_key, scene)  # type: ignore[attr-defined]
-        renderer = state.resource("depth_images", DepthImageRenderer)  # type: ignore[attr-defined]
-        gl = state.gl  # type: ignore[attr-defined]
-        images = None
-        if plan.method == "conventional":
-            images = conventional(gl, gpu, plan.cameras, renderer=renderer)
-        elif plan.method == "peeling":
-            images = depth_peeling(gl, gpu, plan.peel_camera, plan.layers, renderer=renderer)
-        elif plan.redundancy == "pixel":
-            images = non_redundant(gl, gpu, plan.cameras, renderer=renderer)
-        conv = None
-        if want_conventional:
-            conv = images if plan.method == "conventional" else conventional(gl, gpu, plan.cameras, renderer=renderer)
-        return images, conv
-
-    return run
 
 
 def needs_gl(plan: SetPlan, metrics: bool) -> bool:

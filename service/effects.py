@@ -1,44 +1,19 @@
 """Frame effects for the service: reflections by method (thesis Ch. 4).
 
-`cluster` and `envmap` run as GL jobs on the worker thread (gl_passes.reflections);
+`cluster` and `envmap` run as GL jobs on the worker thread (`service.jobs.reflection_job`);
 `raytrace` is the Embree reference and runs in the thread pool, never on the GL
 thread. All return linear colour (H,W,3) plus the reflection buffers for EXR."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
-from gl_passes.reflections import ClusterReflections
 from reference.reflections import raytrace_reflections
 from scenes.camera import Camera
 from scenes.model import Scene
 from service import image_io
-
-#: API method name → gl_passes.reflections method name.
-GL_METHODS = {"cluster": "clusters", "envmap": "envmap"}
-#: Cluster-image atlas limits for the service: at most 2048² texels and 8 texels per
-#: G-buffer sample (the renderer's 4096² default atlas costs about 1.4 GB).
-ATLAS_MAX = 2048
-ATLAS_BUDGET = 8.0
-
-
-def _renderer(gl: Any) -> ClusterReflections:
-    return ClusterReflections(gl, atlas_max=ATLAS_MAX, atlas_budget=ATLAS_BUDGET)
-
-
-def reflection_job(scene_key: str, scene: Scene, camera: Camera, method: str, glossy_rays: int
-                   ) -> Callable[[Any], Any]:
-    """Worker job rendering reflections with the GL method `method` (cluster|envmap)."""
-
-    def run(state: Any) -> Any:
-        gpu = state.scene_gpu(scene_key, scene)
-        renderer = state.resource("reflections", _renderer)
-        return renderer.render(gpu, camera, glossy_rays=glossy_rays, method=GL_METHODS[method])
-
-    return run
 
 
 def raytrace(scene: Scene, camera: Camera, glossy_rays: int) -> Any:

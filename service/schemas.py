@@ -11,11 +11,20 @@ from __future__ import annotations
 import math
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictFloat, StrictInt, field_validator, model_validator
 
 from scenes.camera import Camera, CameraError
 
-Vec3 = tuple[float, float, float]
+#: Strict scalars (issue 15): ``true`` is not a number, ``"64"`` is not a number,
+#: ``"no"`` is not a boolean; an integer is accepted where a float is expected.
+Number = StrictFloat
+Vec3 = tuple[Number, Number, Number]
+#: Largest magnitude of a camera or light coordinate: positions are rendered in float32,
+#: and beyond this their differences (view direction, light edges) lose all precision.
+MAX_COORDINATE = 1e12
+#: Smallest vertical field of view in degrees: below it the projection's 1/tan(fov/2)
+#: overflows the float32 precision of the depth and position buffers.
+MIN_FOV = 0.01
 
 #: Soft-shadow occluders (thesis Ch. 3, Alg. 5): the original scene, reconstructions of
 #: depth images by method, or the exact Embree truth.
@@ -31,11 +40,15 @@ REFLECTION_METHODS = ("none", "cluster", "raytrace", "envmap")
 MAX_GLOSSY_RAYS = 64
 
 
-def _finite_vec3(name: str, v: Any) -> Any:
+def _finite_vec3(name: str, v: Any, what: str = "camera") -> Any:
     if isinstance(v, (list, tuple)) and len(v) == 3:
         for x in v:
-            if isinstance(x, (int, float)) and not isinstance(x, bool) and not math.isfinite(x):
-                raise ValueError(f"camera {name} must be finite numbers (got NaN or infinity)")
+            if isinstance(x, (int, float)) and not isinstance(x, bool):
+                if not math.isfinite(x):
+                    raise ValueError(f"{what} {name} must be finite numbers (got NaN or infinity)")
+                if abs(x) > MAX_COORDINATE:
+                    raise ValueError(f"{what} {name} coordinate {x:.6g} is out of range: coordinates must be "
+                                     f"within ±{MAX_COORDINATE:.0e}")
     return v
 
 
@@ -48,7 +61,8 @@ class CameraSpec(BaseModel):
     eye: Vec3 = Field(description="camera position", examples=[[0.0, 1.0, 3.5]])
     target: Vec3 = Field(description="point the camera looks at", examples=[[0.0, 1.0, 0.0]])
     up: Vec3 = Field(default=(0.0, 1.0, 0.0), description="up direction (not parallel to target - eye)")
-    fov: float = Field(default=45.0, gt=0.0, lt=180.0, allow_inf_nan=False, description="vertical field of view, deg")
+    fov: Number = Field(default=45.0, ge=MIN_FOV, lt=180.0, allow_inf_nan=False,
+                        description=f"vertical field of view in degrees, at least {MIN_FOV}")
 
     @field_validator("eye", "target", "up", mode="before")
     @classmethod
@@ -75,10 +89,10 @@ class LightSpec(BaseModel):
     u: Vec3
     v: Vec3
 
-    @field_validator("center", "u", "v")
+    @field_validator("center", "u", "v", mode="before")
     @classmethod
     def _finite(cls, v: Any, info: Any) -> Any:
-        return _finite_vec3(info.field_name, v)
+        return _finite_vec3(info.field_name, v, "light")
 
     @model_validator(mode="after")
     def _rectangle(self) -> LightSpec:
@@ -101,11 +115,11 @@ class SoftShadowSpec(BaseModel):
 
     light: LightSpec | None = Field(default=None, description="omitted: a light sized to the scene "
                                                                 "(diagonal = scene diagonal, from the sun's side)")
-    samples: int = Field(default=16, ge=1, le=MAX_SHADOW_SAMPLES, description="k: k×k light samples")
+    samples: StrictInt = Field(default=16, ge=1, le=MAX_SHADOW_SAMPLES, description="k: k×k light samples")
     method: Literal["geometry", "non_redundant", "conventional", "peeling", "raytrace"] = "non_redundant"
     reconstruction: Literal["hybrid", "grid", "compact"] = Field(
         default="hybrid", description="hybrid (Alg. 4), grid (baseline) or compact (simplified hybrid)")
-    resolution: int = Field(default=1024, ge=16, le=MAX_RECONSTRUCTION_RES,
+    resolution: StrictInt = Field(default=1024, ge=16, le=MAX_RECONSTRUCTION_RES,
                             description="reference-image side in pixels")
 
 
@@ -117,7 +131,7 @@ class Effects(BaseModel):
 
     soft_shadows: SoftShadowSpec | None = Field(default=None, description="soft shadows (thesis Ch. 3)")
     reflections: str = Field(default="none", description=f"reflection method; one of {list(REFLECTION_METHODS)}")
-    glossy_rays: int = Field(default=8, ge=1, le=MAX_GLOSSY_RAYS, description="lobe rays per glossy sample")
+    glossy_rays: StrictInt = Field(default=8, ge=1, le=MAX_GLOSSY_RAYS, description="lobe rays per glossy sample")
 
     @field_validator("reflections")
     @classmethod
@@ -142,12 +156,12 @@ class FrameRequest(BaseModel):
         "format": "png"}]})
 
     camera: CameraSpec
-    width: int = Field(default=512, ge=1, description="pixels; at most the service's max_width")
-    height: int = Field(default=512, ge=1, description="pixels; at most the service's max_height")
+    width: StrictInt = Field(default=512, ge=1, description="pixels; at most the service's max_width")
+    height: StrictInt = Field(default=512, ge=1, description="pixels; at most the service's max_height")
     format: Literal["png", "exr"] = Field(
         default="png", description="png: sRGB colour; exr: linear float channels RGB, Z, N, id, object")
     effects: Effects = Field(default_factory=Effects)
-    cull_back_faces: bool = Field(default=True, description="back-face culling (on, as the thesis)")
+    cull_back_faces: StrictBool = Field(default=True, description="back-face culling (on, as the thesis)")
 
     @model_validator(mode="after")
     def _camera_is_valid(self) -> FrameRequest:
@@ -168,8 +182,8 @@ class BuiltinParams(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    detail: float = Field(default=1.0, gt=0.0, allow_inf_nan=False, description="tessellation scale")
-    seed: int = Field(default=0, ge=0, lt=2**63, description="random seed of the procedural generator")
+    detail: Number = Field(default=1.0, gt=0.0, allow_inf_nan=False, description="tessellation scale")
+    seed: StrictInt = Field(default=0, ge=0, lt=2**63, description="random seed of the procedural generator")
 
 
 class BuiltinSceneRequest(BaseModel):
@@ -237,15 +251,15 @@ class DepthImagesRequest(BaseModel):
     method: Literal["conventional", "non_redundant", "peeling"] = "non_redundant"
     redundancy: Literal["pixel", "visibility"] = Field(
         default="pixel", description="non_redundant only: pixel (GL, Alg. 3) or visibility (Embree, Alg. 2)")
-    width: int = Field(default=512, ge=1)
-    height: int = Field(default=512, ge=1)
-    layers: int = Field(default=3, ge=1, le=MAX_SET_IMAGES, description="peeling layers")
+    width: StrictInt = Field(default=512, ge=1)
+    height: StrictInt = Field(default=512, ge=1)
+    layers: StrictInt = Field(default=3, ge=1, le=MAX_SET_IMAGES, description="peeling layers")
     format: Literal["exr", "npz"] = Field(
         default="exr", description="exr: one part per image (RGB, Z, N, P, id); npz: stacked arrays")
-    metrics: bool = Field(default=False, description="add the four §2.3.2 sampling metrics (JSON response)")
-    intermediate_views: int = Field(default=16, ge=1, le=MAX_METRIC_VIEWS,
+    metrics: StrictBool = Field(default=False, description="add the four §2.3.2 sampling metrics (JSON response)")
+    intermediate_views: StrictInt = Field(default=16, ge=1, le=MAX_METRIC_VIEWS,
                                     description="intermediate views for the useful/available metrics")
-    seed: int = Field(default=0, ge=0, lt=2**63, description="seed of the intermediate views")
+    seed: StrictInt = Field(default=0, ge=0, lt=2**63, description="seed of the intermediate views")
 
     def to_cameras(self) -> list[Camera] | None:
         """The requested cameras (without near/far), or None for the rig."""
@@ -268,8 +282,8 @@ class ReconstructionRequest(BaseModel):
     light: LightSpec | None = None
     method: Literal["non_redundant", "conventional", "peeling"] = "non_redundant"
     reconstruction: Literal["hybrid", "grid", "compact"] = "hybrid"
-    resolution: int = Field(default=512, ge=16, le=MAX_RECONSTRUCTION_RES, description="image side in pixels")
-    layers: int = Field(default=4, ge=1, le=MAX_SET_IMAGES, description="peeling layers")
+    resolution: StrictInt = Field(default=512, ge=16, le=MAX_RECONSTRUCTION_RES, description="image side in pixels")
+    layers: StrictInt = Field(default=4, ge=1, le=MAX_SET_IMAGES, description="peeling layers")
 
     @model_validator(mode="after")
     def _viewpoints(self) -> ReconstructionRequest:
@@ -282,3 +296,25 @@ class ReconstructionRequest(BaseModel):
             return None
         return [Camera(eye=c.eye, target=c.target, up=c.up, fov=c.fov, width=self.resolution,
                        height=self.resolution) for c in self.cameras]
+
+
+class ErrorResponse(BaseModel):
+    """Every 4xx/5xx answer except a validation error: what went wrong, in words."""
+
+    detail: str = Field(description="the problem, naming the field or limit (never more than an excerpt of "
+                                    "the input)")
+
+
+class ValidationIssue(BaseModel):
+    """One invalid field of a request."""
+
+    loc: list[str | int] = Field(description="where: e.g. ['body', 'camera', 'eye']")
+    msg: str = Field(description="what is wrong with it")
+    type: str = Field(description="pydantic's error type, e.g. int_type, greater_than_equal")
+    input: Any = Field(default=None, description="the offending value, or an excerpt of it when long")
+
+
+class ValidationErrorResponse(BaseModel):
+    """422: the request's fields are invalid."""
+
+    detail: list[ValidationIssue]

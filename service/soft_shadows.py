@@ -1,8 +1,9 @@
 """Soft shadows and reconstructions for the service (thesis Ch. 3, Alg. 4–5).
 
 GL work (G-buffer, reference images, reconstruction, shadow maps) runs only in
-the worker jobs below, on the worker thread; the Embree truth (`raytrace`) and
-the shading run off it. The settings are the benchmark's (`bench/soft_shadows.py`):
+the worker jobs (`service.jobs.soft_shadow_job`, `reconstruction_job`), on the
+worker thread; the Embree truth (`raytrace`) and the shading here run off it.
+The settings are the benchmark's (`bench/soft_shadows.py`):
 `ShadowSettings` with its default shadow-map resolution, reference images of
 `resolution`² from the light's 4 corners (peeling: 4 layers from its centre),
 `ReconstructionSettings` defaults per kind.
@@ -10,14 +11,11 @@ the shading run off it. The settings are the benchmark's (`bench/soft_shadows.py
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from gl_passes.reconstruction import ReconstructionSettings, reconstruct_set, render_set
-from gl_passes.shadows import ShadowSettings, SoftShadowPass
 from reference.raycast import RayCaster
 from reference.shadows import light_visibility, visible_counts
 from scenes.camera import Camera
@@ -57,44 +55,6 @@ def reference_cameras(scene: Scene, light: AreaLight, method: str, resolution: i
     return [light_camera(light, e, scene.bounds, resolution) for e in eyes]
 
 
-def _shadow_pass(state: Any, samples: int) -> SoftShadowPass:
-    return state.resource(f"soft_shadows_{samples}",
-                          lambda gl: SoftShadowPass(gl, ShadowSettings(samples=samples)))
-
-
-def _reconstruct(state: Any, scene_key: str, scene: Scene, cameras: Sequence[Camera], method: str,
-                 kind: str, layers: int = PEEL_LAYERS) -> list:
-    gpu = state.scene_gpu(scene_key, scene)
-    sampled = render_set(state.gl, gpu, method, cameras, layers=layers, offsets=kind != "grid")
-    return reconstruct_set(state.gl, sampled, ReconstructionSettings(kind=kind))
-
-
-def soft_shadow_job(scene_key: str, scene: Scene, camera: Camera, req: SoftShadowRequest) -> Callable[[Any], Any]:
-    """Worker job: (G-buffer of `camera`, per-pixel visible light samples (H,W)
-    uint16, or None for `raytrace`, whose visibility is computed off the GL thread)."""
-
-    def run(state: Any) -> tuple[Any, np.ndarray | None]:
-        gpu = state.scene_gpu(scene_key, scene)
-        gbuf = state.gbuffer.render(gpu, camera)
-        if req.method == "raytrace":
-            return gbuf, None
-        if req.method == "geometry":
-            occluders, owned = [gpu], []
-        else:
-            cams = reference_cameras(scene, req.light, req.method, req.resolution)
-            owned = _reconstruct(state, scene_key, scene, cams, req.method, req.reconstruction)
-            occluders = owned
-        try:
-            res = _shadow_pass(state, req.samples).visibility(
-                occluders, scene.bounds, gbuf.position, gbuf.normal, gbuf.mask, req.light)
-        finally:
-            for m in owned:
-                m.release()
-        return gbuf, res.counts
-
-    return run
-
-
 def raytrace_counts(scene: Scene, gbuf: Any, req: SoftShadowRequest) -> np.ndarray:
     """The exact Embree truth (CPU; call off the GL thread)."""
     bits = light_visibility(RayCaster(scene), gbuf.position, gbuf.normal, gbuf.mask, req.light, req.samples)
@@ -120,17 +80,3 @@ def encode_shadowed(color: np.ndarray, gbuf: Any, counts: np.ndarray, fmt: str) 
     raise ValueError(f"unknown frame format {fmt!r}")
 
 
-def reconstruction_job(scene_key: str, scene: Scene, cameras: Sequence[Camera], method: str,
-                       kind: str, layers: int = PEEL_LAYERS) -> Callable[[Any], list[MeshArrays]]:
-    """Worker job: per source image (positions, RGBA8 colours, triangles) of the
-    reconstruction; `gl_passes.reconstruction.glb_bytes` encodes them off the GL thread."""
-
-    def run(state: Any) -> list[MeshArrays]:
-        meshes = _reconstruct(state, scene_key, scene, cameras, method, kind, layers)
-        try:
-            return [m.read() for m in meshes]
-        finally:
-            for m in meshes:
-                m.release()
-
-    return run

@@ -35,9 +35,10 @@ from scenes.builtin import BUILTIN_NAMES, make_builtin
 from scenes.camera import Camera
 from scenes.loaders import load_scene
 from scenes.model import Scene
-from service.effects import raytrace, reflection_job
+from service.effects import raytrace
+from service.jobs import frame_job, reflection_job
 from service.schemas import Effects
-from service.worker import GLState, RenderWorker, frame_job
+from service.worker import GLState, RenderWorker
 
 T = TypeVar("T")
 SceneArg = Scene | str | os.PathLike

@@ -33,7 +33,6 @@ from typing import Any
 from gl_passes.context import GLContext, create_gl_context
 from gl_passes.gbuffer import GBuffer, GBufferPass
 from gl_passes.upload import SceneGPU
-from scenes.camera import Camera
 from scenes.model import Scene
 from service import image_io
 
@@ -177,6 +176,7 @@ class RenderWorker:
         self.jobs_rejected = 0
         self.job_seconds_sum = 0.0
         self.job_seconds_count = 0
+        self.queue_wait_seconds_sum = 0.0
         self.last_job_seconds = 0.0
         self.busy = False
 
@@ -259,6 +259,7 @@ class RenderWorker:
         with self._stats_lock:
             return {
                 "ready": self.ready,
+                "alive": self.alive,
                 "jobs_submitted": self.jobs_submitted,
                 "jobs_done": self.jobs_done,
                 "jobs_failed": self.jobs_failed,
@@ -266,6 +267,7 @@ class RenderWorker:
                 "jobs_rejected": self.jobs_rejected,
                 "job_seconds_sum": self.job_seconds_sum,
                 "job_seconds_count": self.job_seconds_count,
+                "queue_wait_seconds_sum": self.queue_wait_seconds_sum,
                 "last_job_seconds": self.last_job_seconds,
                 "queue_depth": self.queue_depth,
                 "queue_capacity": self.queue_size,
@@ -337,6 +339,7 @@ class RenderWorker:
             return
         self.job_thread_ids.add(threading.get_ident())
         self.busy = True
+        waited = time.monotonic() - job.submitted
         t0 = time.perf_counter()
         try:
             result = job.fn(self._state)
@@ -356,19 +359,8 @@ class RenderWorker:
                 self.jobs_failed += 1
             self.job_seconds_sum += dt
             self.job_seconds_count += 1
+            self.queue_wait_seconds_sum += waited
             self.last_job_seconds = dt
-
-
-def frame_job(scene_key: str, scene: Scene, camera: Camera, cull_back_faces: bool = True) -> Job:
-    """A job rendering the G-buffer of `scene` (GPU upload cached under `scene_key`)
-    seen by `camera` (near/far already fitted). The job returns the GBuffer (numpy
-    arrays), so encoding happens off the GL thread."""
-
-    def run(state: GLState) -> GBuffer:
-        gpu = state.scene_gpu(scene_key, scene)
-        return state.gbuffer.render(gpu, camera, cull_back_faces=cull_back_faces)
-
-    return run
 
 
 def encode_frame(gbuf: GBuffer, fmt: str) -> bytes:

@@ -292,7 +292,8 @@ def worker_context_loss() -> dict:
     two frames: {"first": coverage of the frame before, "error": what the frame
     after raised (None if it did not), "alive": worker thread alive after,
     "stopped": stop() finished}."""
-    from service.worker import RenderWorker, frame_job
+    from service.jobs import frame_job
+    from service.worker import RenderWorker
 
     sc = make_builtin("cornell")
     cam = look_at_scene(sc.bounds, width=32, height=24).fit_clip(sc.bounds)

@@ -381,3 +381,16 @@ def test_only_scene_load_error_escapes_fuzzed_glb():
             load_scene_bytes(bytes(data), "glb")
         except SceneLoadError:
             pass
+
+
+def test_ply_declaring_more_vertices_than_its_body_holds_says_so():
+    """The header's counts against the body, before trimesh allocates them (issue 15)."""
+    head = ("ply\nformat {fmt} 1.0\nelement vertex 1000000\nproperty float x\nproperty float y\nproperty float z\n"
+            "element face 1\nproperty list uchar int vertex_indices\nend_header\n")
+    ascii_body = b"0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"
+    with pytest.raises(SceneLoadError, match=r"declares 1,000,000 'vertex' and 1 'face' elements .* body has 4 lines"):
+        load_scene_bytes(head.format(fmt="ascii").encode() + ascii_body, "ply")
+    with pytest.raises(SceneLoadError, match=r"at least 12,000,001 bytes, but the body has 40 bytes"):
+        load_scene_bytes(head.format(fmt="binary_little_endian").encode() + bytes(40), "ply")
+    exact = head.replace("1000000", "3").format(fmt="ascii").encode() + ascii_body
+    assert load_scene_bytes(exact, "ply").n_triangles == 1

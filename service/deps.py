@@ -1,0 +1,162 @@
+"""FastAPI dependencies of the routers: the settings, the scene store, the render
+worker and the metrics (all on ``app.state``, set by ``create_app`` and its
+lifespan), the bearer-token check, and the helpers routes share to load a scene and
+run a job.
+
+The token check is reusable beyond the HTTP routes: ``token_ok(settings, presented)``
+compares in constant time and ``presented_token(headers, query)`` reads the token from
+an ``Authorization: Bearer`` header or, where a client cannot set headers (a browser's
+WebSocket, a page opened from a link), from a ``token`` query parameter — the stream
+and the page take it that way.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hmac
+import logging
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Annotated, Any, TypeVar
+
+from fastapi import Depends, HTTPException, Request
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+from starlette.concurrency import run_in_threadpool
+
+from scenes.model import Scene
+from service.config import Settings
+from service.jobs import Job
+from service.metrics import Metrics
+from service.store import SceneStore
+from service.worker import JobExpired, QueueFull, RenderWorker, WorkerUnavailable
+
+log = logging.getLogger("depthview.service")
+T = TypeVar("T")
+
+
+def get_settings(request: Request) -> Settings:
+    return request.app.state.settings
+
+
+def get_store(request: Request) -> SceneStore:
+    return request.app.state.store
+
+
+def get_worker(request: Request) -> RenderWorker:
+    return request.app.state.worker
+
+
+def get_metrics(request: Request) -> Metrics:
+    return request.app.state.metrics
+
+
+SettingsDep = Annotated[Settings, Depends(get_settings)]
+StoreDep = Annotated[SceneStore, Depends(get_store)]
+WorkerDep = Annotated[RenderWorker, Depends(get_worker)]
+MetricsDep = Annotated[Metrics, Depends(get_metrics)]
+
+# --- authentication --------------------------------------------------------------------
+bearer_scheme = HTTPBearer(auto_error=False, scheme_name="bearer",
+                           description="DEPTHVIEW_TOKEN, when the service sets one: `Authorization: Bearer <token>`")
+
+
+def token_ok(settings: Settings, presented: str | None) -> bool:
+    """True when the service needs no token, or `presented` is it (constant time)."""
+    if settings.token is None:
+        return True
+    return presented is not None and hmac.compare_digest(presented.encode(), settings.token.encode())
+
+
+def presented_token(headers: Mapping[str, str], query: Mapping[str, str] | None = None) -> str | None:
+    """The bearer token of a request: ``Authorization: Bearer <token>``, else (when
+    `query` is given: WebSocket and page clients) the ``token`` query parameter."""
+    scheme, _, value = headers.get("authorization", "").partition(" ")
+    if scheme.lower() == "bearer" and value.strip():
+        return value.strip()
+    return None if query is None else query.get("token")
+
+
+def unauthorized() -> HTTPException:
+    return HTTPException(401, "missing or wrong bearer token (Authorization: Bearer <DEPTHVIEW_TOKEN>)",
+                         headers={"WWW-Authenticate": 'Bearer realm="depthview"'})
+
+
+async def require_token(settings: SettingsDep,
+                        credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer_scheme)]) -> None:
+    """Router dependency: 401 unless the request carries the service's token."""
+    if not token_ok(settings, credentials.credentials if credentials is not None else None):
+        raise unauthorized()
+
+
+# --- shared route helpers --------------------------------------------------------------
+def unavailable(detail: str, settings: Settings) -> HTTPException:
+    return HTTPException(503, detail, headers={"Retry-After": str(settings.retry_after_s)})
+
+
+def check_size(settings: Settings, width: int, height: int, what: str = "frame") -> None:
+    """422 when width, height or their product exceed the service limits."""
+    for name, value, limit in ((f"{what} width", width, settings.max_width),
+                               (f"{what} height", height, settings.max_height),
+                               (f"{what} width × height", width * height, settings.max_pixels)):
+        if value > limit:
+            raise HTTPException(422, f"{name} {value} exceeds the limit {limit}")
+
+
+@dataclass
+class Render:
+    """What a render route uses: the settings, the store, the worker and the metrics,
+    with the steps of a render request (each timed in the metrics)."""
+
+    settings: Settings
+    store: SceneStore
+    worker: RenderWorker
+    metrics: Metrics
+
+    async def scene(self, scene_id: str) -> Scene:
+        """The stored scene, parsed off the event loop (store errors reach their handler)."""
+        with self.metrics.step("scene_load"):
+            return await run_in_threadpool(self.store.get_scene, scene_id)
+
+    async def job(self, job: Job[T], label: str) -> T:
+        """Submit a job to the GL worker and await its result: 503 (+ Retry-After)
+        when the queue is full or there is no context, 504 past the job timeout, 422
+        when the job rejects its parameters (ValueError), 500 when it raised anything
+        else."""
+        settings = self.settings
+        try:
+            fut = self.worker.submit(job, timeout=settings.job_timeout_s, label=label)
+        except (QueueFull, WorkerUnavailable) as exc:
+            raise unavailable(str(exc), settings) from None
+        try:
+            with self.metrics.step("job"):
+                return await asyncio.wait_for(asyncio.wrap_future(fut), timeout=settings.job_timeout_s)
+        except (asyncio.TimeoutError, JobExpired):
+            fut.cancel()
+            raise HTTPException(504, f"{label} did not finish within {settings.job_timeout_s:g} s") from None
+        except WorkerUnavailable as exc:
+            raise unavailable(str(exc), settings) from None
+        except HTTPException:
+            raise
+        except ValueError as exc:  # a job rejecting its parameters
+            raise HTTPException(422, str(exc)[:500]) from None
+        except Exception as exc:  # noqa: BLE001
+            log.exception("render job failed", exc_info=exc)
+            raise HTTPException(500, f"{label} failed: {type(exc).__name__}: {str(exc)[:300]}") from None
+
+    async def cpu(self, fn: Callable[..., T], *args: Any) -> T:
+        """`fn(*args)` in the thread pool (Embree, shading, metrics), timed as cpu."""
+        with self.metrics.step("cpu"):
+            return await run_in_threadpool(fn, *args)
+
+    async def encode(self, fn: Callable[..., T], *args: Any) -> T:
+        """`fn(*args)` in the thread pool, timed as encode."""
+        with self.metrics.step("encode"):
+            return await run_in_threadpool(fn, *args)
+
+
+def get_render(request: Request) -> Render:
+    state = request.app.state
+    return Render(state.settings, state.store, state.worker, state.metrics)
+
+
+RenderDep = Annotated[Render, Depends(get_render)]

@@ -1,0 +1,163 @@
+"""Error answers of the service: one handler per kind of error, every body an
+``ErrorResponse`` (``{"detail": "..."}``) or, for invalid fields, a
+``ValidationErrorResponse``, and never more than a short excerpt of the input.
+
+* store and loader errors (``StoreError``, ``SceneLoadError``): one handler mapping
+  each to its status (404, 409, 415, 422, 500);
+* request validation: malformed JSON is 400 on every endpoint; invalid fields 422
+  with their location, message and an excerpt of the offending value;
+* 405 carries ``Allow`` listing every method the path answers (Starlette lists only
+  the first route's when one path has several routes).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match
+
+from scenes.loaders import SceneLoadError
+from service.store import (
+    InvalidBuiltin,
+    InvalidSceneId,
+    SceneNotFound,
+    SceneProtected,
+    StoreCorrupted,
+    StoreError,
+    TriangleLimitExceeded,
+    UnsupportedFormat,
+)
+
+log = logging.getLogger("depthview.service")
+
+#: Longest excerpt of an input value an error message repeats (characters).
+EXCERPT_CHARS = 80
+#: Longest error message (a loader's or a library's message may quote its input).
+DETAIL_CHARS = 500
+
+#: Store/loader error → status (first match wins).
+STORE_STATUS: tuple[tuple[type[Exception] | tuple[type[Exception], ...], int], ...] = (
+    ((InvalidSceneId, SceneNotFound), 404),
+    (SceneProtected, 409),
+    (UnsupportedFormat, 415),
+    ((TriangleLimitExceeded, InvalidBuiltin, SceneLoadError), 422),
+    (StoreCorrupted, 500),
+)
+
+
+def excerpt(value: Any, limit: int = EXCERPT_CHARS) -> Any:
+    """`value` itself when its JSON form is short, else the start of that form and
+    how long it was (so a 200 MiB body is never echoed back)."""
+    try:
+        text = json.dumps(jsonable_encoder(value), allow_nan=True, default=str)
+    except (TypeError, ValueError):
+        text = repr(value)
+    if len(text) <= limit:
+        return _json_safe(jsonable_encoder(value)) if not isinstance(value, (bytes, bytearray)) else text
+    return f"{text[:limit]}… ({len(text):,} characters)"
+
+
+def _json_safe(obj: Any) -> Any:
+    """Replace NaN/inf floats (JSON has none) by their names, recursively."""
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return str(obj)
+    if isinstance(obj, dict):
+        return {k: _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    return obj
+
+
+json_safe = _json_safe
+
+
+def short(detail: str) -> str:
+    """`detail`, cut to DETAIL_CHARS."""
+    return detail if len(detail) <= DETAIL_CHARS else f"{detail[:DETAIL_CHARS]}… (message cut)"
+
+
+def store_status(exc: Exception) -> int:
+    for types, status in STORE_STATUS:
+        if isinstance(exc, types):
+            return status
+    return 500
+
+
+async def store_error(request: Request, exc: Exception) -> JSONResponse:
+    """The one handler of store and loader errors."""
+    status = store_status(exc)
+    if status >= 500:
+        log.error("%s", exc)
+    return JSONResponse({"detail": short(str(exc))}, status_code=status)
+
+
+async def validation_error(request: Request, exc: Exception) -> JSONResponse:
+    """400 for a body that is not JSON (every endpoint alike), else 422 with the
+    invalid fields, each with an excerpt of its input."""
+    assert isinstance(exc, RequestValidationError)
+    errors = exc.errors()
+    bad_json = [e for e in errors if e.get("type") == "json_invalid"]
+    if bad_json:
+        where = str((bad_json[0].get("ctx") or {}).get("error", ""))[:EXCERPT_CHARS]
+        return JSONResponse({"detail": "request body is not valid JSON" + (f": {where}" if where else "")},
+                            status_code=400)
+    out = [{"loc": list(e.get("loc", ())), "msg": str(e.get("msg", ""))[:300], "type": e.get("type", ""),
+            "input": excerpt(e.get("input"))} for e in errors]
+    return JSONResponse({"detail": _json_safe(jsonable_encoder(out))}, status_code=422)
+
+
+async def http_error(request: Request, exc: Exception) -> JSONResponse:
+    """HTTPException → ErrorResponse; a 405 lists every method of the path in Allow."""
+    assert isinstance(exc, StarletteHTTPException)
+    headers = dict(exc.headers or {})
+    if exc.status_code == 405:
+        headers["Allow"] = ", ".join(allowed_methods(request.app, request.scope))
+    detail = short(exc.detail) if isinstance(exc.detail, str) else exc.detail
+    return JSONResponse({"detail": detail}, status_code=exc.status_code, headers=headers or None)
+
+
+#: Methods a 405 may list in Allow.
+HTTP_METHODS = ("DELETE", "GET", "HEAD", "OPTIONS", "PATCH", "POST", "PUT")
+
+
+def allowed_methods(app: FastAPI, scope: dict) -> list[str]:
+    """Every method some route of the app answers fully at this path (asked route by
+    route, method by method, so it holds for included routers too); HEAD wherever GET
+    (``RequestGuard`` answers HEAD as GET)."""
+    methods = {m for m in HTTP_METHODS
+               if any(route.matches({**scope, "method": m})[0] == Match.FULL for route in app.router.routes)}
+    if "GET" in methods:
+        methods.add("HEAD")
+    return sorted(methods)
+
+
+def install(app: FastAPI) -> None:
+    """Register the handlers on `app`."""
+    app.add_exception_handler(StoreError, store_error)
+    app.add_exception_handler(SceneLoadError, store_error)
+    app.add_exception_handler(RequestValidationError, validation_error)
+    app.add_exception_handler(StarletteHTTPException, http_error)
+
+
+def responses(statuses: dict[int, str]) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI ``responses`` for the statuses a route documents: each with its
+    description and schema — ErrorResponse, or for 422 ValidationErrorResponse or
+    ErrorResponse (a limit, the budget or a job refusing its parameters)."""
+    out: dict[int | str, dict[str, Any]] = {}
+    for code, description in statuses.items():
+        if code == 422:
+            out[code] = {"description": description, "content": {"application/json": {"schema": {"anyOf": [
+                {"$ref": "#/components/schemas/ValidationErrorResponse"},
+                {"$ref": "#/components/schemas/ErrorResponse"}]}}}}
+        else:
+            out[code] = {"description": description, "content": {"application/json": {"schema": {
+                "$ref": "#/components/schemas/ErrorResponse"}}}}
+    return out

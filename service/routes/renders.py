@@ -1,0 +1,156 @@
+"""The render resources of a scene: frames (G-buffer, reflections, soft shadows),
+reconstructions (GLB) and depth-image sets. Each request is checked against the
+size limits and the memory budget before its scene is loaded; GL work runs as jobs
+(``service.jobs``) on the worker, CPU work and encoding in the thread pool."""
+
+from __future__ import annotations
+
+import base64
+import time
+
+from fastapi import APIRouter, Depends, HTTPException, Response
+from fastapi.responses import JSONResponse
+
+from gl_passes.reconstruction import glb_bytes
+from scenes.camera import Camera
+from scenes.model import AreaLight, Scene
+from service.budget import check_budget, frame_bytes, reconstruction_bytes, set_bytes
+from service.deps import RenderDep, check_size, require_token
+from service.depth_sets import embree_set, encode_set, needs_gl, plan_set, set_metrics
+from service.effects import encode_reflections, raytrace
+from service.errors import json_safe, responses
+from service.jobs import frame_job, reconstruction_job, reflection_job, set_job, soft_shadow_job
+from service.schemas import DepthImagesRequest, FrameRequest, ReconstructionRequest
+from service.soft_shadows import (
+    SoftShadowRequest,
+    encode_shadowed,
+    raytrace_counts,
+    reference_cameras,
+    resolve_light,
+    shade,
+)
+from service.worker import encode_frame
+
+MEDIA_TYPES = {"png": "image/png", "exr": "image/x-exr"}
+SET_MEDIA_TYPES = {"exr": "image/x-exr", "npz": "application/x-npz"}
+#: Statuses every render route documents.
+RENDER_ERRORS = {400: "the body is not JSON", 401: "missing or wrong bearer token", 404: "unknown scene",
+                 408: "the body stalled (DEPTHVIEW_BODY_TIMEOUT_S)", 413: "body over DEPTHVIEW_MAX_JSON_BYTES",
+                 503: "render queue full or no GL context (Retry-After)", 504: "the job timed out",
+                 500: "the job failed unexpectedly"}
+
+frames = APIRouter(prefix="/scenes/{scene_id}", tags=["frames"], dependencies=[Depends(require_token)])
+reconstructions = APIRouter(prefix="/scenes/{scene_id}", tags=["reconstruction"],
+                            dependencies=[Depends(require_token)])
+depth_images = APIRouter(prefix="/scenes/{scene_id}", tags=["depth images"], dependencies=[Depends(require_token)])
+
+
+# --- frames ----------------------------------------------------------------------------
+@frames.post(
+    "/frames", summary="Render a frame", response_class=Response,
+    responses={200: {"content": {"image/png": {}, "image/x-exr": {}},
+                     "description": "PNG (sRGB colour) or EXR (linear RGB, Z, N, id, object)"},
+               **responses({**RENDER_ERRORS, 422: "invalid camera, effects or size, or over the memory budget"})})
+async def render_frame(scene_id: str, req: FrameRequest, r: RenderDep) -> Response:
+    t0 = time.perf_counter()
+    try:
+        body = await _frame(r, scene_id, req)
+    except HTTPException as exc:
+        r.metrics.frame_error(exc.status_code)
+        raise
+    dt = time.perf_counter() - t0
+    r.metrics.frame(req.format)
+    return Response(body, media_type=MEDIA_TYPES[req.format], headers={
+        "X-Render-Seconds": f"{dt:.4f}", "Content-Disposition": f'inline; filename="frame.{req.format}"'})
+
+
+async def _frame(r: RenderDep, scene_id: str, req: FrameRequest) -> bytes:
+    check_size(r.settings, req.width, req.height)
+    check_budget(r.settings, frame_bytes(req))
+    scene = await r.scene(scene_id)
+    camera = req.to_camera().fit_clip(scene.bounds)
+    label = f"frame {scene_id[:12]}"
+    method, rays = req.effects.reflections, req.effects.glossy_rays
+    if req.effects.soft_shadows is not None:
+        return await _soft_shadow_frame(r, scene_id, scene, camera, req, label)
+    if method == "none":
+        gbuf = await r.job(frame_job(scene_id, scene, camera, req.cull_back_faces), label)
+        return await r.encode(encode_frame, gbuf, req.format)
+    if method == "raytrace":
+        result = await r.cpu(raytrace, scene, camera, rays)
+    else:
+        result = await r.job(reflection_job(scene_id, scene, camera, method, rays), label)
+    return await r.encode(encode_reflections, result, req.format)
+
+
+async def _soft_shadow_frame(r: RenderDep, scene_id: str, scene: Scene, camera: Camera, req: FrameRequest,
+                             label: str) -> bytes:
+    spec = req.effects.soft_shadows
+    assert spec is not None
+    light = resolve_light(scene, None if spec.light is None else
+                          AreaLight(spec.light.center, spec.light.u, spec.light.v))
+    ss = SoftShadowRequest(light, spec.samples, spec.method, spec.reconstruction, spec.resolution)
+    try:  # the light must see the whole scene from its corners (422 otherwise)
+        reference_cameras(scene, light, "conventional", 16)
+    except ValueError as exc:
+        raise HTTPException(422, f"soft_shadows light: {exc}") from None
+    gbuf, counts = await r.job(soft_shadow_job(scene_id, scene, camera, ss), label)
+    if counts is None:
+        counts = await r.cpu(raytrace_counts, scene, gbuf, ss)
+    color = await r.cpu(shade, scene, gbuf, counts, ss)
+    return await r.encode(encode_shadowed, color, gbuf, counts, req.format)
+
+
+# --- reconstructions (thesis Ch. 3) -------------------------------------------------------
+@reconstructions.post(
+    "/reconstruction", summary="Reconstruct a depth-image set (GLB)", response_class=Response,
+    responses={200: {"content": {"model/gltf-binary": {}},
+                     "description": "binary glTF, one node per source image, vertex colours"},
+               **responses({**RENDER_ERRORS, 422: "invalid cameras, light or size, or over the memory budget"})})
+async def reconstruct(scene_id: str, req: ReconstructionRequest, r: RenderDep) -> Response:
+    check_budget(r.settings, reconstruction_bytes(req))
+    scene = await r.scene(scene_id)
+    cams = req.to_cameras()
+    try:
+        if cams is None:
+            spec = req.light
+            light = resolve_light(scene, None if spec is None else AreaLight(spec.center, spec.u, spec.v))
+            cams = reference_cameras(scene, light, req.method, req.resolution)
+        else:
+            cams = [c.fit_clip(scene.bounds) for c in cams]
+    except ValueError as exc:
+        raise HTTPException(422, f"reconstruction viewpoints: {exc}") from None
+    if req.method == "peeling":
+        cams = cams[:1]
+    job = reconstruction_job(scene_id, scene, cams, req.method, req.reconstruction, req.layers)
+    parts = await r.job(job, f"reconstruction {scene_id[:12]}")
+    names = [f"{req.method}_{k}" for k in range(len(parts))]
+    body = await r.encode(glb_bytes, parts, names)
+    return Response(body, media_type="model/gltf-binary",
+                    headers={"Content-Disposition": 'attachment; filename="reconstruction.glb"'})
+
+
+# --- depth-image sets (thesis Ch. 2) ---------------------------------------------------------
+@depth_images.post(
+    "/depth-images", summary="Render a depth-image set", response_class=Response,
+    responses={200: {"content": {"image/x-exr": {}, "application/x-npz": {}, "application/json": {}},
+                     "description": "multi-part EXR (one part per image) or npz; with metrics=true JSON "
+                                    "{metrics, media_type, images_b64}"},
+               **responses({**RENDER_ERRORS, 422: "invalid cameras or size, or over the memory budget"})})
+async def render_depth_images(scene_id: str, req: DepthImagesRequest, r: RenderDep) -> Response:
+    check_size(r.settings, req.width, req.height, "depth image")
+    check_budget(r.settings, set_bytes(req))
+    scene = await r.scene(scene_id)
+    plan = plan_set(scene, req.method, req.redundancy, req.to_cameras(), req.width, req.height, req.layers)
+    images, conv = None, None
+    if needs_gl(plan, req.metrics):
+        images, conv = await r.job(set_job(scene_id, scene, plan, req.metrics), f"depth images {scene_id[:12]}")
+    if images is None:
+        images = await r.cpu(embree_set, scene, plan)
+    body = await r.encode(encode_set, images, req.format)
+    media = SET_MEDIA_TYPES[req.format]
+    if not req.metrics:
+        return Response(body, media_type=media)
+    metrics = await r.cpu(set_metrics, scene, plan, images, conv, req.intermediate_views, req.seed)
+    return JSONResponse({"metrics": json_safe(metrics), "media_type": media,
+                         "images_b64": base64.b64encode(body).decode("ascii")})

@@ -1,0 +1,188 @@
+"""``/scenes``: list, upload (multipart, raw body, or a built-in by JSON), metadata,
+delete. Store and loader errors reach the one handler in ``service.errors``."""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from pathlib import PurePath
+
+from fastapi import APIRouter, Depends, HTTPException, Request, Response
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from pydantic import ValidationError
+from starlette.concurrency import run_in_threadpool
+from starlette.datastructures import UploadFile
+from starlette.formparsers import MultiPartException, MultiPartParser
+
+from service.config import Settings
+from service.deps import MetricsDep, SettingsDep, StoreDep, WorkerDep, require_token
+from service.errors import responses
+from service.middleware import MULTIPART_OVERHEAD
+from service.schemas import BuiltinSceneRequest, SceneInfo, SceneList
+from service.store import SceneMeta
+
+router = APIRouter(prefix="/scenes", tags=["scenes"], dependencies=[Depends(require_token)],
+                   responses=responses({401: "missing or wrong bearer token"}))
+
+#: Content types accepted as a raw scene upload body, and the format they imply.
+RAW_CONTENT_TYPES = {"application/octet-stream": None, "model/gltf-binary": "glb", "model/gltf+json": "gltf",
+                     "model/obj": "obj", "model/ply": "ply", "application/ply": "ply"}
+
+
+class _BodyTooLarge(Exception):
+    def __init__(self, seen: int, limit: int) -> None:
+        super().__init__(f"request body exceeds {limit} bytes")
+        self.seen, self.limit = seen, limit
+
+
+def _info(meta: SceneMeta) -> SceneInfo:
+    d = meta.to_dict()
+    d.pop("extra", None)
+    return SceneInfo(**d)
+
+
+async def _limited(stream: AsyncIterator[bytes], limit: int) -> AsyncIterator[bytes]:
+    """Pass the body through, raising _BodyTooLarge as soon as it exceeds `limit`."""
+    seen = 0
+    async for chunk in stream:
+        seen += len(chunk)
+        if seen > limit:
+            raise _BodyTooLarge(seen, limit)
+        yield chunk
+
+
+def _check_content_length(request: Request, limit: int, what: str) -> None:
+    cl = request.headers.get("content-length")
+    if cl is None:
+        return
+    try:
+        n = int(cl)
+    except ValueError:
+        raise HTTPException(400, "invalid Content-Length header") from None
+    if n > limit:
+        raise HTTPException(413, f"{what} is {n} bytes; the limit is {limit} bytes")
+
+
+async def _read_limited(request: Request, limit: int, what: str) -> bytes:
+    _check_content_length(request, limit, what)
+    buf = bytearray()
+    try:
+        async for chunk in _limited(request.stream(), limit):
+            buf.extend(chunk)
+    except _BodyTooLarge as exc:
+        raise HTTPException(413, f"{what} exceeds the limit of {exc.limit} bytes") from None
+    return bytes(buf)
+
+
+#: Longest format name repeated in an error (the store names an unsupported format).
+FORMAT_EXCERPT = 16
+
+
+def _format_from(fmt: str | None, filename: str | None) -> str:
+    if fmt:
+        return fmt.strip().lower().lstrip(".")[:FORMAT_EXCERPT]
+    suffix = PurePath(filename or "").suffix.lower().lstrip(".")[:FORMAT_EXCERPT]
+    if not suffix:
+        raise HTTPException(415, "cannot tell the scene format: upload a file whose name ends in .glb, .gltf, "
+                                 ".obj or .ply, or give a 'format' field")
+    return suffix
+
+
+async def _read_multipart(request: Request, settings: Settings, fmt: str | None,
+                          name: str | None) -> tuple[bytes, str, str]:
+    """Parse a multipart upload while counting bytes (413 past the limit); returns
+    (file bytes, format, display name)."""
+    limit = settings.max_upload_bytes
+    _check_content_length(request, limit + MULTIPART_OVERHEAD, "upload")
+    parser = MultiPartParser(request.headers, _limited(request.stream(), limit + MULTIPART_OVERHEAD),
+                             max_files=1, max_fields=8)
+    try:
+        form = await parser.parse()
+    except _BodyTooLarge as exc:
+        raise HTTPException(413, f"upload exceeds the limit of {limit} bytes (body passed {exc.limit} "
+                                 "bytes including multipart overhead)") from None
+    except MultiPartException as exc:
+        raise HTTPException(400, f"malformed multipart body: {exc.message[:200]}") from None
+    try:
+        upload = form.get("file")
+        if not isinstance(upload, UploadFile):
+            raise HTTPException(422, "multipart upload needs a file field named 'file'")
+        data = await upload.read(limit + 1)
+        if len(data) > limit:
+            raise HTTPException(413, f"upload is larger than the limit of {limit} bytes")
+        form_fmt = form.get("format")
+        form_name = form.get("name")
+        fmt_ = _format_from(fmt or (form_fmt if isinstance(form_fmt, str) else None), upload.filename)
+        display = name or (form_name if isinstance(form_name, str) else None) or PurePath(upload.filename or "").stem
+        return data, fmt_, display or "upload"
+    finally:
+        await form.close()
+
+
+@router.get("", response_model=SceneList, summary="List scenes")
+async def list_scenes(store: StoreDep) -> SceneList:
+    metas = await run_in_threadpool(store.list)
+    return SceneList(scenes=[_info(m) for m in metas])
+
+
+@router.post(
+    "", response_model=SceneInfo, status_code=201, summary="Upload a scene file or register a built-in scene",
+    responses={200: {"model": SceneInfo, "description": "already stored (same content ⇒ same id)"},
+               **responses({400: "malformed body (not JSON, bad multipart)",
+                            408: "the body stalled (DEPTHVIEW_BODY_TIMEOUT_S)",
+                            413: "upload or JSON body too large", 415: "unsupported format or content type",
+                            422: "malformed scene file, too many triangles, unknown built-in",
+                            500: "the store is corrupted"})},
+    openapi_extra={"requestBody": {"required": True, "content": {
+        "multipart/form-data": {"schema": {"type": "object", "required": ["file"], "properties": {
+            "file": {"type": "string", "format": "binary", "description": "a .glb, .gltf, .obj or .ply file"},
+            "format": {"type": "string", "enum": ["glb", "gltf", "obj", "ply"],
+                       "description": "overrides the file name suffix"},
+            "name": {"type": "string", "description": "display name (default: the file name stem)"}}}},
+        "application/json": {"schema": {"$ref": "#/components/schemas/BuiltinSceneRequest"}},
+        "application/octet-stream": {"schema": {"type": "string", "format": "binary"},
+                                     "description": "raw file; give ?format="}}}})
+async def create_scene(request: Request, settings: SettingsDep, store: StoreDep, metrics: MetricsDep,
+                       format: str | None = None, name: str | None = None) -> JSONResponse:
+    ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    if ctype == "application/json":
+        body = await _read_limited(request, settings.max_json_bytes, "JSON body")
+        try:
+            req = BuiltinSceneRequest.model_validate_json(body)
+        except ValidationError as exc:
+            errors = exc.errors(include_url=False)
+            raise RequestValidationError([{**e, "loc": ("body", *e["loc"])} for e in errors]) from None
+        meta, created = await run_in_threadpool(store.put_builtin, req.builtin, req.params.model_dump())
+    else:
+        if ctype == "multipart/form-data":
+            data, fmt, display = await _read_multipart(request, settings, format, name)
+        elif ctype in RAW_CONTENT_TYPES:
+            implied = format or RAW_CONTENT_TYPES[ctype]
+            if not implied:
+                raise HTTPException(415, "a raw upload needs its format: add ?format=glb|gltf|obj|ply")
+            data = await _read_limited(request, settings.max_upload_bytes, "upload")
+            fmt = _format_from(implied, None)
+            display = name or "upload"
+        else:
+            raise HTTPException(415, f"unsupported content type {ctype[:60] or '(none)'!r}: send "
+                                     "multipart/form-data with a 'file' field, a raw body with ?format=, or JSON "
+                                     "{\"builtin\": ...}")
+        meta, created = await run_in_threadpool(store.put_upload, data, fmt, display)
+        metrics.upload()
+    return JSONResponse(jsonable_encoder(_info(meta)), status_code=201 if created else 200,
+                        headers={"Location": f"/scenes/{meta.id}"})
+
+
+@router.get("/{scene_id}", response_model=SceneInfo, summary="One scene's metadata",
+            responses=responses({404: "unknown or malformed id"}))
+async def get_scene(scene_id: str, store: StoreDep) -> SceneInfo:
+    return _info(await run_in_threadpool(store.get_meta, scene_id))
+
+
+@router.delete("/{scene_id}", status_code=204, summary="Delete a stored scene",
+               responses=responses({404: "unknown or malformed id", 409: "built-in default scenes cannot be deleted"}))
+async def delete_scene(scene_id: str, store: StoreDep, worker: WorkerDep) -> Response:
+    await run_in_threadpool(store.delete, scene_id)
+    worker.forget(scene_id)
+    return Response(status_code=204)

@@ -1,0 +1,462 @@
+"""Issue 15, item 5: the service's hardening — settings from the environment, body
+limits, the memory budget, strict types, error messages, uniform statuses, slow
+clients, the bearer token, CORS and the metrics. Frames here are tiny (≤ 32²)."""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+import time
+from collections.abc import Iterator
+
+import pytest
+from fastapi.testclient import TestClient
+
+from service.config import Settings
+from service.deps import presented_token, token_ok
+from service.store import builtin_id
+from tests.helpers import frame_camera, obj_text, service
+
+CORNELL = builtin_id("cornell")
+UNKNOWN = "0" * 64
+CAMERA = frame_camera("cornell")
+RENDER_PATHS = ("frames", "depth-images", "reconstruction")
+
+
+@pytest.fixture(scope="module")
+def client(tmp_path_factory) -> Iterator[TestClient]:
+    with service(tmp_path_factory.mktemp("data")) as c:
+        yield c
+
+
+def post_text(client: TestClient, url: str, text: str | bytes, **headers: str):
+    body = text.encode() if isinstance(text, str) else text
+    return client.post(url, content=body, headers={"content-type": "application/json", **headers})
+
+
+def frame_body(**extra) -> dict:
+    return {"camera": CAMERA, "width": 32, "height": 32, **extra}
+
+
+# --- depthview serve and the environment ---------------------------------------------------
+def test_serve_honours_the_environment_and_options_win(tmp_path, monkeypatch):
+    import uvicorn
+
+    from service import cli
+
+    seen = []
+    monkeypatch.setattr(uvicorn.Server, "run", lambda self: seen.append(self.config))
+    env = {"DEPTHVIEW_DATA_DIR": str(tmp_path / "store"), "DEPTHVIEW_HOST": "127.0.0.9",
+           "DEPTHVIEW_PORT": "9123", "DEPTHVIEW_GL": "osmesa", "DEPTHVIEW_HEADER_TIMEOUT_S": "3"}
+    for k, v in env.items():
+        monkeypatch.setenv(k, v)
+    assert cli.main(["serve"]) == 0
+    config = seen[-1]
+    settings = config.app.state.settings
+    assert (config.host, config.port) == ("127.0.0.9", 9123)
+    assert settings.data_dir == tmp_path / "store" and settings.gl_backend == "osmesa"
+    assert settings.header_timeout_s == 3.0 and config.timeout_keep_alive == cli.KEEP_ALIVE_S
+    # Options given on the command line win over the environment.
+    assert cli.main(["serve", "--port", "9124", "--host", "127.0.0.10", "--data-dir", str(tmp_path / "o"),
+                     "--gl-backend", "egl"]) == 0
+    settings = seen[-1].app.state.settings
+    assert (seen[-1].host, seen[-1].port, settings.data_dir, settings.gl_backend) == (
+        "127.0.0.10", 9124, tmp_path / "o", "egl")
+
+
+def test_settings_from_env_new_settings_and_none_overrides():
+    env = {"DEPTHVIEW_PORT": "9000", "DEPTHVIEW_GL": "OSMesa", "DEPTHVIEW_GL_BACKEND": "egl",
+           "DEPTHVIEW_TOKEN": "t0k", "DEPTHVIEW_CORS_ORIGINS": "https://a.example, https://b.example/",
+           "DEPTHVIEW_MAX_JSON_BYTES": "4096", "DEPTHVIEW_MAX_JOB_BYTES": "1_000_000",
+           "DEPTHVIEW_BODY_TIMEOUT_S": "2.5"}
+    s = Settings.from_env(env, port=None, host=None, data_dir=None, gl_backend=None)
+    assert s.port == 9000 and s.gl_backend == "osmesa"  # DEPTHVIEW_GL wins over DEPTHVIEW_GL_BACKEND
+    assert s.token == "t0k" and s.cors_origins == ("https://a.example", "https://b.example")
+    assert (s.max_json_bytes, s.max_job_bytes, s.body_timeout_s) == (4096, 1_000_000, 2.5)
+    d = Settings.from_env({})
+    assert (d.token, d.cors_origins, d.max_json_bytes, d.max_job_bytes) == (None, (), 1 << 20, 4 << 30)
+    assert (d.header_timeout_s, d.body_timeout_s) == (10.0, 30.0)
+    with pytest.raises(ValueError, match="DEPTHVIEW_MAX_JOB_BYTES"):
+        Settings.from_env({"DEPTHVIEW_MAX_JOB_BYTES": "lots"})
+    with pytest.raises(ValueError, match="gl_backend"):
+        Settings.from_env({"DEPTHVIEW_GL": "vulkan"})
+    with pytest.raises(ValueError, match="body_timeout_s"):
+        Settings(body_timeout_s=0)
+
+
+# --- body size limits and short error messages -----------------------------------------------
+@pytest.mark.parametrize("path", RENDER_PATHS)
+def test_json_body_over_the_limit_is_413_without_an_echo(tmp_path_factory, path):
+    with service(tmp_path_factory.mktemp("d"), ready=False, max_json_bytes=4096) as c:
+        big = json.dumps({**frame_body(), "pad": "x" * 20_000})
+        r = post_text(c, f"/scenes/{CORNELL}/{path}", big)
+        assert r.status_code == 413 and "4096 bytes (DEPTHVIEW_MAX_JSON_BYTES)" in r.json()["detail"]
+        assert len(r.content) < 300
+        # Streamed without Content-Length: counted while it arrives.
+        chunks = (big[i:i + 1000].encode() for i in range(0, len(big), 1000))
+        r = c.post(f"/scenes/{CORNELL}/{path}", content=chunks, headers={"content-type": "application/json"})
+        assert r.status_code == 413 and "exceeds the limit of 4096 bytes" in r.json()["detail"]
+        # Any content type: the limit is the endpoint's, not the JSON parser's.
+        r = c.post(f"/scenes/{CORNELL}/{path}", content=b"x" * 5000, headers={"content-type": "text/plain"})
+        assert r.status_code == 413
+
+
+def test_builtin_scene_json_body_over_the_limit_is_413(tmp_path):
+    with service(tmp_path, ready=False, max_json_bytes=1024) as c:
+        r = post_text(c, "/scenes", json.dumps({"builtin": "nest", "pad": "y" * 4000}))
+        assert r.status_code == 413 and len(r.content) < 300
+
+
+def test_validation_errors_repeat_only_an_excerpt_of_the_input(client):
+    huge = "7" * 200_000
+    r = post_text(client, f"/scenes/{CORNELL}/frames", json.dumps(frame_body(width=huge, cull_back_faces=huge)))
+    assert r.status_code == 422
+    assert len(r.content) < 2000, len(r.content)
+    errs = r.json()["detail"]
+    assert {tuple(e["loc"]) for e in errs} == {("body", "width"), ("body", "cull_back_faces")}
+    assert all(e["input"].endswith("(200,002 characters)") and len(e["input"]) < 120 for e in errs)
+    r = post_text(client, f"/scenes/{CORNELL}/frames", json.dumps(frame_body(width="x")))
+    assert r.status_code == 422 and r.json()["detail"][0]["input"] == "x"  # short inputs in full
+
+
+# --- the memory budget -----------------------------------------------------------------------------
+def test_memory_budget_refuses_large_requests_up_front(client):
+    """16 layers at 2048² (6.8 GB measured) is over the default 4 GiB; the scene is not
+    even looked up (an unknown id still gets 422, not 404)."""
+    r = client.post(f"/scenes/{UNKNOWN}/depth-images",
+                    json={"method": "peeling", "layers": 16, "width": 2048, "height": 2048})
+    assert r.status_code == 422, r.text
+    detail = r.json()["detail"]
+    assert "memory budget of 4.00 GiB" in detail and "16 images of 2048×2048" in detail
+    assert "DEPTHVIEW_MAX_JOB_BYTES" in detail
+    r = client.post(f"/scenes/{UNKNOWN}/reconstruction",
+                    json={"cameras": [CAMERA] * 16, "resolution": 2048})
+    assert r.status_code == 422 and "16 reconstructed images of 2048²" in r.json()["detail"]
+    r = client.post(f"/scenes/{UNKNOWN}/frames", json=frame_body(width=4096, height=4096,
+                                                                  effects={"reflections": "cluster"}))
+    assert r.status_code == 422 and "reflections" in r.json()["detail"]
+    # Within the budget the same endpoints go on (404: the unknown scene is looked up).
+    r = client.post(f"/scenes/{UNKNOWN}/depth-images", json={"method": "peeling", "layers": 4, "width": 512,
+                                                              "height": 512})
+    assert r.status_code == 404
+
+
+def test_memory_budget_is_configurable_and_covers_soft_shadows(tmp_path):
+    with service(tmp_path, max_job_bytes=8 * 2**20) as c:
+        r = c.post(f"/scenes/{CORNELL}/frames", json=frame_body(width=256, height=256))  # 10 MiB
+        assert r.status_code == 422 and "over the memory budget of 8.0 MiB" in r.json()["detail"]
+        assert c.post(f"/scenes/{CORNELL}/frames", json=frame_body()).status_code == 200
+        shadows = {"soft_shadows": {"samples": 2, "resolution": 256}}  # 4 × 256² × 160 B = 40 MiB
+        r = c.post(f"/scenes/{CORNELL}/frames", json=frame_body(width=8, height=8, effects=shadows))
+        assert r.status_code == 422 and "4 reconstructed images of 256²" in r.json()["detail"]
+        r = c.post(f"/scenes/{CORNELL}/depth-images", json={"width": 128, "height": 128, "metrics": True})
+        assert r.status_code == 422 and "conventional images for metrics" in r.json()["detail"]
+
+
+# --- strict types and messages that name the real problem ------------------------------------------
+@pytest.mark.parametrize("extra, loc", [
+    ({"width": True}, "width"),
+    ({"width": "64"}, "width"),
+    ({"height": 32.0}, "height"),
+    ({"cull_back_faces": "no"}, "cull_back_faces"),
+    ({"cull_back_faces": 0}, "cull_back_faces"),
+    ({"camera": {**CAMERA, "fov": "45"}}, "fov"),
+    ({"camera": {**CAMERA, "eye": ["1", 1, 3]}}, "eye"),
+    ({"effects": {"reflections": "cluster", "glossy_rays": "8"}}, "glossy_rays"),
+    ({"effects": {"soft_shadows": {"samples": True}}}, "samples"),
+])
+def test_strict_types_are_422_not_coerced(client, extra, loc):
+    r = client.post(f"/scenes/{CORNELL}/frames", json=frame_body(**extra))
+    assert r.status_code == 422, r.text
+    assert any(e["loc"][-1] == loc or loc in e["loc"] for e in r.json()["detail"]), r.json()
+
+
+@pytest.mark.parametrize("path, body, loc", [
+    ("depth-images", {"metrics": "yes"}, "metrics"),
+    ("depth-images", {"layers": "3", "method": "peeling"}, "layers"),
+    ("reconstruction", {"resolution": "512"}, "resolution"),
+])
+def test_strict_types_on_the_other_render_endpoints(client, path, body, loc):
+    r = client.post(f"/scenes/{CORNELL}/{path}", json=body)
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"][-1] == loc
+
+
+def test_strict_builtin_params_and_integers_where_floats_go(client):
+    for params in ({"seed": "1"}, {"detail": True}, {"detail": "1.0"}):
+        r = client.post("/scenes", json={"builtin": "nest", "params": params})
+        assert r.status_code == 422, (params, r.text)
+    # An integer is a number: eye [0, 1, 3] and detail 1 are fine.
+    assert client.post("/scenes", json={"builtin": "cornell", "params": {"detail": 1}}).status_code == 200
+    r = client.post(f"/scenes/{CORNELL}/frames", json=frame_body(camera={"eye": [0, 1, 3], "target": [0, 1, 0]}))
+    assert r.status_code == 200
+
+
+def test_tiny_fov_and_huge_coordinates_name_the_real_problem(client):
+    r = client.post(f"/scenes/{CORNELL}/frames", json=frame_body(camera={**CAMERA, "fov": 1e-9}))
+    assert r.status_code == 422 and "greater than or equal to 0.01" in json.dumps(r.json())
+    r = client.post(f"/scenes/{CORNELL}/frames", json=frame_body(camera={**CAMERA, "fov": 0.01}))
+    assert r.status_code == 200  # the smallest fov renders
+    r = client.post(f"/scenes/{CORNELL}/frames", json=frame_body(camera={"eye": [1e308, 1, 3], "target": [0, 1, 0]}))
+    text = json.dumps(r.json())
+    assert r.status_code == 422 and "coordinate 1e+308 is out of range" in text and "coincide" not in text
+    light = {"center": [0, 1e300, 0], "u": [1, 0, 0], "v": [0, 0, 1]}
+    r = client.post(f"/scenes/{CORNELL}/frames", json=frame_body(effects={"soft_shadows": {"light": light}}))
+    assert r.status_code == 422 and "light center coordinate" in json.dumps(r.json())
+
+
+def test_a_long_format_name_is_not_echoed(client):
+    r = client.post("/scenes?format=" + "q" * 5000, content=b"v 0 0 0\n",
+                    headers={"content-type": "application/octet-stream"})
+    assert r.status_code == 415 and len(r.content) < 300 and "q" * 16 in r.json()["detail"]
+
+
+def test_a_long_store_or_loader_message_is_cut(tmp_path, monkeypatch):
+    from scenes.loaders import SceneLoadError
+
+    with service(tmp_path, ready=False) as c:
+        def quoting(scene_id):  # a library message quoting a long piece of its input
+            raise SceneLoadError("malformed OBJ: could not convert " + "9" * 5000)
+
+        monkeypatch.setattr(c.app.state.store, "get_meta", quoting)
+        r = c.get(f"/scenes/{CORNELL}")
+        assert r.status_code == 422 and r.json()["detail"].endswith("… (message cut)")
+        assert len(r.json()["detail"]) < 520
+
+
+def test_ply_declaring_more_vertices_than_it_holds_is_422_saying_so(client):
+    ply = (b"ply\nformat ascii 1.0\nelement vertex 5000000\nproperty float x\nproperty float y\n"
+           b"property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+           b"0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    r = client.post("/scenes", files={"file": ("liar.ply", ply)})
+    assert r.status_code == 422 and "declares 5,000,000 'vertex'" in r.json()["detail"]
+
+
+# --- uniform statuses, Allow, OpenAPI ----------------------------------------------------------------
+@pytest.mark.parametrize("url", ["/scenes", f"/scenes/{CORNELL}/frames", f"/scenes/{CORNELL}/depth-images",
+                                 f"/scenes/{CORNELL}/reconstruction"])
+def test_malformed_json_is_400_on_every_endpoint(client, url):
+    r = post_text(client, url, '{"camera": ')
+    assert r.status_code == 400 and r.json()["detail"].startswith("request body is not valid JSON")
+
+
+@pytest.mark.parametrize("method, url, allow", [
+    ("POST", f"/scenes/{CORNELL}", "DELETE, GET, HEAD"),
+    ("PUT", f"/scenes/{CORNELL}", "DELETE, GET, HEAD"),
+    ("DELETE", "/scenes", "GET, HEAD, POST"),
+    ("GET", f"/scenes/{CORNELL}/frames", "POST"),
+    ("POST", "/healthz", "GET, HEAD"),
+])
+def test_405_lists_every_allowed_method(client, method, url, allow):
+    r = client.request(method, url)
+    assert r.status_code == 405 and r.headers["allow"] == allow
+    if method != "HEAD":
+        assert r.json()["detail"] == "Method Not Allowed"
+
+
+def test_every_documented_status_has_a_schema(client):
+    spec = client.get("/openapi.json").json()
+    assert spec["components"]["securitySchemes"]["bearer"] == {
+        "type": "http", "scheme": "bearer", "description": spec["components"]["securitySchemes"]["bearer"][
+            "description"]}
+    checked = 0
+    for path, item in spec["paths"].items():
+        for method, op in item.items():
+            for status, resp in op["responses"].items():
+                if status.startswith("2") and status != "200":
+                    continue
+                content = resp.get("content") or {}
+                assert content, (method, path, status)
+                if not status.startswith("2"):
+                    assert content["application/json"]["schema"], (method, path, status)
+                    checked += 1
+    assert checked >= 40
+    frames = spec["paths"]["/scenes/{scene_id}/frames"]["post"]["responses"]
+    assert {"400", "401", "404", "408", "413", "422", "500", "503", "504"} <= set(frames)
+    for name in ("ErrorResponse", "ValidationErrorResponse", "ValidationIssue"):
+        assert name in spec["components"]["schemas"]
+
+
+# --- slow clients -------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def live_server(tmp_path_factory) -> Iterator[tuple[str, int]]:
+    """The real uvicorn server of `depthview serve` on a loopback port, short timeouts."""
+    import uvicorn
+
+    from service.cli import server_config
+
+    settings = Settings(data_dir=tmp_path_factory.mktemp("live"), host="127.0.0.1", port=0,
+                        header_timeout_s=0.5, body_timeout_s=0.5)
+    server = uvicorn.Server(server_config(settings, log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    t0 = time.monotonic()
+    while not server.started and time.monotonic() - t0 < 30:
+        time.sleep(0.02)
+    assert server.started
+    port = server.servers[0].sockets[0].getsockname()[1]
+    try:
+        yield "127.0.0.1", port
+    finally:
+        server.should_exit = True
+        thread.join(30)
+
+
+def _read_until_closed(sock: socket.socket, limit_s: float = 5.0) -> tuple[bytes, float]:
+    t0 = time.monotonic()
+    sock.settimeout(limit_s)
+    data = b""
+    while True:
+        chunk = sock.recv(65536)
+        if not chunk:
+            return data, time.monotonic() - t0
+        data += chunk
+
+
+def test_stalled_headers_close_the_connection(live_server):
+    with socket.create_connection(live_server, timeout=5) as s:
+        s.sendall(b"GET /healthz HTTP/1.1\r\nHost: x\r\n")  # no blank line: the head never ends
+        data, waited = _read_until_closed(s)
+    assert data == b"" and 0.3 < waited < 4.0
+    with socket.create_connection(live_server, timeout=5) as s:  # connected, silent
+        data, waited = _read_until_closed(s)
+    assert data == b"" and waited < 4.0
+
+
+def test_stalled_body_is_408_and_closed(live_server):
+    head = (f"POST /scenes/{CORNELL}/frames HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+            "Content-Length: 400\r\n\r\n").encode()
+    with socket.create_connection(live_server, timeout=5) as s:
+        s.sendall(head + b'{"camera": ')
+        data, waited = _read_until_closed(s)
+    assert data.startswith(b"HTTP/1.1 408 "), data[:200]
+    assert b"connection: close" in data.lower() and b"DEPTHVIEW_BODY_TIMEOUT_S" in data
+    assert 0.3 < waited < 4.0
+
+
+def test_an_announced_large_body_is_refused_before_it_is_sent(live_server):
+    head = (f"POST /scenes/{CORNELL}/depth-images HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+            f"Content-Length: {200 * 2**20}\r\n\r\n").encode()
+    with socket.create_connection(live_server, timeout=5) as s:
+        s.sendall(head + b"{")  # 200 MiB announced, one byte sent
+        data, waited = _read_until_closed(s)
+    assert data.startswith(b"HTTP/1.1 413 ") and b"DEPTHVIEW_MAX_JSON_BYTES" in data and waited < 2.0
+    assert len(data) < 1000
+
+
+def test_a_prompt_client_is_served_and_kept_alive(live_server):
+    with socket.create_connection(live_server, timeout=5) as s:
+        for _ in range(2):  # two requests on one connection, well within the timeouts
+            s.sendall(b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n")
+            data = b""
+            while b'"ok"' not in data:
+                data += s.recv(65536)
+            assert data.startswith(b"HTTP/1.1 200 ")
+
+
+# --- bearer token and CORS ------------------------------------------------------------------------------
+def test_bearer_token(tmp_path):
+    with service(tmp_path, token="s3cret") as c:
+        assert c.get("/healthz").status_code == 200 and c.get("/readyz").status_code == 200
+        assert c.get("/openapi.json").status_code == 200
+        for method, url in (("GET", "/scenes"), ("GET", f"/scenes/{CORNELL}"), ("GET", "/metrics"),
+                            ("POST", f"/scenes/{CORNELL}/frames"), ("DELETE", f"/scenes/{UNKNOWN}")):
+            r = c.request(method, url, json=frame_body() if method == "POST" else None)
+            assert r.status_code == 401, (url, r.status_code)
+            assert r.headers["www-authenticate"].startswith("Bearer")
+            r = c.request(method, url, headers={"Authorization": "Bearer wrong"},
+                          json=frame_body() if method == "POST" else None)
+            assert r.status_code == 401
+        ok = {"Authorization": "Bearer s3cret"}
+        assert c.get("/scenes", headers=ok).status_code == 200
+        r = c.post(f"/scenes/{CORNELL}/frames", json=frame_body(), headers=ok)
+        assert r.status_code == 200 and r.headers["content-type"] == "image/png"
+        assert c.get("/metrics", headers=ok).status_code == 200
+    # The reusable check (the stream and the page take the token from the query).
+    s = Settings(token="s3cret")
+    assert token_ok(s, "s3cret") and not token_ok(s, "s3cre") and not token_ok(s, None)
+    assert token_ok(Settings(), None)
+    assert presented_token({"authorization": "Bearer abc"}) == "abc"
+    assert presented_token({}, {"token": "abc"}) == "abc" and presented_token({}) is None
+
+
+def test_cors_is_off_by_default_and_configurable(client, tmp_path):
+    r = client.get("/scenes", headers={"Origin": "https://a.example"})
+    assert r.status_code == 200 and "access-control-allow-origin" not in r.headers
+    with service(tmp_path, ready=False, cors_origins=("https://a.example",), token="t") as c:
+        pre = c.options("/scenes", headers={"Origin": "https://a.example", "Access-Control-Request-Method": "GET",
+                                            "Access-Control-Request-Headers": "authorization"})
+        assert pre.status_code == 200 and pre.headers["access-control-allow-origin"] == "https://a.example"
+        r = c.get("/scenes", headers={"Origin": "https://a.example"})  # a refusal carries CORS headers too
+        assert r.status_code == 401 and r.headers["access-control-allow-origin"] == "https://a.example"
+        r = c.get("/scenes", headers={"Origin": "https://evil.example", "Authorization": "Bearer t"})
+        assert r.status_code == 200 and "access-control-allow-origin" not in r.headers
+
+
+# --- metrics --------------------------------------------------------------------------------------------
+def _values(text: str) -> dict[str, float]:
+    out = {}
+    for line in text.splitlines():
+        if line and not line.startswith("#"):
+            name, value = line.rsplit(" ", 1)
+            out[name] = float(value)
+    return out
+
+
+def test_metrics_cover_routes_steps_workers_and_every_error(tmp_path):
+    with service(tmp_path) as c:
+        route = "/scenes/{scene_id}/frames"
+        before = _values(c.get("/metrics").text)
+        assert c.post(f"/scenes/{CORNELL}/frames", json=frame_body()).status_code == 200
+        assert c.post(f"/scenes/{CORNELL}/frames", json=frame_body(width=True)).status_code == 422
+        assert post_text(c, f"/scenes/{CORNELL}/frames", "{").status_code == 400
+        assert c.post(f"/scenes/{CORNELL}/frames", json=frame_body(width=5000)).status_code == 422
+        assert c.get(f"/scenes/{UNKNOWN}").status_code == 404
+        assert c.get("/nowhere").status_code == 404
+        assert c.post(f"/scenes/{CORNELL}").status_code == 405  # no route matched: labelled by template
+        assert c.head("/scenes").status_code == 200
+        assert c.get("/openapi.json").status_code == 200
+        text = c.get("/metrics").text
+    v = _values(text)
+
+    def delta(key: str) -> float:
+        return v.get(key, 0.0) - before.get(key, 0.0)
+
+    assert delta(f'depthview_responses_total{{method="POST",route="{route}",status="200"}}') == 1
+    assert delta(f'depthview_responses_total{{method="POST",route="{route}",status="422"}}') == 2
+    assert delta(f'depthview_responses_total{{method="POST",route="{route}",status="400"}}') == 1
+    assert delta('depthview_responses_total{method="GET",route="/scenes/{scene_id}",status="404"}') == 1
+    assert delta('depthview_responses_total{method="GET",route="(unmatched)",status="404"}') == 1
+    assert delta('depthview_responses_total{method="POST",route="/scenes/{scene_id}",status="405"}') == 1
+    assert delta('depthview_responses_total{method="HEAD",route="/scenes",status="200"}') == 1
+    assert delta('depthview_responses_total{method="GET",route="/openapi.json",status="200"}') == 1
+    assert not [k for k in v if CORNELL in k or UNKNOWN in k]  # ids never become label values
+    assert delta('depthview_http_errors_total{class="4xx"}') == 6
+    assert delta('depthview_http_errors_total{class="5xx"}') == 0
+    assert delta(f'depthview_request_seconds_count{{method="POST",route="{route}"}}') == 4
+    assert v[f'depthview_request_seconds_bucket{{method="POST",route="{route}",le="+Inf"}}'] == 4
+    buckets = [k for k in v if k.startswith(f'depthview_request_seconds_bucket{{method="POST",route="{route}"')]
+    counts = [v[k] for k in buckets]
+    assert len(buckets) >= 10 and counts == sorted(counts)  # cumulative
+    assert "# TYPE depthview_request_seconds histogram" in text
+    for step in ("scene_load", "job", "encode"):
+        assert delta(f'depthview_step_seconds_count{{step="{step}"}}') == 1, step
+    assert v["depthview_workers_alive"] == 1 and v["depthview_queue_depth"] == 0
+    assert v["depthview_frames_streamed_total"] == 0 and delta("depthview_queue_wait_seconds_count") == 1
+
+
+def test_head_is_answered_wherever_get_is(client):
+    r = client.head("/scenes")
+    assert r.status_code == 200 and r.content == b"" and r.headers["content-type"] == "application/json"
+    assert client.head("/healthz").status_code == 200
+    r = client.head(f"/scenes/{CORNELL}/frames")
+    assert r.status_code == 405 and r.headers["allow"] == "POST"
+
+
+def test_request_guard_leaves_uploads_to_their_own_limit(tmp_path):
+    """The JSON limit does not apply to scene uploads (their own limit does)."""
+    with service(tmp_path, ready=False, max_json_bytes=1024) as c:
+        data = obj_text(60)
+        assert len(data) > 1024
+        r = c.post("/scenes", files={"file": ("strip.obj", data)})
+        assert r.status_code == 201, r.text
