@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -109,9 +110,15 @@ async def validation_error(request: Request, exc: Exception) -> JSONResponse:
         where = str((bad_json[0].get("ctx") or {}).get("error", ""))[:EXCERPT_CHARS]
         return JSONResponse({"detail": "request body is not valid JSON" + (f": {where}" if where else "")},
                             status_code=400)
+    return JSONResponse({"detail": validation_details(errors)}, status_code=422)
+
+
+def validation_details(errors: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """pydantic's errors as ValidationIssue dicts (JSON-safe), each with an excerpt of
+    its input (the 422 body; the stream sends the same in its error messages)."""
     out = [{"loc": list(e.get("loc", ())), "msg": str(e.get("msg", ""))[:300], "type": e.get("type", ""),
             "input": excerpt(e.get("input"))} for e in errors]
-    return JSONResponse({"detail": _json_safe(jsonable_encoder(out))}, status_code=422)
+    return _json_safe(jsonable_encoder(out))
 
 
 async def http_error(request: Request, exc: Exception) -> JSONResponse:

@@ -12,24 +12,15 @@ from fastapi import APIRouter, Depends, HTTPException, Response
 from fastapi.responses import JSONResponse
 
 from gl_passes.reconstruction import glb_bytes
-from scenes.camera import Camera
-from scenes.model import AreaLight, Scene
+from scenes.model import AreaLight
 from service.budget import check_budget, frame_bytes, reconstruction_bytes, set_bytes
 from service.deps import RenderDep, check_size, require_token
 from service.depth_sets import embree_set, encode_set, needs_gl, plan_set, set_metrics
-from service.effects import encode_reflections, raytrace
 from service.errors import json_safe, responses
-from service.jobs import frame_job, reconstruction_job, reflection_job, set_job, soft_shadow_job
+from service.frames import render
+from service.jobs import reconstruction_job, set_job
 from service.schemas import DepthImagesRequest, FrameRequest, ReconstructionRequest
-from service.soft_shadows import (
-    SoftShadowRequest,
-    encode_shadowed,
-    raytrace_counts,
-    reference_cameras,
-    resolve_light,
-    shade,
-)
-from service.worker import encode_frame
+from service.soft_shadows import reference_cameras, resolve_light
 
 MEDIA_TYPES = {"png": "image/png", "exr": "image/x-exr"}
 SET_MEDIA_TYPES = {"exr": "image/x-exr", "npz": "application/x-npz"}
@@ -54,7 +45,10 @@ depth_images = APIRouter(prefix="/scenes/{scene_id}", tags=["depth images"], dep
 async def render_frame(scene_id: str, req: FrameRequest, r: RenderDep) -> Response:
     t0 = time.perf_counter()
     try:
-        body = await _frame(r, scene_id, req)
+        check_size(r.settings, req.width, req.height)
+        check_budget(r.settings, frame_bytes(req))
+        rendered = await render(r, scene_id, req)
+        body = await r.encode(rendered.encode, req.format)
     except HTTPException as exc:
         r.metrics.frame_error(exc.status_code)
         raise
@@ -62,43 +56,6 @@ async def render_frame(scene_id: str, req: FrameRequest, r: RenderDep) -> Respon
     r.metrics.frame(req.format)
     return Response(body, media_type=MEDIA_TYPES[req.format], headers={
         "X-Render-Seconds": f"{dt:.4f}", "Content-Disposition": f'inline; filename="frame.{req.format}"'})
-
-
-async def _frame(r: RenderDep, scene_id: str, req: FrameRequest) -> bytes:
-    check_size(r.settings, req.width, req.height)
-    check_budget(r.settings, frame_bytes(req))
-    scene = await r.scene(scene_id)
-    camera = req.to_camera().fit_clip(scene.bounds)
-    label = f"frame {scene_id[:12]}"
-    method, rays = req.effects.reflections, req.effects.glossy_rays
-    if req.effects.soft_shadows is not None:
-        return await _soft_shadow_frame(r, scene_id, scene, camera, req, label)
-    if method == "none":
-        gbuf = await r.job(frame_job(scene_id, scene, camera, req.cull_back_faces), label)
-        return await r.encode(encode_frame, gbuf, req.format)
-    if method == "raytrace":
-        result = await r.cpu(raytrace, scene, camera, rays)
-    else:
-        result = await r.job(reflection_job(scene_id, scene, camera, method, rays), label)
-    return await r.encode(encode_reflections, result, req.format)
-
-
-async def _soft_shadow_frame(r: RenderDep, scene_id: str, scene: Scene, camera: Camera, req: FrameRequest,
-                             label: str) -> bytes:
-    spec = req.effects.soft_shadows
-    assert spec is not None
-    light = resolve_light(scene, None if spec.light is None else
-                          AreaLight(spec.light.center, spec.light.u, spec.light.v))
-    ss = SoftShadowRequest(light, spec.samples, spec.method, spec.reconstruction, spec.resolution)
-    try:  # the light must see the whole scene from its corners (422 otherwise)
-        reference_cameras(scene, light, "conventional", 16)
-    except ValueError as exc:
-        raise HTTPException(422, f"soft_shadows light: {exc}") from None
-    gbuf, counts = await r.job(soft_shadow_job(scene_id, scene, camera, ss), label)
-    if counts is None:
-        counts = await r.cpu(raytrace_counts, scene, gbuf, ss)
-    color = await r.cpu(shade, scene, gbuf, counts, ss)
-    return await r.encode(encode_shadowed, color, gbuf, counts, req.format)
 
 
 # --- reconstructions (thesis Ch. 3) -------------------------------------------------------

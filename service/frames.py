@@ -1,0 +1,77 @@
+"""One frame of a stored scene, as ``POST /scenes/{id}/frames`` and the stream render it.
+
+``render(r, scene_id, req)`` loads the scene, runs the frame's jobs (G-buffer,
+reflections by method, soft shadows) on the worker and the CPU steps in the thread
+pool, and returns a ``Rendered``: the linear colour (what the stream encodes as JPEG or
+PNG) and ``encode(fmt)``, the frames endpoint's PNG/EXR encoder of every buffer. The
+caller checks the size limits and the memory budget first.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from fastapi import HTTPException
+
+from scenes.camera import Camera
+from scenes.model import AreaLight, Scene
+from service.deps import Render
+from service.effects import encode_reflections, raytrace
+from service.jobs import frame_job, reflection_job, soft_shadow_job
+from service.schemas import FrameRequest
+from service.soft_shadows import (
+    SoftShadowRequest,
+    encode_shadowed,
+    raytrace_counts,
+    reference_cameras,
+    resolve_light,
+    shade,
+)
+from service.worker import encode_frame
+
+
+@dataclass(frozen=True)
+class Rendered:
+    """A rendered frame: linear colour (H,W,3) float32 and the encoder of its buffers
+    (``encode("png" | "exr") -> bytes``; CPU only, call it off the event loop)."""
+
+    color: np.ndarray
+    encode: Callable[[str], bytes]
+
+
+async def render(r: Render, scene_id: str, req: FrameRequest) -> Rendered:
+    """The frame `req` of scene `scene_id` (HTTPException as the frames endpoint answers)."""
+    scene = await r.scene(scene_id)
+    camera = req.to_camera().fit_clip(scene.bounds)
+    label = f"frame {scene_id[:12]}"
+    method, rays = req.effects.reflections, req.effects.glossy_rays
+    if req.effects.soft_shadows is not None:
+        return await _soft_shadows(r, scene_id, scene, camera, req, label)
+    if method == "none":
+        gbuf = await r.job(frame_job(scene_id, scene, camera, req.cull_back_faces), label)
+        return Rendered(gbuf.color, lambda fmt: encode_frame(gbuf, fmt))
+    if method == "raytrace":
+        result = await r.cpu(raytrace, scene, camera, rays)
+    else:
+        result = await r.job(reflection_job(scene_id, scene, camera, method, rays), label)
+    return Rendered(np.asarray(result.color, np.float32), lambda fmt: encode_reflections(result, fmt))
+
+
+async def _soft_shadows(r: Render, scene_id: str, scene: Scene, camera: Camera, req: FrameRequest,
+                        label: str) -> Rendered:
+    spec = req.effects.soft_shadows
+    assert spec is not None
+    light = resolve_light(scene, None if spec.light is None else
+                          AreaLight(spec.light.center, spec.light.u, spec.light.v))
+    ss = SoftShadowRequest(light, spec.samples, spec.method, spec.reconstruction, spec.resolution)
+    try:  # the light must see the whole scene from its corners (422 otherwise)
+        reference_cameras(scene, light, "conventional", 16)
+    except ValueError as exc:
+        raise HTTPException(422, f"soft_shadows light: {exc}") from None
+    gbuf, counts = await r.job(soft_shadow_job(scene_id, scene, camera, ss), label)
+    if counts is None:
+        counts = await r.cpu(raytrace_counts, scene, gbuf, ss)
+    color = await r.cpu(shade, scene, gbuf, counts, ss)
+    return Rendered(color, lambda fmt: encode_shadowed(color, gbuf, counts, fmt))
