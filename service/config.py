@@ -38,6 +38,18 @@ token                  unset (no authentication)    bearer token every endpoint 
                                                     and the docs requires (401 otherwise)
 cors_origins           unset (no CORS headers)      comma-separated origins allowed cross-origin
                                                     requests (``*`` for any)
+stream_max_per_client  4                            open ``/scenes/{id}/stream`` sockets per client
+                                                    address; one more gets an error message and is
+                                                    closed (code 1013)
+stream_max_total       16                           open stream sockets in total (same refusal)
+stream_max_message_    16 KiB (16384)               largest camera message on the stream (bytes);
+bytes                                               a larger one gets an error message
+stream_max_pixels      2,073,600 (1920×1080)        largest streamed frame width × height (error
+                                                    message; max_width/max_height apply too)
+stream_jpeg_quality    80                           JPEG quality (1–95) of frames while the camera
+                                                    moves
+stream_rest_s          0.3                          seconds without a camera message after which
+                                                    the latest view is sent again as lossless PNG
 =====================  ===========================  ===============================================
 
 The memory budget (``max_job_bytes``) is checked against an estimate made from the
@@ -144,6 +156,18 @@ class Settings:
     token: str | None = None
     #: Origins allowed cross-origin requests (CORS); empty = no CORS headers at all.
     cors_origins: tuple[str, ...] = ()
+    #: Open stream sockets per client address (more → error message, close code 1013).
+    stream_max_per_client: int = 4
+    #: Open stream sockets in total (more → error message, close code 1013).
+    stream_max_total: int = 16
+    #: Largest camera message on the stream in bytes (larger → error message on the socket).
+    stream_max_message_bytes: int = 16 * 1024
+    #: Largest streamed frame width × height (larger → error message on the socket).
+    stream_max_pixels: int = 1920 * 1080
+    #: JPEG quality of streamed frames while the camera moves (1–95).
+    stream_jpeg_quality: int = 80
+    #: Seconds the camera must rest before the latest view is sent again as PNG.
+    stream_rest_s: float = 0.3
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "data_dir", Path(self.data_dir))
@@ -153,10 +177,13 @@ class Settings:
         if self.token is not None and not self.token.strip():
             raise ValueError("setting token must not be blank (leave it unset for no authentication)")
         for name in ("max_upload_bytes", "max_triangles", "max_width", "max_height", "max_pixels",
-                     "queue_size", "scene_cache_size", "gpu_cache_size", "max_json_bytes", "max_job_bytes"):
+                     "queue_size", "scene_cache_size", "gpu_cache_size", "max_json_bytes", "max_job_bytes",
+                     "stream_max_per_client", "stream_max_total", "stream_max_message_bytes", "stream_max_pixels"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"setting {name} must be >= 1, got {getattr(self, name)!r}")
-        for name in ("job_timeout_s", "header_timeout_s", "body_timeout_s"):
+        if not 1 <= int(self.stream_jpeg_quality) <= 95:
+            raise ValueError(f"setting stream_jpeg_quality must be within 1..95, got {self.stream_jpeg_quality!r}")
+        for name in ("job_timeout_s", "header_timeout_s", "body_timeout_s", "stream_rest_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"setting {name} must be > 0, got {getattr(self, name)!r}")
         if self.gl_backend is not None and self.gl_backend not in ("egl", "osmesa"):
@@ -196,8 +223,9 @@ def _origins(raw: str) -> tuple[str, ...]:
 
 _INT_FIELDS = {"port", "max_upload_bytes", "max_triangles", "max_width", "max_height", "max_pixels",
                "queue_size", "retry_after_s", "scene_cache_size", "gpu_cache_size", "gl_device", "max_json_bytes",
-               "max_job_bytes"}
-_FLOAT_FIELDS = {"job_timeout_s", "header_timeout_s", "body_timeout_s"}
+               "max_job_bytes", "stream_max_per_client", "stream_max_total", "stream_max_message_bytes",
+               "stream_max_pixels", "stream_jpeg_quality"}
+_FLOAT_FIELDS = {"job_timeout_s", "header_timeout_s", "body_timeout_s", "stream_rest_s"}
 
 
 def _convert(name: str, raw: str, var: str) -> Any:

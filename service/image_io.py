@@ -40,6 +40,7 @@ __all__ = [
     "decode_png",
     "encode_exr",
     "encode_exr_multipart",
+    "encode_jpeg",
     "encode_npz",
     "encode_png",
     "linear_to_srgb",
@@ -93,20 +94,30 @@ def encode_png(rgb: np.ndarray, *, compress_level: int = 6) -> bytes:
     [0, 1] (NaN → 0), sRGB-encoded and rounded to the nearest 8-bit level (linear 0.5 → 188).
     Grey input is written as an RGB image with equal channels. compress_level: zlib level 0–9.
     """
+    return _save_srgb8(rgb, "encode_png", format="PNG", compress_level=compress_level)
+
+
+def encode_jpeg(rgb: np.ndarray, *, quality: int = 80) -> bytes:
+    """8-bit sRGB JPEG (baseline, 4:2:0) of a linear float image, levels as ``encode_png``
+    makes them (the stream's frames while the camera moves). quality: 1–95."""
+    return _save_srgb8(rgb, "encode_jpeg", format="JPEG", quality=int(quality))
+
+
+def _save_srgb8(rgb: np.ndarray, where: str, **save: object) -> bytes:
     arr = np.asarray(rgb)
     if arr.dtype.kind != "f":
-        raise ValueError(f"encode_png expects linear float data, got dtype {arr.dtype}")
+        raise ValueError(f"{where} expects linear float data, got dtype {arr.dtype}")
     if arr.ndim == 2:
         arr = arr[:, :, None].repeat(3, axis=2)
     if arr.ndim != 3 or arr.shape[2] != 3:
-        raise ValueError(f"encode_png expects an (H,W,3) or (H,W) array, got shape {arr.shape}")
+        raise ValueError(f"{where} expects an (H,W,3) or (H,W) array, got shape {arr.shape}")
     if arr.shape[0] < 1 or arr.shape[1] < 1:
-        raise ValueError(f"encode_png: empty image of shape {arr.shape}")
+        raise ValueError(f"{where}: empty image of shape {arr.shape}")
     from PIL import Image
 
     levels = np.rint(linear_to_srgb(arr.astype(np.float64)) * 255.0).astype(np.uint8)
     out = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(levels), mode="RGB").save(out, format="PNG", compress_level=compress_level)
+    Image.fromarray(np.ascontiguousarray(levels), mode="RGB").save(out, **save)
     return out.getvalue()
 
 

@@ -177,6 +177,20 @@ class FrameRequest(BaseModel):
             raise ValueError(str(exc)) from exc
 
 
+class StreamRequest(FrameRequest):
+    """A camera message on ``/scenes/{id}/stream``: the frames endpoint's camera, size and
+    effects, and an optional ``id`` the frame answering it echoes (the client's latency
+    clock). The stream picks the encoding (JPEG while the camera moves, PNG at rest)."""
+
+    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [{
+        "id": 1, "camera": {"eye": [0.0, 1.0, 3.5], "target": [0.0, 1.0, 0.0]}, "width": 320, "height": 240,
+        "effects": {"reflections": "cluster"}}]})
+
+    id: StrictInt | None = Field(default=None, ge=0, lt=2**53, description="echoed in the answering frame's stats")
+    format: Literal["png"] = Field(default="png", description="not used: the stream sends JPEG while the camera "
+                                                             "moves and PNG once it rests")
+
+
 class BuiltinParams(BaseModel):
     """Parameters of a built-in procedural scene."""
 

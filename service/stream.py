@@ -1,0 +1,336 @@
+"""The frame stream of ``/scenes/{id}/stream`` (a WebSocket; the route is
+``service.routes.stream``).
+
+Protocol. The client sends camera messages, JSON text (``StreamRequest``: the frames
+endpoint's ``camera``, ``width``, ``height``, ``effects``, ``cull_back_faces`` and an
+optional integer ``id``). The server sends, as JSON text:
+
+* ``{"type": "hello", "scene", "bounds", "view", "limits"}`` once, after accepting: the
+  scene's bounding box, a starting view that frames it, and the stream's limits;
+* per frame ``{"type": "frame", "seq", "id", "format": "jpeg"|"png", "width", "height",
+  "bytes", "render_ms", "encode_ms", "queue_wait_ms", "reused_ratio", "keyframe",
+  "superseded", "rest"}`` immediately followed by the frame itself as one binary
+  message (``id``: the camera message it answers; ``superseded``: camera messages
+  replaced by later ones since the previous frame; ``rest``: the PNG re-send);
+* ``{"type": "error", "status", "detail", "id"}`` for a bad message (not JSON, invalid
+  fields, over a limit) or a frame that failed (503 queue full, 504, ...): the socket
+  stays open.
+
+Latest wins: a reader task validates messages as they arrive and keeps only the newest
+one; the render loop takes it when the previous frame is sent, so messages that arrive
+while a frame renders replace each other and the latency stays bounded by about two
+frame times however fast the client sends. Frames are JPEG
+(``stream_jpeg_quality``) while the camera moves; once no message came for
+``stream_rest_s`` the latest view is sent again as PNG (lossless, re-encoded, not
+re-rendered).
+
+Each stream owns a ``FrameSource`` (made by ``app.state.frame_source(render,
+scene_id)``, closed with the socket): ``JobFrameSource`` renders every frame with the
+frames endpoint's jobs (``service.frames.render``) through the worker's bounded queue.
+It is the seam for the temporal reflection reuse (thesis Ch. 5, issue 14): a source
+holding one ``ReflectionReuser`` per stream reports its reused-pixel ratio and keyframe
+flag in the same stats; until then every frame is a keyframe with ratio 0.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Protocol, TypeVar
+
+import numpy as np
+from fastapi import HTTPException
+from pydantic import ValidationError
+from starlette.concurrency import run_in_threadpool
+from starlette.websockets import WebSocket, WebSocketDisconnect
+
+from scenes.camera import look_at_scene
+from service import errors, image_io
+from service.budget import check_budget, frame_bytes
+from service.config import Settings
+from service.deps import Render, check_size
+from service.frames import render
+from service.jobs import Job
+from service.schemas import StreamRequest
+
+log = logging.getLogger("depthview.stream")
+T = TypeVar("T")
+
+#: Close codes: too many streams (try again later), unknown scene.
+CLOSE_TRY_LATER = 1013
+CLOSE_NO_SCENE = 4404
+
+
+@dataclass(frozen=True)
+class SourceFrame:
+    """A rendered frame of a stream: linear colour (H,W,3) and how it was made."""
+
+    color: np.ndarray
+    render_s: float
+    queue_wait_s: float
+    reused_ratio: float = 0.0
+    keyframe: bool = True
+
+
+class FrameSource(Protocol):
+    """Renders a stream's frames; holds its per-stream state (issue 14: the
+    ReflectionReuser) and frees it in ``close()``."""
+
+    async def render(self, req: StreamRequest) -> SourceFrame: ...
+
+    def close(self) -> None: ...
+
+
+@dataclass
+class _TimedRender(Render):
+    """A Render that adds up how long its jobs waited in the worker's queue."""
+
+    queue_wait_s: float = 0.0
+
+    async def job(self, job: Job[T], label: str) -> T:
+        submitted, started = time.monotonic(), []
+
+        def timed(state: Any) -> T:
+            started.append(time.monotonic())
+            return job(state)
+
+        try:
+            return await super().job(timed, label)
+        finally:
+            self.queue_wait_s += (started[0] if started else time.monotonic()) - submitted
+
+
+class JobFrameSource:
+    """Every frame rendered from scratch as ``POST /frames`` renders it (no reuse yet:
+    reused_ratio 0, every frame a keyframe)."""
+
+    def __init__(self, r: Render, scene_id: str) -> None:
+        self.r, self.scene_id = r, scene_id
+
+    async def render(self, req: StreamRequest) -> SourceFrame:
+        timed = _TimedRender(self.r.settings, self.r.store, self.r.worker, self.r.metrics)
+        t0 = time.perf_counter()
+        rendered = await render(timed, self.scene_id, req)
+        return SourceFrame(np.asarray(rendered.color, np.float32), time.perf_counter() - t0, timed.queue_wait_s)
+
+    def close(self) -> None:
+        pass
+
+
+SourceFactory = Callable[[Render, str], FrameSource]
+
+
+class StreamSlots:
+    """Open streams per client address and in total, against the settings' limits."""
+
+    def __init__(self, settings: Settings) -> None:
+        self.per_client, self.total = settings.stream_max_per_client, settings.stream_max_total
+        self._open: dict[str, int] = {}
+        self._lock = threading.Lock()
+
+    def acquire(self, client: str) -> str | None:
+        """Take a slot for `client`; None when granted, else why not."""
+        with self._lock:
+            if sum(self._open.values()) >= self.total:
+                return f"too many streams open ({self.total} in total, DEPTHVIEW_STREAM_MAX_TOTAL)"
+            if self._open.get(client, 0) >= self.per_client:
+                return f"too many streams from this client ({self.per_client}, DEPTHVIEW_STREAM_MAX_PER_CLIENT)"
+            self._open[client] = self._open.get(client, 0) + 1
+            return None
+
+    def release(self, client: str) -> None:
+        with self._lock:
+            n = self._open.get(client, 0) - 1
+            if n > 0:
+                self._open[client] = n
+            else:
+                self._open.pop(client, None)
+
+    @property
+    def open(self) -> int:
+        with self._lock:
+            return sum(self._open.values())
+
+
+class BadMessage(Exception):
+    def __init__(self, status: int, detail: Any, msg_id: int | None = None) -> None:
+        super().__init__(str(detail))
+        self.status, self.detail, self.msg_id = status, detail, msg_id
+
+
+def parse_message(settings: Settings, text: str | None) -> StreamRequest:
+    """A camera message, validated and checked against the limits (BadMessage otherwise)."""
+    if text is None:
+        raise BadMessage(400, "send camera messages as JSON text, not binary")
+    size = len(text.encode("utf-8", "replace"))
+    if size > settings.stream_max_message_bytes:
+        raise BadMessage(413, f"message is {size} bytes, over the limit of {settings.stream_max_message_bytes} "
+                              "(DEPTHVIEW_STREAM_MAX_MESSAGE_BYTES)")
+    try:
+        req = StreamRequest.model_validate_json(text)
+    except ValidationError as exc:
+        issues = exc.errors(include_url=False)
+        if any(e.get("type") == "json_invalid" for e in issues):
+            raise BadMessage(400, "message is not valid JSON") from None
+        raise BadMessage(422, errors.validation_details(issues), _message_id(text)) from None
+    try:
+        check_size(settings, req.width, req.height, "stream frame")
+        if req.width * req.height > settings.stream_max_pixels:
+            raise HTTPException(422, f"stream frame width × height {req.width * req.height} exceeds the limit "
+                                     f"{settings.stream_max_pixels} (DEPTHVIEW_STREAM_MAX_PIXELS)")
+        check_budget(settings, frame_bytes(req))
+    except HTTPException as exc:
+        raise BadMessage(exc.status_code, exc.detail, req.id) from None
+    return req
+
+
+def _message_id(text: str) -> int | None:
+    try:
+        value = json.loads(text).get("id")
+    except (ValueError, AttributeError):
+        return None
+    return value if isinstance(value, int) and not isinstance(value, bool) else None
+
+
+def hello(scene_id: str, bounds: Any, settings: Settings) -> dict[str, Any]:
+    lo, hi = (np.asarray(b, np.float64) for b in bounds)
+    cam = look_at_scene((lo, hi), azimuth=20.0, elevation=15.0, distance=1.0, fov=50.0)
+    return {"type": "hello", "scene": scene_id, "bounds": [lo.tolist(), hi.tolist()],
+            "view": {"eye": list(cam.eye), "target": list(cam.target), "up": [0.0, 1.0, 0.0], "fov": 50.0},
+            "limits": {"max_pixels": settings.stream_max_pixels, "max_width": settings.max_width,
+                       "max_height": settings.max_height, "max_message_bytes": settings.stream_max_message_bytes,
+                       "jpeg_quality": settings.stream_jpeg_quality, "rest_s": settings.stream_rest_s}}
+
+
+class StreamSession:
+    """One open stream: the reader keeps the latest camera message, the render loop
+    renders it and sends the frame (see the module doc)."""
+
+    def __init__(self, ws: WebSocket, r: Render, source: FrameSource) -> None:
+        self.ws, self.r, self.source = ws, r, source
+        self.settings = r.settings
+        self._send_lock = asyncio.Lock()
+        self._latest: StreamRequest | None = None
+        self._superseded = 0
+        self._wake = asyncio.Event()
+        self.seq = 0
+
+    async def send_json(self, obj: dict[str, Any]) -> None:
+        async with self._send_lock:
+            await self.ws.send_text(json.dumps(obj))
+
+    async def error(self, status: int, detail: Any, msg_id: int | None = None) -> None:
+        detail = errors.short(detail) if isinstance(detail, str) else detail
+        await self.send_json({"type": "error", "status": status, "detail": detail, "id": msg_id})
+
+    async def run(self) -> None:
+        tasks = [asyncio.create_task(self._read()), asyncio.create_task(self._render_loop())]
+        try:
+            done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+            for t in done:
+                if t.exception() is not None and not isinstance(t.exception(), WebSocketDisconnect):
+                    log.error("stream task failed", exc_info=t.exception())
+        finally:
+            for t in tasks:
+                t.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+
+    async def _read(self) -> None:
+        while True:
+            msg = await self.ws.receive()
+            if msg["type"] == "websocket.disconnect":
+                return
+            try:
+                req = parse_message(self.settings, msg.get("text"))
+            except BadMessage as exc:
+                await self.error(exc.status, exc.detail, exc.msg_id)
+                continue
+            if self._latest is not None:
+                self._superseded += 1
+            self._latest = req
+            self._wake.set()
+
+    async def _render_loop(self) -> None:
+        last: tuple[np.ndarray, StreamRequest] | None = None
+        while True:
+            try:
+                await asyncio.wait_for(self._wake.wait(), None if last is None else self.settings.stream_rest_s)
+            except asyncio.TimeoutError:  # the camera rested: the same view, lossless
+                assert last is not None
+                await self._send(SourceFrame(last[0], 0.0, 0.0), last[1], "png", superseded=0, rest=True)
+                last = None
+                continue
+            self._wake.clear()
+            req, superseded = self._latest, self._superseded
+            self._latest, self._superseded = None, 0
+            assert req is not None
+            try:
+                frame = await self.source.render(req)
+            except HTTPException as exc:
+                await self.error(exc.status_code, exc.detail, req.id)
+                continue
+            except Exception as exc:  # noqa: BLE001 - reported on the socket, the stream goes on
+                status = errors.store_status(exc)
+                if status >= 500:
+                    log.exception("stream frame failed", exc_info=exc)
+                await self.error(status, f"{type(exc).__name__}: {str(exc)[:300]}", req.id)
+                continue
+            await self._send(frame, req, "jpeg", superseded=superseded, rest=False)
+            last = (frame.color, req)
+
+    async def _send(self, frame: SourceFrame, req: StreamRequest, fmt: str, superseded: int, rest: bool) -> None:
+        t0 = time.perf_counter()
+        with self.r.metrics.step("encode"):
+            if fmt == "jpeg":
+                body = await run_in_threadpool(image_io.encode_jpeg, frame.color,
+                                               quality=self.settings.stream_jpeg_quality)
+            else:
+                body = await run_in_threadpool(image_io.encode_png, frame.color, compress_level=1)
+        encode_s = time.perf_counter() - t0
+        self.seq += 1
+        h, w = frame.color.shape[:2]
+        stats = {"type": "frame", "seq": self.seq, "id": req.id, "format": fmt, "width": w, "height": h,
+                 "bytes": len(body), "render_ms": round(frame.render_s * 1e3, 2),
+                 "encode_ms": round(encode_s * 1e3, 2), "queue_wait_ms": round(frame.queue_wait_s * 1e3, 2),
+                 "reused_ratio": frame.reused_ratio, "keyframe": frame.keyframe, "superseded": superseded,
+                 "rest": rest}
+        async with self._send_lock:
+            await self.ws.send_text(json.dumps(stats))
+            await self.ws.send_bytes(body)
+        self.r.metrics.streamed()
+
+
+async def serve_stream(ws: WebSocket, r: Render, scene_id: str, slots: StreamSlots, factory: SourceFactory) -> None:
+    """Accept `ws` (the caller checked the token), enforce the stream limits, send the
+    hello and run the session; the frame source is closed when the socket closes."""
+    client = ws.client.host if ws.client is not None else "unknown"
+    await ws.accept()
+    refusal = slots.acquire(client)
+    if refusal is not None:
+        await ws.send_text(json.dumps({"type": "error", "status": 429, "detail": refusal, "id": None}))
+        await ws.close(CLOSE_TRY_LATER)
+        return
+    source: FrameSource | None = None
+    try:
+        try:
+            scene = await r.scene(scene_id)
+        except Exception as exc:  # noqa: BLE001 - the store's errors (unknown id, malformed file)
+            status = errors.store_status(exc)
+            await ws.send_text(json.dumps({"type": "error", "status": status, "detail": errors.short(str(exc)),
+                                           "id": None}))
+            await ws.close(CLOSE_NO_SCENE if status == 404 else 1011)
+            return
+        await ws.send_text(json.dumps(hello(scene_id, scene.bounds, r.settings)))
+        source = factory(r, scene_id)
+        await StreamSession(ws, r, source).run()
+    except WebSocketDisconnect:
+        pass
+    finally:
+        if source is not None:
+            source.close()
+        slots.release(client)
