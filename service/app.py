@@ -18,6 +18,8 @@ POST /scenes/{id}/frames   a frame: image/png (sRGB) or image/x-exr (RGB, Z, N, 
 POST /scenes/{id}/reconstruction  the reconstruction of a depth-image set as GLB
 POST /scenes/{id}/depth-images  a depth-image set (conventional | non_redundant | peeling): multi-part
                            EXR or npz; metrics=true → JSON with the §2.3.2 metrics and the set (base64)
+WS   /scenes/{id}/stream   camera messages in, JPEG/PNG frames and per-frame stats out (service.stream)
+GET  /client               the thin-client page (stream or local mode); /client/static/*, /client/three/*
 =========================  =====================================================================
 
 Status codes (every one with its schema in OpenAPI): 400 a body that is not JSON (on
@@ -52,10 +54,11 @@ from service import errors
 from service.config import Settings
 from service.metrics import Metrics
 from service.middleware import RequestGuard
-from service.routes import renders, scenes
+from service.routes import client, renders, scenes, stream
 from service.routes import service as service_routes
 from service.schemas import BuiltinParams, BuiltinSceneRequest, ErrorResponse, ValidationErrorResponse
 from service.store import SceneStore
+from service.stream import JobFrameSource, StreamSlots
 from service.worker import RenderWorker
 
 log = logging.getLogger("depthview.service")
@@ -83,9 +86,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                   description="Headless rendering service approximating scenes with depth images.")
     app.state.settings = settings
     app.state.metrics = Metrics()
+    app.state.stream_slots = StreamSlots(settings)
+    #: Makes each stream's FrameSource (issue 14: one holding a ReflectionReuser).
+    app.state.frame_source = JobFrameSource
     errors.install(app)
     for router in (service_routes.probes, service_routes.metrics_router, scenes.router, renders.frames,
-                   renders.reconstructions, renders.depth_images):
+                   renders.reconstructions, renders.depth_images, stream.router, client.router):
         app.include_router(router)
     app.add_middleware(RequestGuard, settings=settings, metrics=app.state.metrics,
                        templates=lambda: list(app.openapi()["paths"]))

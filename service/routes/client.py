@@ -1,0 +1,60 @@
+"""``/client``: the thin-client page (thesis scenario: a host renders, a thin client
+shows streamed frames and orbits a downloaded reconstruction locally).
+
+* ``GET /client`` — the page; takes the bearer token as a header or ``?token=`` (the page
+  passes it on to its API calls and to the stream);
+* ``GET /client/static/{name}`` — its script and style sheet (``service/static``);
+* ``GET /client/three/{path}`` — three.js from npm (``node_modules/three``: ``build/`` and
+  ``examples/jsm/``, JavaScript only; ``npm ci`` installs it, ``make setup`` runs that).
+
+The script, style sheet and three.js hold no data and need no token (a module script's
+imports cannot carry one)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from fastapi import APIRouter, HTTPException, Request
+from fastapi.responses import FileResponse, HTMLResponse
+
+from service.deps import presented_token, token_ok, unauthorized
+
+STATIC = Path(__file__).resolve().parents[1] / "static"
+#: Where ``npm ci`` puts three.js (package.json is at the repository root).
+NODE_MODULES = Path(__file__).resolve().parents[2] / "node_modules"
+#: Parts of the three package the page may import.
+THREE_DIRS = ("build", "examples/jsm")
+MEDIA = {".js": "text/javascript", ".css": "text/css", ".html": "text/html"}
+
+router = APIRouter(prefix="/client", tags=["client"])
+
+
+@router.get("", response_class=HTMLResponse, summary="The thin-client page",
+            responses={401: {"description": "missing or wrong bearer token (header or ?token=)"}})
+async def page(request: Request) -> HTMLResponse:
+    if not token_ok(request.app.state.settings, presented_token(request.headers, request.query_params)):
+        raise unauthorized()
+    return HTMLResponse((STATIC / "client.html").read_text(encoding="utf-8"),
+                        headers={"Cache-Control": "no-cache"})
+
+
+@router.get("/static/{name}", summary="The page's script and style sheet", include_in_schema=False)
+async def static(name: str) -> FileResponse:
+    path = STATIC / name
+    if "/" in name or path.suffix not in (".js", ".css") or not path.is_file():
+        raise HTTPException(404, "no such client file")
+    return FileResponse(path, media_type=MEDIA[path.suffix], headers={"Cache-Control": "no-cache"})
+
+
+@router.get("/three/{path:path}", summary="three.js (npm package, build/ and examples/jsm/)",
+            include_in_schema=False)
+async def three(path: str) -> FileResponse:
+    root = NODE_MODULES / "three"
+    if not root.is_dir():
+        raise HTTPException(404, f"three.js is not installed: run `npm ci` in {NODE_MODULES.parent} "
+                                 "(make setup does)")
+    target = (root / path).resolve()
+    allowed = [(root / d).resolve() for d in THREE_DIRS]
+    if target.suffix != ".js" or not any(target.is_relative_to(a) for a in allowed) or not target.is_file():
+        raise HTTPException(404, "not a three.js module")
+    return FileResponse(target, media_type="text/javascript", headers={"Cache-Control": "max-age=3600"})
