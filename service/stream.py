@@ -39,10 +39,11 @@ import json
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any, Protocol, TypeVar
 
+import anyio
 import numpy as np
 from fastapi import HTTPException
 from pydantic import ValidationError
@@ -229,16 +230,21 @@ class StreamSession:
         await self.send_json({"type": "error", "status": status, "detail": detail, "id": msg_id})
 
     async def run(self) -> None:
-        tasks = [asyncio.create_task(self._read()), asyncio.create_task(self._render_loop())]
-        try:
-            done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
-            for t in done:
-                if t.exception() is not None and not isinstance(t.exception(), WebSocketDisconnect):
-                    log.error("stream task failed", exc_info=t.exception())
-        finally:
-            for t in tasks:
-                t.cancel()
-            await asyncio.gather(*tasks, return_exceptions=True)
+        """Read and render until the socket closes (either task ending ends both)."""
+        async with anyio.create_task_group() as tg:
+
+            async def until_closed(loop: Callable[[], Awaitable[None]]) -> None:
+                try:
+                    await loop()
+                except (WebSocketDisconnect, OSError):  # the client went away
+                    pass
+                except Exception:  # noqa: BLE001 - ends this stream only
+                    log.exception("stream task failed")
+                finally:
+                    tg.cancel_scope.cancel()
+
+            tg.start_soon(until_closed, self._read)
+            tg.start_soon(until_closed, self._render_loop)
 
     async def _read(self) -> None:
         while True:
@@ -258,9 +264,9 @@ class StreamSession:
     async def _render_loop(self) -> None:
         last: tuple[np.ndarray, StreamRequest] | None = None
         while True:
-            try:
-                await asyncio.wait_for(self._wake.wait(), None if last is None else self.settings.stream_rest_s)
-            except asyncio.TimeoutError:  # the camera rested: the same view, lossless
+            with anyio.move_on_after(None if last is None else self.settings.stream_rest_s) as waited:
+                await self._wake.wait()
+            if waited.cancelled_caught:  # the camera rested: the same view, lossless
                 assert last is not None
                 await self._send(SourceFrame(last[0], 0.0, 0.0), last[1], "png", superseded=0, rest=True)
                 last = None

@@ -6,7 +6,8 @@
 * depth images: `box` (flat-faced), `figure11_scene`;
 * reflections: `props`, `planar_mirror_scene`, `mirror_object_scene`, `sphere_mesh`,
   `vase_mesh`, `mirror_camera`;
-* service: `obj_text`, `service` (a TestClient of a fresh app), `frame_camera`;
+* service: `obj_text`, `service` (a TestClient of a fresh app), `live_server` (uvicorn on a
+  loopback port), `frame_camera`;
 * the plugin: `write_small_glb`;
 * GL scenarios that could take the process down (another context type, a lost
   context) run in a fresh interpreter: `run_isolated(scenario)`.
@@ -230,6 +231,32 @@ def service(data_dir: Path, ready: bool = True, **overrides) -> Iterator[Any]:
         if ready:
             wait_ready(client)
         yield client
+
+
+@contextlib.contextmanager
+def live_server(data_dir: Path, **overrides) -> Iterator[tuple[str, int]]:
+    """The real uvicorn server of `depthview serve` on a free loopback port (settings
+    overridden); yields (host, port)."""
+    import threading
+
+    import uvicorn
+
+    from service.cli import server_config
+    from service.config import Settings
+
+    settings = Settings(data_dir=data_dir, host="127.0.0.1", port=0, **overrides)
+    server = uvicorn.Server(server_config(settings, log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    t0 = time.monotonic()
+    while not server.started and time.monotonic() - t0 < 30:
+        time.sleep(0.02)
+    assert server.started
+    try:
+        yield "127.0.0.1", server.servers[0].sockets[0].getsockname()[1]
+    finally:
+        server.should_exit = True
+        thread.join(30)
 
 
 def frame_camera(scene_name: str = "cornell") -> dict:

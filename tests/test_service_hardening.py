@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import socket
-import threading
 import time
 from collections.abc import Iterator
 
@@ -16,7 +15,7 @@ from fastapi.testclient import TestClient
 from service.config import Settings
 from service.deps import presented_token, token_ok
 from service.store import builtin_id
-from tests.helpers import frame_camera, obj_text, service
+from tests.helpers import frame_camera, live_server, obj_text, service
 
 CORNELL = builtin_id("cornell")
 UNKNOWN = "0" * 64
@@ -279,27 +278,10 @@ def test_every_documented_status_has_a_schema(client):
 
 # --- slow clients -------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def live_server(tmp_path_factory) -> Iterator[tuple[str, int]]:
+def live(tmp_path_factory) -> Iterator[tuple[str, int]]:
     """The real uvicorn server of `depthview serve` on a loopback port, short timeouts."""
-    import uvicorn
-
-    from service.cli import server_config
-
-    settings = Settings(data_dir=tmp_path_factory.mktemp("live"), host="127.0.0.1", port=0,
-                        header_timeout_s=0.5, body_timeout_s=0.5)
-    server = uvicorn.Server(server_config(settings, log_level="warning"))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    t0 = time.monotonic()
-    while not server.started and time.monotonic() - t0 < 30:
-        time.sleep(0.02)
-    assert server.started
-    port = server.servers[0].sockets[0].getsockname()[1]
-    try:
-        yield "127.0.0.1", port
-    finally:
-        server.should_exit = True
-        thread.join(30)
+    with live_server(tmp_path_factory.mktemp("live"), header_timeout_s=0.5, body_timeout_s=0.5) as address:
+        yield address
 
 
 def _read_until_closed(sock: socket.socket, limit_s: float = 5.0) -> tuple[bytes, float]:
@@ -313,20 +295,20 @@ def _read_until_closed(sock: socket.socket, limit_s: float = 5.0) -> tuple[bytes
         data += chunk
 
 
-def test_stalled_headers_close_the_connection(live_server):
-    with socket.create_connection(live_server, timeout=5) as s:
+def test_stalled_headers_close_the_connection(live):
+    with socket.create_connection(live, timeout=5) as s:
         s.sendall(b"GET /healthz HTTP/1.1\r\nHost: x\r\n")  # no blank line: the head never ends
         data, waited = _read_until_closed(s)
     assert data == b"" and 0.3 < waited < 4.0
-    with socket.create_connection(live_server, timeout=5) as s:  # connected, silent
+    with socket.create_connection(live, timeout=5) as s:  # connected, silent
         data, waited = _read_until_closed(s)
     assert data == b"" and waited < 4.0
 
 
-def test_stalled_body_is_408_and_closed(live_server):
+def test_stalled_body_is_408_and_closed(live):
     head = (f"POST /scenes/{CORNELL}/frames HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
             "Content-Length: 400\r\n\r\n").encode()
-    with socket.create_connection(live_server, timeout=5) as s:
+    with socket.create_connection(live, timeout=5) as s:
         s.sendall(head + b'{"camera": ')
         data, waited = _read_until_closed(s)
     assert data.startswith(b"HTTP/1.1 408 "), data[:200]
@@ -334,18 +316,18 @@ def test_stalled_body_is_408_and_closed(live_server):
     assert 0.3 < waited < 4.0
 
 
-def test_an_announced_large_body_is_refused_before_it_is_sent(live_server):
+def test_an_announced_large_body_is_refused_before_it_is_sent(live):
     head = (f"POST /scenes/{CORNELL}/depth-images HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
             f"Content-Length: {200 * 2**20}\r\n\r\n").encode()
-    with socket.create_connection(live_server, timeout=5) as s:
+    with socket.create_connection(live, timeout=5) as s:
         s.sendall(head + b"{")  # 200 MiB announced, one byte sent
         data, waited = _read_until_closed(s)
     assert data.startswith(b"HTTP/1.1 413 ") and b"DEPTHVIEW_MAX_JSON_BYTES" in data and waited < 2.0
     assert len(data) < 1000
 
 
-def test_a_prompt_client_is_served_and_kept_alive(live_server):
-    with socket.create_connection(live_server, timeout=5) as s:
+def test_a_prompt_client_is_served_and_kept_alive(live):
+    with socket.create_connection(live, timeout=5) as s:
         for _ in range(2):  # two requests on one connection, well within the timeouts
             s.sendall(b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n")
             data = b""

@@ -18,6 +18,7 @@ from fastapi import APIRouter, HTTPException, Request
 from fastapi.responses import FileResponse, HTMLResponse
 
 from service.deps import presented_token, token_ok, unauthorized
+from service.errors import responses
 
 STATIC = Path(__file__).resolve().parents[1] / "static"
 #: Where ``npm ci`` puts three.js (package.json is at the repository root).
@@ -30,7 +31,7 @@ router = APIRouter(prefix="/client", tags=["client"])
 
 
 @router.get("", response_class=HTMLResponse, summary="The thin-client page",
-            responses={401: {"description": "missing or wrong bearer token (header or ?token=)"}})
+            responses=responses({401: "missing or wrong bearer token (header or ?token=)"}))
 async def page(request: Request) -> HTMLResponse:
     if not token_ok(request.app.state.settings, presented_token(request.headers, request.query_params)):
         raise unauthorized()

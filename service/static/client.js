@@ -20,7 +20,7 @@ const $ = (id) => document.getElementById(id);
 const state = window.depthview = {
   mode: params.get('mode') === 'local' ? 'local' : 'stream',
   scene: null, hello: null, connected: false,
-  framesReceived: 0, framesShown: 0, lastStats: null, latencyMs: null, errors: [],
+  framesReceived: 0, framesShown: 0, lastStats: null, lastRendered: null, latencyMs: null, errors: [],
   local: { sets: 0, meshes: 0, triangles: 0, loading: false, rendered: 0 },
 };
 
@@ -28,7 +28,7 @@ const state = window.depthview = {
 const view = $('view'), glCanvas = $('gl'), frameCanvas = $('frame');
 const frameCtx = frameCanvas.getContext('2d');
 const renderer = new THREE.WebGLRenderer({ canvas: glCanvas, antialias: true, preserveDrawingBuffer: true });
-renderer.setClearColor(0x2a3039, 1);
+renderer.setClearColor(0xd3d9e2, 1);  // near the service's sky, so swapped-in frames do not flash
 const world = new THREE.Scene();
 const camera = new THREE.PerspectiveCamera(50, 1, 0.01, 1000);
 const controls = new OrbitControls(camera, view);
@@ -152,6 +152,7 @@ async function onFrame(blob) {
   while (frameTimes.length && now - frameTimes[0] > 1000) frameTimes.shift();
   if (stats.id != null && sentAt.has(stats.id) && !stats.rest) state.latencyMs = now - sentAt.get(stats.id);
   state.lastStats = stats;
+  if (!stats.rest) state.lastRendered = stats;  // a rest frame is the same render, re-encoded as PNG
   const current = stats.id === lastSentId;
   if (state.mode === 'stream' || current) {
     if (frameCanvas.width !== bitmap.width || frameCanvas.height !== bitmap.height) {
@@ -169,12 +170,12 @@ async function onFrame(blob) {
 function ms(x) { return x == null ? '–' : `${x < 10 ? x.toFixed(1) : Math.round(x)} ms`; }
 
 function showStats() {
-  const s = state.lastStats;
+  const s = state.lastStats, r = state.lastRendered;
   $('s-fps').textContent = frameTimes.length ? String(frameTimes.length) : '0';
   $('s-latency').textContent = ms(state.latencyMs);
   if (s) {
-    $('s-render').textContent = `${ms(s.render_ms)} + ${ms(s.encode_ms)}`;
-    $('s-queue').textContent = ms(s.queue_wait_ms);
+    $('s-render').textContent = `${ms(r.render_ms)} + ${ms(r.encode_ms)}`;
+    $('s-queue').textContent = ms(r.queue_wait_ms);
     $('s-reused').textContent = `${(100 * s.reused_ratio).toFixed(0)} %${s.keyframe ? ' · key' : ''}`;
     $('s-frame').textContent = `${s.width}×${s.height} ${s.format}`;
   }

@@ -1,0 +1,142 @@
+"""End-to-end: the thin client at /client in a real browser (Debian's chromium-headless-shell
+or chromium, driven by Playwright from PyPI with `executable_path`: never
+`playwright install`), WebGL on the CPU through SwiftShader. The page is loaded from a live
+uvicorn server, orbited with the mouse; streamed frames must arrive and change, the
+canvases must not be blank (pixels read back), local mode must render the reconstruction,
+and the page must log no errors. A failure leaves a screenshot in the test's tmp dir."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from service.routes.client import NODE_MODULES
+from tests.helpers import live_server
+
+CHROMIUM_NAMES = ("chromium-headless-shell", "chromium", "chromium-browser")
+CHROMIUM_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--no-sandbox"]
+VIEWPORT = {"width": 640, "height": 440}
+
+#: The canvas `id` drawn into a 2D canvas and summarised: mean, spread, share of pixels
+#: unlike the top-left pixel (a blank or clear-coloured canvas has none), a checksum.
+CANVAS_STATS = """(id) => {
+  const src = document.getElementById(id);
+  const c = document.createElement('canvas');
+  c.width = src.width; c.height = src.height;
+  const g = c.getContext('2d');
+  g.drawImage(src, 0, 0);
+  const d = g.getImageData(0, 0, c.width, c.height).data;
+  let sum = 0, sum2 = 0, differ = 0, hash = 0;
+  for (let i = 0; i < d.length; i += 4) {
+    const y = (d[i] + d[i + 1] + d[i + 2]) / 3;
+    sum += y; sum2 += y * y;
+    if (Math.abs(d[i] - d[0]) + Math.abs(d[i + 1] - d[1]) + Math.abs(d[i + 2] - d[2]) > 12) differ++;
+    hash = (hash * 31 + d[i] + 7 * d[i + 1] + 13 * d[i + 2]) >>> 0;
+  }
+  const n = d.length / 4, mean = sum / n;
+  return {w: c.width, h: c.height, mean, std: Math.sqrt(Math.max(0, sum2 / n - mean * mean)),
+          differ: differ / n, hash};
+}"""
+
+
+def chromium() -> str | None:
+    exe = os.environ.get("DEPTHVIEW_CHROMIUM")
+    if exe:
+        return exe
+    return next((p for p in map(shutil.which, CHROMIUM_NAMES) if p), None)
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory) -> Iterator[str]:
+    with live_server(tmp_path_factory.mktemp("browser")) as (host, port):
+        yield f"http://{host}:{port}"
+
+
+@pytest.fixture
+def page(tmp_path: Path):
+    exe = chromium()
+    if exe is None:
+        pytest.skip("no Chromium on this machine (apt-get install chromium-headless-shell; make setup does)")
+    assert (NODE_MODULES / "three" / "build").is_dir(), "three.js missing: run `npm ci` (make setup does)"
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=exe, headless=True, args=CHROMIUM_ARGS)
+        pg = browser.new_page(viewport=VIEWPORT)
+        problems: list[str] = []
+        pg.on("console", lambda m: problems.append(f"console.{m.type}: {m.text}") if m.type == "error" else None)
+        pg.on("pageerror", lambda e: problems.append(f"page error: {e}"))
+        pg.on("requestfailed", lambda r: problems.append(f"request failed: {r.url} {r.failure}"))
+        pg.problems = problems
+        try:
+            yield pg
+        except BaseException:
+            raise
+        finally:
+            shot = tmp_path / "client.png"
+            try:
+                pg.screenshot(path=str(shot))
+            except Exception:  # noqa: BLE001 - the screenshot is a courtesy
+                pass
+            browser.close()
+
+
+def drag(page, dx: float, dy: float) -> None:
+    box = page.locator("#view").bounding_box()
+    x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+    page.mouse.move(x, y)
+    page.mouse.down()
+    page.mouse.move(x + dx, y + dy, steps=8)
+    page.mouse.up()
+
+
+def state(page) -> dict:
+    return page.evaluate("() => JSON.parse(JSON.stringify(window.depthview))")
+
+
+def test_client_streams_orbits_and_renders_the_reconstruction_locally(page, server, tmp_path):
+    try:
+        _scenario(page, server)
+    except BaseException as exc:
+        page.screenshot(path=str(tmp_path / "failure.png"))
+        raise AssertionError(f"{exc}\nscreenshot: {tmp_path / 'failure.png'}; page state: {state(page)}; "
+                             f"page problems: {page.problems}") from exc
+
+
+def _scenario(page, server: str) -> None:
+    page.goto(f"{server}/client?scene=cornell")
+    # stream mode: frames arrive, the frame canvas shows the scene
+    page.wait_for_function("() => window.depthview && window.depthview.framesShown >= 1", timeout=30_000)
+    first = page.evaluate(CANVAS_STATS, "frame")
+    assert first["w"] >= 200 and first["std"] > 10 and first["differ"] > 0.2, first
+    s = state(page)
+    assert s["lastStats"]["format"] in ("jpeg", "png") and s["lastStats"]["keyframe"] is True
+    assert s["lastStats"]["reused_ratio"] == 0 and s["latencyMs"] > 0
+    # orbit with the mouse: new frames answer the new view, and they differ
+    received = s["framesReceived"]
+    drag(page, 140, 30)
+    page.wait_for_function(
+        f"() => window.depthview.framesReceived > {received} && window.depthview.lastStats.id >= 2", timeout=30_000)
+    page.wait_for_timeout(300)
+    second = page.evaluate(CANVAS_STATS, "frame")
+    assert second["hash"] != first["hash"] and second["std"] > 10, (first, second)
+    assert page.text_content("#s-fps") not in ("", "–") and "ms" in page.text_content("#s-latency")
+    # local mode: the reconstruction of NR depth images around the view, rendered by three.js
+    page.click("#mode-local")
+    page.wait_for_function("() => window.depthview.local.sets >= 1 && window.depthview.local.rendered >= 1",
+                           timeout=40_000)
+    s = state(page)
+    assert s["local"]["meshes"] >= 2 and s["local"]["triangles"] > 1000, s["local"]
+    page.wait_for_timeout(200)
+    local = page.evaluate(CANVAS_STATS, "gl")
+    assert local["std"] > 10 and local["differ"] > 0.2, local
+    rendered = s["local"]["rendered"]
+    drag(page, -60, 0)  # answered locally at once, before any server frame
+    page.wait_for_function(f"() => window.depthview.local.rendered > {rendered}", timeout=5_000)
+    moved = page.evaluate(CANVAS_STATS, "gl")
+    assert moved["hash"] != local["hash"] and moved["differ"] > 0.2, (local, moved)
+    assert page.problems == []

@@ -1,0 +1,266 @@
+"""The WebSocket stream (/scenes/{id}/stream) and the thin-client routes (/client),
+through FastAPI's TestClient: frames and their stats, JPEG while moving and PNG at rest,
+errors on the socket for bad messages, the limits, latest-wins under a slow render, the
+token, the metrics, the per-stream frame source freed on close."""
+
+from __future__ import annotations
+
+import asyncio
+import io
+import json
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+from starlette.websockets import WebSocketDisconnect
+
+from service.routes import client as client_routes
+from service.store import builtin_id
+from service.stream import CLOSE_NO_SCENE, CLOSE_TRY_LATER, SourceFrame
+from tests.helpers import frame_camera, service
+
+CORNELL = builtin_id("cornell")
+W, H = 48, 32
+
+
+def camera_msg(msg_id: int | None = None, **body) -> dict:
+    return {"camera": frame_camera("cornell"), "width": W, "height": H, **({"id": msg_id} if msg_id else {}), **body}
+
+
+def receive_frame(ws) -> tuple[dict, bytes]:
+    stats = ws.receive_json()
+    assert stats["type"] == "frame", stats
+    return stats, ws.receive_bytes()
+
+
+def decode(body: bytes) -> np.ndarray:
+    return np.asarray(Image.open(io.BytesIO(body)).convert("RGB"))
+
+
+@pytest.fixture(scope="module")
+def client(tmp_path_factory):
+    with service(tmp_path_factory.mktemp("stream"), stream_rest_s=0.2) as c:
+        yield c
+
+
+def test_frames_are_jpeg_while_moving_then_png_at_rest(client):
+    with client.websocket_connect(f"/scenes/{CORNELL}/stream") as ws:
+        hello = ws.receive_json()
+        assert hello["type"] == "hello" and hello["scene"] == CORNELL and len(hello["bounds"]) == 2
+        assert hello["limits"]["rest_s"] == 0.2 and set(hello["view"]) == {"eye", "target", "up", "fov"}
+        ws.send_json(camera_msg(1))
+        stats, jpeg = receive_frame(ws)
+        assert jpeg[:3] == b"\xff\xd8\xff" and stats["format"] == "jpeg" and stats["bytes"] == len(jpeg)
+        assert (stats["id"], stats["width"], stats["height"], stats["rest"]) == (1, W, H, False)
+        assert stats["render_ms"] > 0 and stats["encode_ms"] > 0 and stats["queue_wait_ms"] >= 0
+        assert stats["reused_ratio"] == 0.0 and stats["keyframe"] is True  # no ReflectionReuser yet (issue 14)
+        t0 = time.monotonic()
+        rest, png = receive_frame(ws)  # nothing sent for stream_rest_s: the same view, lossless
+        assert time.monotonic() - t0 < 5 and png[:4] == b"\x89PNG"
+        assert (rest["format"], rest["rest"], rest["id"], rest["seq"]) == ("png", True, 1, stats["seq"] + 1)
+        # the PNG is the frames endpoint's frame; the JPEG is close to it
+        ref = client.post(f"/scenes/{CORNELL}/frames", json=camera_msg())
+        exact = decode(ref.content).astype(int)
+        assert np.array_equal(decode(png), exact)
+        assert np.abs(decode(jpeg).astype(int) - exact).mean() < 6
+        # a new camera moves the view: a different frame
+        msg = camera_msg(2)
+        msg["camera"]["eye"] = [e * 1.3 for e in msg["camera"]["eye"]]
+        ws.send_json(msg)
+        moved, jpeg2 = receive_frame(ws)
+        assert moved["id"] == 2 and not np.array_equal(decode(jpeg2), decode(jpeg))
+
+
+def test_effects_are_rendered_as_the_frames_endpoint_renders_them(client):
+    mirror = builtin_id("mirror")
+    body = {"camera": {"eye": [2.5, 1.6, 3.0], "target": [0.0, 0.9, -0.5]}, "width": W, "height": H,
+            "effects": {"reflections": "cluster"}}
+    with client.websocket_connect(f"/scenes/{mirror}/stream") as ws:
+        ws.receive_json()
+        ws.send_json(body)
+        receive_frame(ws)
+        _, png = receive_frame(ws)
+    ref = client.post(f"/scenes/{mirror}/frames", json=body)
+    assert ref.status_code == 200 and np.array_equal(decode(png), decode(ref.content))
+
+
+@pytest.mark.parametrize(("message", "status", "words"), [
+    ("{not json", 400, "not valid JSON"),
+    (json.dumps(camera_msg(5, width=True)), 422, "width"),
+    (json.dumps(camera_msg(6, effects={"reflections": "mirrors"})), 422, "not available"),
+    (json.dumps({**camera_msg(7), "camera": {"eye": [0, 0, 0], "target": [0, 0, 0]}}), 422, "eye"),
+    (json.dumps(camera_msg(8, format="exr")), 422, "format"),
+    (json.dumps(camera_msg(9, width=5000)), 422, "exceeds the limit 4096"),
+    (json.dumps(camera_msg(10, width=2000, height=2000)), 422, "DEPTHVIEW_STREAM_MAX_PIXELS"),
+    (json.dumps({**camera_msg(11), "pad": "x" * 20_000}), 413, "DEPTHVIEW_STREAM_MAX_MESSAGE_BYTES"),
+    ("[1, 2]", 422, "FrameRequest"),
+])
+def test_bad_messages_get_an_error_and_the_stream_goes_on(client, message, status, words):
+    with client.websocket_connect(f"/scenes/{CORNELL}/stream") as ws:
+        ws.receive_json()
+        ws.send_text(message)
+        err = ws.receive_json()
+        assert err["type"] == "error" and err["status"] == status, err
+        assert words.lower() in json.dumps(err).lower() or status == 422 and words == "FrameRequest", err
+        assert len(json.dumps(err)) < 2000  # an excerpt, never the message itself
+        ws.send_bytes(b"\x00\x01")
+        assert ws.receive_json()["status"] == 400
+        ws.send_json(camera_msg(99))  # still alive
+        stats, _ = receive_frame(ws)
+        assert stats["id"] == 99
+
+
+def test_unknown_scene_gets_an_error_and_a_close(client):
+    with client.websocket_connect(f"/scenes/{'0' * 64}/stream") as ws:
+        err = ws.receive_json()
+        assert err["type"] == "error" and err["status"] == 404
+        with pytest.raises(WebSocketDisconnect) as exc:
+            ws.receive_json()
+        assert exc.value.code == CLOSE_NO_SCENE
+
+
+def test_stream_limits_per_client_and_in_total(tmp_path):
+    with service(tmp_path, stream_max_per_client=2, stream_max_total=3) as c:
+        url = f"/scenes/{CORNELL}/stream"
+        with c.websocket_connect(url) as a, c.websocket_connect(url) as b:
+            assert a.receive_json()["type"] == b.receive_json()["type"] == "hello"
+            with c.websocket_connect(url) as third:  # the same client address ("testclient")
+                err = third.receive_json()
+                assert err["status"] == 429 and "DEPTHVIEW_STREAM_MAX_PER_CLIENT" in err["detail"]
+                with pytest.raises(WebSocketDisconnect) as exc:
+                    third.receive_json()
+                assert exc.value.code == CLOSE_TRY_LATER
+            slots = c.app.state.stream_slots
+            assert slots.open == 2
+            assert slots.acquire("elsewhere") is None  # another client: the third stream in total
+            assert "DEPTHVIEW_STREAM_MAX_TOTAL" in slots.acquire("yet another")
+            slots.release("elsewhere")
+        deadline = time.monotonic() + 5
+        while slots.open and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert slots.open == 0  # closing frees the slots
+        with c.websocket_connect(url) as again:
+            assert again.receive_json()["type"] == "hello"
+
+
+class SlowSource:
+    """A fake frame source: each frame takes `delay` seconds; records what it rendered."""
+
+    def __init__(self, delay: float) -> None:
+        self.delay, self.rendered, self.closed = delay, [], threading.Event()
+
+    async def render(self, req):
+        self.rendered.append(req.id)
+        await asyncio.sleep(self.delay)
+        return SourceFrame(np.full((req.height, req.width, 3), req.id / 100, np.float32), self.delay, 0.0, 0.25,
+                           False)
+
+    def close(self) -> None:
+        self.closed.set()
+
+
+def test_latest_camera_wins_while_a_frame_renders(tmp_path):
+    sources: list[SlowSource] = []
+
+    def factory(render, scene_id):
+        sources.append(SlowSource(0.3))
+        return sources[-1]
+
+    with service(tmp_path, ready=False, stream_rest_s=5.0) as c:
+        c.app.state.frame_source = factory
+        with c.websocket_connect(f"/scenes/{CORNELL}/stream") as ws:
+            ws.receive_json()
+            t0 = time.monotonic()
+            for i in range(1, 21):  # 20 cameras in a burst, far faster than 0.3 s per frame
+                ws.send_json(camera_msg(i))
+            answered = []
+            while not answered or answered[-1]["id"] != 20:
+                stats, body = receive_frame(ws)
+                answered.append(stats)
+                assert time.monotonic() - t0 < 5
+            elapsed = time.monotonic() - t0
+        src = sources[0]
+        assert src.closed.wait(5)  # the stream's source is freed when the socket closes
+    ids = [s["id"] for s in answered]
+    assert ids == sorted(ids) and ids[0] == 1 and ids[-1] == 20 and len(ids) <= 3, ids
+    assert src.rendered == ids  # the superseded cameras were never rendered
+    assert sum(s["superseded"] for s in answered) == 20 - len(ids)
+    assert elapsed < 0.3 * (len(ids) + 1.5)  # bounded: not 20 × 0.3 s
+    assert answered[-1]["reused_ratio"] == 0.25 and answered[-1]["keyframe"] is False  # the source's stats
+
+
+def test_stream_frames_are_counted_and_go_through_the_worker_queue(tmp_path):
+    with service(tmp_path, stream_rest_s=5.0) as c:
+        worker = c.app.state.worker
+        before = worker.stats()["jobs_done"]
+        with c.websocket_connect(f"/scenes/{CORNELL}/stream") as ws:
+            ws.receive_json()
+            ws.send_json(camera_msg(1))
+            receive_frame(ws)
+            gate = threading.Event()
+            worker.submit(lambda state: gate.wait(10))  # the worker is busy: the next frame queues
+            ws.send_json(camera_msg(2))
+            time.sleep(0.3)
+            gate.set()
+            stats, _ = receive_frame(ws)
+            assert stats["queue_wait_ms"] > 200, stats
+        text = c.get("/metrics").text
+        assert "depthview_frames_streamed_total 2" in text
+        assert worker.stats()["jobs_done"] >= before + 3
+
+
+def test_queue_full_is_an_error_message_not_a_closed_socket(tmp_path):
+    with service(tmp_path, queue_size=1, stream_rest_s=5.0) as c:
+        worker = c.app.state.worker
+        gate = threading.Event()
+        with c.websocket_connect(f"/scenes/{CORNELL}/stream") as ws:
+            ws.receive_json()
+            worker.submit(lambda state: gate.wait(10))
+            time.sleep(0.1)
+            worker.submit(lambda state: None)  # the queue (size 1) is full
+            ws.send_json(camera_msg(3))
+            err = ws.receive_json()
+            assert err["type"] == "error" and err["status"] == 503 and err["id"] == 3
+            gate.set()
+            time.sleep(0.2)
+            ws.send_json(camera_msg(4))
+            assert receive_frame(ws)[0]["id"] == 4
+
+
+def test_stream_and_page_take_the_token(tmp_path):
+    with service(tmp_path, token="s3cret") as c:
+        url = f"/scenes/{CORNELL}/stream"
+        for bad in (url, f"{url}?token=wrong"):
+            with pytest.raises(WebSocketDisconnect) as exc, c.websocket_connect(bad) as ws:
+                ws.receive_json()
+            assert exc.value.code == 1008
+        with c.websocket_connect(f"{url}?token=s3cret") as ws:
+            assert ws.receive_json()["type"] == "hello"
+        with c.websocket_connect(url, headers={"Authorization": "Bearer s3cret"}) as ws:
+            assert ws.receive_json()["type"] == "hello"
+        assert c.get("/client").status_code == 401
+        assert c.get("/client?token=wrong").status_code == 401
+        r = c.get("/client?token=s3cret")
+        assert r.status_code == 200 and "importmap" in r.text
+        assert c.get("/client", headers={"Authorization": "Bearer s3cret"}).status_code == 200
+        assert c.get("/client/static/client.js").status_code == 200  # code only, no token needed
+
+
+def test_client_serves_the_page_its_files_and_three_js_only(client, monkeypatch, tmp_path):
+    page = client.get("/client")
+    assert page.status_code == 200 and page.headers["content-type"].startswith("text/html")
+    imports = json.loads(page.text.split('<script type="importmap">')[1].split("</script>")[0])["imports"]
+    assert client.get(imports["three"]).headers["content-type"].startswith("text/javascript")
+    for addon in ("controls/OrbitControls.js", "loaders/GLTFLoader.js"):
+        assert client.get(imports["three/addons/"] + addon).status_code == 200
+    assert client.get("/client/static/client.css").headers["content-type"].startswith("text/css")
+    for bad in ("/client/static/client.html", "/client/static/..%2Fapp.py", "/client/three/package.json",
+                "/client/three/build/../../../package.json", "/client/three/src/Three.js",
+                "/client/three/%2e%2e/%2e%2e/package.json"):
+        assert client.get(bad).status_code == 404, bad
+    monkeypatch.setattr(client_routes, "NODE_MODULES", Path(tmp_path) / "nowhere")
+    r = client.get(imports["three"])
+    assert r.status_code == 404 and "npm ci" in r.json()["detail"]
