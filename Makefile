@@ -1,7 +1,10 @@
-# depthview: `make serve` and `make test` each do the whole idempotent setup first.
+# depthview: `make serve` and `make test` each do the whole idempotent setup first (apt packages,
+# the .venv, npm ci).
 VENV ?= .venv
 PY := $(VENV)/bin/python
 APT_PKGS := libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6 g++ python3-dev
+# the browser test's Chromium (driven by Playwright from PyPI; never `playwright install`)
+CHROMIUM ?= $(shell apt-cache show chromium-headless-shell >/dev/null 2>&1 && echo chromium-headless-shell || echo chromium)
 HOST ?= 0.0.0.0
 PORT ?= 8000
 
@@ -9,6 +12,10 @@ PORT ?= 8000
 system-deps:
 	@missing=""; for p in $(APT_PKGS); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
 	python3 -c 'import ensurepip, venv' >/dev/null 2>&1 || missing="$$missing python3-venv python3-pip"; \
+	command -v npm >/dev/null 2>&1 || missing="$$missing nodejs npm"; \
+	if ! dpkg -s chromium-headless-shell >/dev/null 2>&1 && ! dpkg -s chromium >/dev/null 2>&1; then \
+	  missing="$$missing $(CHROMIUM)"; \
+	fi; \
 	if [ -n "$$missing" ]; then \
 	  echo "installing system packages:$$missing"; \
 	  SUDO=$$( [ "$$(id -u)" -eq 0 ] || echo sudo ); \
@@ -21,7 +28,11 @@ $(VENV)/.installed: pyproject.toml
 	$(PY) -m pip install -q -e '.[dev]'
 	touch $@
 
-setup: system-deps $(VENV)/.installed
+# three.js for the /client page (package.json + lock file; node_modules is git-ignored)
+node_modules/.package-lock.json: package.json package-lock.json
+	npm ci --no-audit --no-fund --loglevel=error
+
+setup: system-deps $(VENV)/.installed node_modules/.package-lock.json
 
 serve: setup
 	$(VENV)/bin/depthview serve --host $(HOST) --port $(PORT)
