@@ -5,7 +5,7 @@ Recorded by ``service.middleware.RequestGuard`` for every request (validation er
 and status, 4xx/5xx totals. Recorded by the routes: per-step times (scene load, queue
 wait and GL job, CPU work, encoding), frames by format. Read from the worker at
 scrape time: queue depth, workers alive, job outcomes. ``frames_streamed`` is counted
-by the stream (``Metrics.streamed()``) once it exists.
+by the stream (``Metrics.streamed()``, one per frame sent on /scenes/{id}/stream).
 """
 
 from __future__ import annotations
