@@ -139,4 +139,7 @@ def _scenario(page, server: str) -> None:
     page.wait_for_function(f"() => window.depthview.local.rendered > {rendered}", timeout=5_000)
     moved = page.evaluate(CANVAS_STATS, "gl")
     assert moved["hash"] != local["hash"] and moved["differ"] > 0.2, (local, moved)
+    # ... and the server's frame of the new view swaps in when it arrives
+    page.wait_for_function("() => window.depthview.lastStats.id === window.depthview.lastSentId"
+                           " && !document.getElementById('frame').classList.contains('hidden')", timeout=30_000)
     assert page.problems == []

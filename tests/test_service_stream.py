@@ -264,3 +264,17 @@ def test_client_serves_the_page_its_files_and_three_js_only(client, monkeypatch,
     monkeypatch.setattr(client_routes, "NODE_MODULES", Path(tmp_path) / "nowhere")
     r = client.get(imports["three"])
     assert r.status_code == 404 and "npm ci" in r.json()["detail"]
+
+
+def test_stream_settings_come_from_the_environment_and_are_checked():
+    from service.config import Settings
+
+    s = Settings.from_env({"DEPTHVIEW_STREAM_MAX_PER_CLIENT": "2", "DEPTHVIEW_STREAM_MAX_TOTAL": "5",
+                           "DEPTHVIEW_STREAM_MAX_MESSAGE_BYTES": "4096", "DEPTHVIEW_STREAM_MAX_PIXELS": "65536",
+                           "DEPTHVIEW_STREAM_JPEG_QUALITY": "60", "DEPTHVIEW_STREAM_REST_S": "0.5"})
+    assert (s.stream_max_per_client, s.stream_max_total, s.stream_max_message_bytes, s.stream_max_pixels,
+            s.stream_jpeg_quality, s.stream_rest_s) == (2, 5, 4096, 65536, 60, 0.5)
+    for bad in ({"DEPTHVIEW_STREAM_JPEG_QUALITY": "0"}, {"DEPTHVIEW_STREAM_REST_S": "0"},
+                {"DEPTHVIEW_STREAM_MAX_TOTAL": "0"}, {"DEPTHVIEW_STREAM_MAX_PIXELS": "many"}):
+        with pytest.raises(ValueError):
+            Settings.from_env(bad)

@@ -20,7 +20,7 @@ const $ = (id) => document.getElementById(id);
 const state = window.depthview = {
   mode: params.get('mode') === 'local' ? 'local' : 'stream',
   scene: null, hello: null, connected: false,
-  framesReceived: 0, framesShown: 0, lastStats: null, lastRendered: null, latencyMs: null, errors: [],
+  framesReceived: 0, framesShown: 0, lastSentId: 0, lastStats: null, lastRendered: null, latencyMs: null, errors: [],
   local: { sets: 0, meshes: 0, triangles: 0, loading: false, rendered: 0 },
 };
 
@@ -101,7 +101,7 @@ function sendCamera() {
   };
   sentAt.set(id, performance.now());
   if (sentAt.size > 256) sentAt.delete(sentAt.keys().next().value);
-  lastSentId = id;
+  lastSentId = state.lastSentId = id;
   ws.send(JSON.stringify(msg));
 }
 
@@ -170,7 +170,8 @@ async function onFrame(blob) {
 function ms(x) { return x == null ? '–' : `${x < 10 ? x.toFixed(1) : Math.round(x)} ms`; }
 
 function showStats() {
-  const s = state.lastStats, r = state.lastRendered;
+  const s = state.lastStats, r = state.lastRendered, now = performance.now();
+  while (frameTimes.length && now - frameTimes[0] > 1000) frameTimes.shift();
   $('s-fps').textContent = frameTimes.length ? String(frameTimes.length) : '0';
   $('s-latency').textContent = ms(state.latencyMs);
   if (s) {
