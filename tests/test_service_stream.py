@@ -192,6 +192,31 @@ def test_latest_camera_wins_while_a_frame_renders(tmp_path):
     assert answered[-1]["reused_ratio"] == 0.25 and answered[-1]["keyframe"] is False  # the source's stats
 
 
+def test_latest_camera_wins_on_the_real_render_path(tmp_path):
+    """The worker is held by a slow job: the first camera's frame waits in the queue, the
+    next nine replace each other, and only the last of them is rendered after it."""
+    with service(tmp_path, stream_rest_s=5.0) as c:
+        worker = c.app.state.worker
+        with c.websocket_connect(f"/scenes/{CORNELL}/stream") as ws:
+            ws.receive_json()
+            gate = threading.Event()
+            worker.submit(lambda state: gate.wait(10))
+            done = worker.stats()["jobs_done"]
+            for i in range(1, 11):
+                ws.send_json(camera_msg(i))
+            time.sleep(0.3)
+            gate.set()
+            first, _ = receive_frame(ws)
+            last, _ = receive_frame(ws)
+        assert (first["id"], last["id"], first["superseded"], last["superseded"]) == (1, 10, 0, 8)
+        assert first["queue_wait_ms"] > 200
+        deadline = time.monotonic() + 2  # the worker counts a job just after delivering its result
+        while worker.stats()["jobs_done"] - done < 3 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.1)
+        assert worker.stats()["jobs_done"] - done == 3  # the slow job and two frames, not ten
+
+
 def test_stream_frames_are_counted_and_go_through_the_worker_queue(tmp_path):
     with service(tmp_path, stream_rest_s=5.0) as c:
         worker = c.app.state.worker
@@ -209,6 +234,9 @@ def test_stream_frames_are_counted_and_go_through_the_worker_queue(tmp_path):
             assert stats["queue_wait_ms"] > 200, stats
         text = c.get("/metrics").text
         assert "depthview_frames_streamed_total 2" in text
+        deadline = time.monotonic() + 2
+        while worker.stats()["jobs_done"] < before + 3 and time.monotonic() < deadline:
+            time.sleep(0.01)
         assert worker.stats()["jobs_done"] >= before + 3
 
 
