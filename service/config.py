@@ -50,6 +50,8 @@ stream_jpeg_quality    80                           JPEG quality (1–95) of fra
                                                     moves
 stream_rest_s          0.3                          seconds without a camera message after which
                                                     the latest view is sent again as lossless PNG
+node_modules           ``<repo>/node_modules``      where ``npm ci`` installed three.js for the
+                                                    /client page (set it for a non-editable install)
 =====================  ===========================  ===============================================
 
 The memory budget (``max_job_bytes``) is checked against an estimate made from the
@@ -81,6 +83,8 @@ from pathlib import Path
 from typing import Any
 
 ENV_PREFIX = "DEPTHVIEW_"
+#: The repository (or, installed, site-packages) root: package.json and node_modules live here.
+REPO_ROOT = Path(__file__).resolve().parents[1]
 
 MIB = 1024 * 1024
 
@@ -168,9 +172,12 @@ class Settings:
     stream_jpeg_quality: int = 80
     #: Seconds the camera must rest before the latest view is sent again as PNG.
     stream_rest_s: float = 0.3
+    #: node_modules holding three.js for the /client page (``npm ci`` at the repository root).
+    node_modules: Path = field(default_factory=lambda: REPO_ROOT / "node_modules")
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "data_dir", Path(self.data_dir))
+        object.__setattr__(self, "node_modules", Path(self.node_modules))
         if isinstance(self.cors_origins, str):
             object.__setattr__(self, "cors_origins", _origins(self.cors_origins))
         object.__setattr__(self, "cors_origins", tuple(self.cors_origins))
@@ -236,7 +243,7 @@ def _convert(name: str, raw: str, var: str) -> Any:
             return float(raw)
     except ValueError as exc:
         raise ValueError(f"{var}={raw[:40]!r} is not a number") from exc
-    if name == "data_dir":
+    if name in ("data_dir", "node_modules"):
         return Path(raw)
     if name == "gl_backend":
         return raw.strip().lower()

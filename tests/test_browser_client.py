@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from service.routes.client import NODE_MODULES
+from service.config import Settings
 from tests.helpers import live_server
 
 CHROMIUM_NAMES = ("chromium-headless-shell", "chromium", "chromium-browser")
@@ -61,7 +61,8 @@ def page(tmp_path: Path):
     exe = chromium()
     if exe is None:
         pytest.skip("no Chromium on this machine (apt-get install chromium-headless-shell; make setup does)")
-    assert (NODE_MODULES / "three" / "build").is_dir(), "three.js missing: run `npm ci` (make setup does)"
+    modules = Settings().node_modules  # what the live server serves
+    assert (modules / "three" / "build").is_dir(), f"three.js missing in {modules}: run `npm ci` (make setup does)"
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as p:

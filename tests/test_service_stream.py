@@ -10,14 +10,12 @@ import io
 import json
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 from PIL import Image
 from starlette.websockets import WebSocketDisconnect
 
-from service.routes import client as client_routes
 from service.store import builtin_id
 from service.stream import CLOSE_NO_SCENE, CLOSE_TRY_LATER, SourceFrame
 from tests.helpers import frame_camera, service
@@ -277,7 +275,7 @@ def test_stream_and_page_take_the_token(tmp_path):
         assert c.get("/client/static/client.js").status_code == 200  # code only, no token needed
 
 
-def test_client_serves_the_page_its_files_and_three_js_only(client, monkeypatch, tmp_path):
+def test_client_serves_the_page_its_files_and_three_js_only(client, tmp_path):
     page = client.get("/client")
     assert page.status_code == 200 and page.headers["content-type"].startswith("text/html")
     imports = json.loads(page.text.split('<script type="importmap">')[1].split("</script>")[0])["imports"]
@@ -289,8 +287,8 @@ def test_client_serves_the_page_its_files_and_three_js_only(client, monkeypatch,
                 "/client/three/build/../../../package.json", "/client/three/src/Three.js",
                 "/client/three/%2e%2e/%2e%2e/package.json"):
         assert client.get(bad).status_code == 404, bad
-    monkeypatch.setattr(client_routes, "NODE_MODULES", Path(tmp_path) / "nowhere")
-    r = client.get(imports["three"])
+    with service(tmp_path, ready=False, node_modules=tmp_path / "nowhere") as bare:
+        r = bare.get(imports["three"])
     assert r.status_code == 404 and "npm ci" in r.json()["detail"]
 
 

@@ -5,7 +5,8 @@ shows streamed frames and orbits a downloaded reconstruction locally).
   passes it on to its API calls and to the stream);
 * ``GET /client/static/{name}`` — its script and style sheet (``service/static``);
 * ``GET /client/three/{path}`` — three.js from npm (``node_modules/three``: ``build/`` and
-  ``examples/jsm/``, JavaScript only; ``npm ci`` installs it, ``make setup`` runs that).
+  ``examples/jsm/``, JavaScript only; ``npm ci`` installs it, ``make setup`` runs that;
+  ``DEPTHVIEW_NODE_MODULES`` points elsewhere).
 
 The script, style sheet and three.js hold no data and need no token (a module script's
 imports cannot carry one)."""
@@ -17,12 +18,10 @@ from pathlib import Path
 from fastapi import APIRouter, HTTPException, Request
 from fastapi.responses import FileResponse, HTMLResponse
 
-from service.deps import presented_token, token_ok, unauthorized
+from service.deps import SettingsDep, presented_token, token_ok, unauthorized
 from service.errors import responses
 
 STATIC = Path(__file__).resolve().parents[1] / "static"
-#: Where ``npm ci`` puts three.js (package.json is at the repository root).
-NODE_MODULES = Path(__file__).resolve().parents[2] / "node_modules"
 #: Parts of the three package the page may import.
 THREE_DIRS = ("build", "examples/jsm")
 MEDIA = {".js": "text/javascript", ".css": "text/css", ".html": "text/html"}
@@ -49,11 +48,11 @@ async def static(name: str) -> FileResponse:
 
 @router.get("/three/{path:path}", summary="three.js (npm package, build/ and examples/jsm/)",
             include_in_schema=False)
-async def three(path: str) -> FileResponse:
-    root = NODE_MODULES / "three"
+async def three(path: str, settings: SettingsDep) -> FileResponse:
+    root = settings.node_modules / "three"
     if not root.is_dir():
-        raise HTTPException(404, f"three.js is not installed: run `npm ci` in {NODE_MODULES.parent} "
-                                 "(make setup does)")
+        raise HTTPException(404, f"three.js is not installed in {settings.node_modules}: run `npm ci` at the "
+                                 "repository root (make setup does) or set DEPTHVIEW_NODE_MODULES")
     target = (root / path).resolve()
     allowed = [(root / d).resolve() for d in THREE_DIRS]
     if target.suffix != ".js" or not any(target.is_relative_to(a) for a in allowed) or not target.is_file():
