@@ -3,8 +3,8 @@
 VENV ?= .venv
 PY := $(VENV)/bin/python
 APT_PKGS := libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6 g++ python3-dev
-# the browser test's Chromium (driven by Playwright from PyPI; never `playwright install`)
-CHROMIUM ?= $(shell apt-cache show chromium-headless-shell >/dev/null 2>&1 && echo chromium-headless-shell || echo chromium)
+# system-deps also installs the browser test's Chromium (chromium-headless-shell where Debian has
+# it, else chromium; driven by Playwright from PyPI, never `playwright install`) and Node/npm
 HOST ?= 0.0.0.0
 PORT ?= 8000
 
@@ -13,13 +13,16 @@ system-deps:
 	@missing=""; for p in $(APT_PKGS); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
 	python3 -c 'import ensurepip, venv' >/dev/null 2>&1 || missing="$$missing python3-venv python3-pip"; \
 	command -v npm >/dev/null 2>&1 || missing="$$missing nodejs npm"; \
-	if ! dpkg -s chromium-headless-shell >/dev/null 2>&1 && ! dpkg -s chromium >/dev/null 2>&1; then \
-	  missing="$$missing $(CHROMIUM)"; \
-	fi; \
-	if [ -n "$$missing" ]; then \
-	  echo "installing system packages:$$missing"; \
+	chromium=""; dpkg -s chromium-headless-shell >/dev/null 2>&1 || dpkg -s chromium >/dev/null 2>&1 || chromium=1; \
+	if [ -n "$$missing$$chromium" ]; then \
 	  SUDO=$$( [ "$$(id -u)" -eq 0 ] || echo sudo ); \
-	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $$missing; \
+	  $$SUDO apt-get update -qq || exit 1; \
+	  if [ -n "$$chromium" ]; then \
+	    if apt-cache show chromium-headless-shell >/dev/null 2>&1; then missing="$$missing chromium-headless-shell"; \
+	    else missing="$$missing chromium"; fi; \
+	  fi; \
+	  echo "installing system packages:$$missing"; \
+	  DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $$missing; \
 	fi
 
 $(VENV)/.installed: pyproject.toml
