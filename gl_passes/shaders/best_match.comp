@@ -1,0 +1,75 @@
+#version 430 core
+// Best reflection-pixel match (thesis §5.4.1, Alg. 9), one invocation per keyframe pixel s.
+// R = W + reflect(W - E_old, s.n)·s.r is the reflected point (Eq. 8). The match distance
+// of a candidate pixel s_n is the distance from the new eye E_cur to the line through
+// W_n and M, the mirror image of R in s_n's tangent plane (Fig. 37). A local descent
+// over the 3×3 hollow neighbourhood, started at s + (previous frame's offset) when that
+// is valid, moves to the neighbour of least distance while it decreases. Invalid: the
+// better neighbour lies across a depth discontinuity (outside the reflector's
+// silhouette), the search leaves the image, it runs out of u_max_steps, or the local
+// minimum is not the minimum (its distance exceeds the largest rise to a neighbour:
+// the true minimum lies more than about a pixel away, beyond the silhouette or the
+// image border). Output per pixel (texel units, GL orientation): (ox, oy, valid 0/1, steps).
+// u_direct = 1: the direct-reprojection baseline, offset 0 for every reflective pixel.
+layout(local_size_x = 8, local_size_y = 8) in;
+#include "reuse_common.glsl"
+
+layout(rgba32f, binding = UNIT_u_prev) uniform readonly image2D u_prev;
+layout(rgba32f, binding = UNIT_u_offsets) uniform writeonly image2D u_offsets;
+uniform vec3 u_eye_old;
+uniform vec3 u_eye_new;
+uniform int u_max_steps;
+uniform int u_direct;
+
+const ivec2 RING[8] = ivec2[8](ivec2(-1, -1), ivec2(0, -1), ivec2(1, -1), ivec2(-1, 0),
+                               ivec2(1, 0), ivec2(-1, 1), ivec2(0, 1), ivec2(1, 1));
+
+float match_distance(ivec2 n, vec3 R) {
+    vec3 w = texelFetch(u_kf_position, n, 0).xyz;
+    vec3 nn = texelFetch(u_kf_normal, n, 0).xyz;
+    vec3 m = R - 2.0 * dot(R - w, nn) * nn;        // R mirrored in s_n's tangent plane
+    vec3 dir = normalize(w - m);
+    vec3 v = u_eye_new - w;
+    return length(v - dot(v, dir) * dir);           // E_cur to the line through M and W_n
+}
+
+void main() {
+    ivec2 s = ivec2(gl_GlobalInvocationID.xy);
+    if (any(greaterThanEqual(s, u_kf_size))) return;
+    vec4 refl = texelFetch(u_kf_reflection, s, 0);
+    if (refl.a < 0.0) { imageStore(u_offsets, s, vec4(0.0)); return; }
+    if (u_direct == 1) { imageStore(u_offsets, s, vec4(0.0, 0.0, 1.0, 0.0)); return; }
+    vec3 w = texelFetch(u_kf_position, s, 0).xyz;
+    vec3 n = texelFetch(u_kf_normal, s, 0).xyz;
+    vec3 R = w + reflect(normalize(w - u_eye_old), n) * refl.a;
+    vec4 prev = imageLoad(u_prev, s);
+    ivec2 sc = s;
+    if (prev.z > 0.5) {
+        ivec2 start = s + ivec2(round(prev.xy));
+        if (kf_inside(start) && kf_reflective(start)) sc = start;
+    }
+    float former = match_distance(sc, R);
+    int steps = 0;
+    bool valid = false;
+    for (; steps < u_max_steps; ++steps) {
+        float best = 3.4e38, rise = 0.0;
+        ivec2 best_p = sc;
+        bool best_continuous = true;
+        for (int k = 0; k < 8; ++k) {
+            ivec2 q = sc + RING[k];
+            if (!kf_inside(q)) continue;
+            float dq = match_distance(q, R);
+            bool cont = kf_reflective(q) && kf_same_surface(sc, q);
+            if (cont) rise = max(rise, dq - former);
+            if (dq < best) { best = dq; best_p = q; best_continuous = cont; }
+        }
+        if (best >= former) {                       // local minimum at sc
+            valid = former <= rise;                 // ... and within about a pixel of the true one
+            break;
+        }
+        if (!best_continuous) break;                // the minimum lies outside the silhouette
+        former = best;
+        sc = best_p;
+    }
+    imageStore(u_offsets, s, vec4(vec2(sc - s), valid ? 1.0 : 0.0, float(steps)));
+}

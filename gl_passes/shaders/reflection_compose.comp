@@ -1,0 +1,62 @@
+#version 430 core
+// Composition (thesis §5.4.3): depth-based reprojection of the intermediate reflection
+// image into the new view. Per new-frame pixel q on a reflector (s > 0): its world
+// point P is projected into the keyframe; when the keyframe sample there lies on P's
+// surface (same object, P within u_plane_tol footprints of its tangent plane) the
+// reflection is the intermediate image bilinearly interpolated over the reliable
+// texels of that surface among the 2×2 around P's projection, provided the nearest
+// texel is reliable. Output (GL orientation): u_out (Lr, r) and u_flag: 0 not
+// reflective, 1 reused, 2 disoccluded (P not seen by the keyframe), 3 unreliable
+// (the intermediate image holds no reliable value there); 2 and 3 are recomputed.
+layout(local_size_x = 8, local_size_y = 8) in;
+#include "reuse_common.glsl"
+
+layout(binding = UNIT_u_position) uniform sampler2D u_position;
+layout(binding = UNIT_u_obj) uniform usampler2D u_obj;
+layout(binding = UNIT_u_material) uniform sampler2D u_material;
+layout(binding = UNIT_u_inter) uniform sampler2D u_inter;
+layout(binding = UNIT_u_reliable) uniform sampler2D u_reliable;
+layout(rgba32f, binding = UNIT_u_out) uniform writeonly image2D u_out;
+layout(r32f, binding = UNIT_u_flag) uniform writeonly image2D u_flag;
+uniform mat4 u_kf_view_proj;
+uniform ivec2 u_size;
+
+void main() {
+    ivec2 q = ivec2(gl_GlobalInvocationID.xy);
+    if (any(greaterThanEqual(q, u_size))) return;
+    uint obj = texelFetch(u_obj, q, 0).r;
+    if (obj == 0u || texelFetch(u_material, q, 0).r <= 0.0) {
+        imageStore(u_out, q, vec4(0.0));
+        imageStore(u_flag, q, vec4(0.0));
+        return;
+    }
+    vec3 P = texelFetch(u_position, q, 0).xyz;
+    vec4 clip = u_kf_view_proj * vec4(P, 1.0);
+    float flag = 2.0;
+    vec4 result = vec4(0.0);
+    if (clip.w > 0.0) {
+        vec2 t = (clip.xy / clip.w * 0.5 + 0.5) * vec2(u_kf_size) - 0.5;   // texel coordinates
+        ivec2 p = ivec2(floor(t + 0.5));
+        if (kf_inside(p) && on_kf_surface(p, P, obj)) {
+            flag = 3.0;
+            if (texelFetch(u_reliable, p, 0).r > 0.5) {
+                ivec2 b = ivec2(floor(t));
+                vec2 f = t - vec2(b);
+                vec4 sum = vec4(0.0);
+                float wsum = 0.0;
+                for (int j = 0; j < 2; ++j) for (int i = 0; i < 2; ++i) {
+                    ivec2 c = b + ivec2(i, j);
+                    if (!kf_inside(c) || texelFetch(u_reliable, c, 0).r < 0.5 || !on_kf_surface(c, P, obj)) continue;
+                    float w = (i == 1 ? f.x : 1.0 - f.x) * (j == 1 ? f.y : 1.0 - f.y);
+                    sum += w * texelFetch(u_inter, c, 0);
+                    wsum += w;
+                }
+                if (wsum <= 0.0) { sum = texelFetch(u_inter, p, 0); wsum = 1.0; }
+                result = sum / wsum;
+                flag = 1.0;
+            }
+        }
+    }
+    imageStore(u_out, q, result);
+    imageStore(u_flag, q, vec4(flag));
+}
