@@ -70,6 +70,7 @@ class BestMatchPass(Releasable):
         set_uniform(p, "u_eye_new", np.asarray(eye_new, np.float64))
         set_uniform(p, "u_max_steps", int(max_steps))
         set_uniform(p, "u_direct", int(direct))
+        set_uniform(p, "u_kf_view_proj", keyframe.camera.view_projection())
         p.run((size[0] + GROUP - 1) // GROUP, (size[1] + GROUP - 1) // GROUP, 1)
         self.gl.ctx.memory_barrier()
         return self.offsets

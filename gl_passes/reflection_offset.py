@@ -9,7 +9,9 @@ that cross a depth discontinuity, hold an invalid vertex or grow more than
 where moved triangles overlap. The valid samples are drawn as points too: with
 integer offsets the pixel centres of a mesh moved by whole pixels lie on its
 triangles' edges and vertices, where the rasteriser's tie rule, not the mesh,
-would decide coverage. Output: the intermediate image (Lr, r) and the
+would decide coverage; the points lie POINT_BIAS farther, so they only fill
+pixels no kept triangle covers (a triangle's interpolation holds the sub-pixel
+offsets, a point snaps to the pixel it falls in). Output: the intermediate image (Lr, r) and the
 reliability mask (1 where covered), both keyframe-sized rgba32f / r32f textures.
 """
 
@@ -23,6 +25,8 @@ from gl_passes.keyframe import REUSE_UNITS, KeyframeTextures
 from gl_passes.releasable import Releasable
 from gl_passes.shaders import program
 from gl_passes.uniforms import set_uniform
+
+POINT_BIAS = 1e-3  # relative depth bias of the sample points behind the triangles
 
 
 class ReflectionOffsetPass(Releasable):
@@ -74,13 +78,13 @@ class ReflectionOffsetPass(Releasable):
             set_uniform(prog, "u_depth_scale", 1.0 / max(depth_max, 1e-6))
             set_uniform(prog, "u_growth", float(growth))
             set_uniform(prog, "u_reflected_jump", float(reflected_jump))
+            set_uniform(prog, "u_point_bias", POINT_BIAS)
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE)
-        ctx.depth_func = "<="
+        ctx.depth_func = "<"
         if w > 1 and h > 1:
             self.mesh_vao.render(moderngl.TRIANGLES, vertices=6 * (w - 1) * (h - 1))
         self.point_vao.render(moderngl.POINTS, vertices=w * h)
-        ctx.depth_func = "<"
         ctx.disable(moderngl.DEPTH_TEST)
         return self.inter, self.reliable
 

@@ -9,7 +9,10 @@
 // silhouette), the search leaves the image, it runs out of u_max_steps, or the local
 // minimum is not the minimum (its distance exceeds the largest rise to a neighbour:
 // the true minimum lies more than about a pixel away, beyond the silhouette or the
-// image border). Output per pixel (texel units, GL orientation): (ox, oy, valid 0/1, steps).
+// image border). Sub-pixel refinement (beyond Alg. 9's whole pixels): the point X where the
+// line from E_cur to M (mirrored in s*'s tangent plane) meets that plane, projected into
+// the keyframe — exact on a planar mirror, first order on curved ones; kept when within
+// one pixel of s*, snapped to s* within 0.01 pixel. Output per pixel (texel units, GL orientation): (ox, oy, valid 0/1, steps).
 // u_direct = 1: the direct-reprojection baseline, offset 0 for every reflective pixel.
 layout(local_size_x = 8, local_size_y = 8) in;
 #include "reuse_common.glsl"
@@ -20,6 +23,7 @@ uniform vec3 u_eye_old;
 uniform vec3 u_eye_new;
 uniform int u_max_steps;
 uniform int u_direct;
+uniform mat4 u_kf_view_proj;
 
 const ivec2 RING[8] = ivec2[8](ivec2(-1, -1), ivec2(0, -1), ivec2(1, -1), ivec2(-1, 0),
                                ivec2(1, 0), ivec2(-1, 1), ivec2(0, 1), ivec2(1, 1));
@@ -31,6 +35,21 @@ float match_distance(ivec2 n, vec3 R) {
     vec3 dir = normalize(w - m);
     vec3 v = u_eye_new - w;
     return length(v - dot(v, dir) * dir);           // E_cur to the line through M and W_n
+}
+
+vec2 subpixel(ivec2 sc, vec3 R) {
+    vec3 w = texelFetch(u_kf_position, sc, 0).xyz;
+    vec3 nn = texelFetch(u_kf_normal, sc, 0).xyz;
+    vec3 m = R - 2.0 * dot(R - w, nn) * nn;
+    vec3 d = m - u_eye_new;
+    float denom = dot(d, nn);
+    if (abs(denom) < 1e-12) return vec2(0.0);
+    vec3 x = u_eye_new + d * (dot(w - u_eye_new, nn) / denom);
+    vec4 clip = u_kf_view_proj * vec4(x, 1.0);
+    if (clip.w <= 0.0) return vec2(0.0);
+    vec2 delta = (clip.xy / clip.w * 0.5 + 0.5) * vec2(u_kf_size) - 0.5 - vec2(sc);
+    if (any(greaterThan(abs(delta), vec2(1.0)))) return vec2(0.0);
+    return mix(delta, vec2(0.0), lessThan(abs(delta), vec2(0.01)));
 }
 
 void main() {
@@ -71,5 +90,7 @@ void main() {
         former = best;
         sc = best_p;
     }
-    imageStore(u_offsets, s, vec4(vec2(sc - s), valid ? 1.0 : 0.0, float(steps)));
+    vec2 offset = vec2(sc - s);
+    if (valid) offset += subpixel(sc, R);
+    imageStore(u_offsets, s, vec4(offset, valid ? 1.0 : 0.0, float(steps)));
 }

@@ -9,6 +9,7 @@
 
 layout(binding = UNIT_u_offsets_tex) uniform sampler2D u_offsets_tex;
 uniform float u_depth_scale;   // 1 / (largest d + r): maps d + r into [0, 1]
+uniform float u_point_bias;    // POINTS: depth × (1 + bias), so samples only fill what no triangle covers
 
 out vec4 v_reflection;   // Lr, r
 out vec3 v_position;     // keyframe world position of the source pixel
@@ -36,5 +37,8 @@ void main() {
     v_valid = (o.z > 0.5 && refl.a >= 0.0) ? 1 : 0;
     vec2 ndc = (vec2(p) + o.xy + 0.5) / vec2(u_kf_size) * 2.0 - 1.0;
     float depth = (texelFetch(u_kf_depth, p, 0).r + max(refl.a, 0.0)) * u_depth_scale;
+#ifdef POINTS
+    depth *= 1.0 + u_point_bias;
+#endif
     gl_Position = vec4(ndc, clamp(depth, 0.0, 1.0) * 2.0 - 1.0, 1.0);
 }
