@@ -82,6 +82,16 @@ def _frames(gl, scene, cams, settings=None, tracer=None):
         return [ru.next_frame(c) for c in cams]
 
 
+def _move_once(gl, scene, delta):
+    """Keyframe at mirror_camera(96), then one frame moved by `delta`: (ours, direct
+    reprojection, Embree's full trace) of the moved frame."""
+    cam = mirror_camera(96)
+    new = moved(cam, delta)
+    _, ours = _frames(gl, scene, [cam, new])
+    _, direct = _frames(gl, scene, [cam, new], ReuseSettings(mode="direct"))
+    return ours, direct, raytrace_reflections(scene, new, supersample=1)
+
+
 def _smooth(img: np.ndarray) -> np.ndarray:
     """(H,W) bool: the 5×5 neighbourhood varies by less than 1/255 in every channel."""
     return (maximum_filter(img, (5, 5, 1)) - minimum_filter(img, (5, 5, 1))).max(axis=2) < 1 / 255
@@ -101,12 +111,7 @@ def test_static_camera_reuses_everything_exactly(gl):
 
 
 def test_planar_mirror_small_move_matches_full_trace(gl):
-    scene = planar_mirror_scene()
-    cam = mirror_camera(96)
-    new = moved(cam, (0.1, 0.03, 0.0))
-    _, ours = _frames(gl, scene, [cam, new])
-    _, direct = _frames(gl, scene, [cam, new], ReuseSettings(mode="direct"))
-    full = raytrace_reflections(scene, new, supersample=1)
+    ours, direct, full = _move_once(gl, planar_mirror_scene(), (0.1, 0.03, 0.0))
     reused = ours.flags == REUSED
     assert reused.sum() > 0.8 * ours.stats.reflective
     smooth = reused & _smooth(full.reflected)
@@ -123,11 +128,7 @@ def test_planar_mirror_small_move_matches_full_trace(gl):
 @pytest.mark.parametrize("kind", ["convex", "concave"])
 def test_curved_reflectors_bounded(gl, kind):
     scene = mirror_object_scene(sphere_mesh(), "sphere") if kind == "convex" else dish_scene()
-    cam = mirror_camera(96)
-    new = moved(cam, (0.3, 0.09, 0.0))
-    _, ours = _frames(gl, scene, [cam, new])
-    _, direct = _frames(gl, scene, [cam, new], ReuseSettings(mode="direct"))
-    full = raytrace_reflections(scene, new, supersample=1)
+    ours, direct, full = _move_once(gl, scene, (0.3, 0.09, 0.0))
     reused = ours.flags == REUSED
     mae = np.abs(ours.color - full.color).mean() * 255
     mae_r = np.abs(ours.reflected - full.reflected)[reused].mean() * 255
