@@ -157,9 +157,12 @@ class SampleShading:
 
 
 def _shade_samples(caster: RayCaster, eye: np.ndarray, dirs: np.ndarray, glossy_rays: int, trace: bool,
-                   chunk: int) -> SampleShading:
+                   chunk: int, per_viewpoint: bool = True) -> SampleShading:
     """Every rule of the module docstring for primary rays from `eye` along unit
-    `dirs` (N,3), before any ss×ss averaging."""
+    `dirs` (N,3), before any ss×ss averaging. per_viewpoint=False casts the primary
+    rays in the scene's one BVH, restarting past back faces (no per-viewpoint BVH
+    build, a fixed cost per eye that sparse rays cannot amortise; differs from the
+    exact culling only where a back face is coplanar with a front face)."""
     scene = caster.scene
     n_samples = len(dirs)
     sun = np.asarray(scene.sun_direction, np.float64)
@@ -182,7 +185,7 @@ def _shade_samples(caster: RayCaster, eye: np.ndarray, dirs: np.ndarray, glossy_
         # Primary rays all start at the eye: exact back-face culling with the
         # per-viewpoint BVH (as the G-buffer's rasteriser; restarting past back faces
         # would let a coplanar back face hide a front face, e.g. tiles on a wall).
-        hits = caster.cast_from(eye, d)
+        hits = caster.cast_from(eye, d) if per_viewpoint else caster.intersect(np.broadcast_to(eye, d.shape), d)
         diff, n_shade = caster.shade_hits(hits, d)
         diffuse[sl] = diff
         color[sl] = diff
