@@ -77,7 +77,9 @@ class ReuseSettings:
     triangle is dropped (§5.5.1: 16); plane_tolerance: same-surface test (depth
     discontinuity), in pixel footprints; reflected_jump: beyond the thesis, a
     triangle whose vertices' reflected-ray lengths differ by more than this fraction
-    is dropped (0 = off); miss_diagonals: the ray length given to rays that miss
+    is dropped (0 = off, the thesis: its growth limit alone catches the gaps of the
+    reflected scene; on costs recomputed pixels for less smearing, see
+    bench/results/temporal.md); miss_diagonals: the ray length given to rays that miss
     (sky), in scene diagonals; sync_timings: glFinish after each step, so the step
     times are the steps' own."""
 
@@ -86,7 +88,7 @@ class ReuseSettings:
     max_steps: int = 64
     growth: float = 16.0
     plane_tolerance: float = 1.0
-    reflected_jump: float = 0.1
+    reflected_jump: float = 0.0
     miss_diagonals: float = MISS_DIAGONALS
     sync_timings: bool = True
 

@@ -1,8 +1,9 @@
 #version 430 core
 // Composition (thesis §5.4.3): depth-based reprojection of the intermediate reflection
 // image into the new view. Per new-frame pixel q on a reflector (s > 0): its world
-// point P is projected into the keyframe; when the keyframe sample there lies on P's
-// surface (same object, P within u_plane_tol footprints of its tangent plane) the
+// point P is projected into the keyframe; when the keyframe sample there (the nearest
+// texel, or at the silhouette of P's surface the nearest of the 2×2 that is) lies
+// on P's surface (same object, P within u_plane_tol footprints of its tangent plane) the
 // reflection is the intermediate image bilinearly interpolated over the reliable
 // texels of that surface among the 2×2 around P's projection, provided the nearest
 // texel is reliable. Output (GL orientation): u_out (Lr, r) and u_flag: 0 not
@@ -37,6 +38,22 @@ void main() {
     if (clip.w > 0.0) {
         vec2 t = (clip.xy / clip.w * 0.5 + 0.5) * vec2(u_kf_size) - 0.5;   // texel coordinates
         ivec2 p = ivec2(floor(t + 0.5));
+        bool in_front = kf_inside(p) && texelFetch(u_kf_depth, p, 0).r < clip.w * (1.0 - 1e-3);
+        if (kf_inside(p) && !in_front && !on_kf_surface(p, P, obj)) {
+            // at P's own surface's silhouette the nearest texel may lie behind it (the
+            // keyframe saw past the edge): take the nearest of the 2×2 around P's
+            // projection that is on P's surface. Not when the nearest texel lies in
+            // front of P (clip.w is P's keyframe depth): then P is hidden, disoccluded.
+            ivec2 b = ivec2(floor(t));
+            float best = 1e30;
+            ivec2 found = ivec2(-1);
+            for (int j = 0; j < 2; ++j) for (int i = 0; i < 2; ++i) {
+                ivec2 c = b + ivec2(i, j);
+                float d2 = dot(vec2(c) - t, vec2(c) - t);
+                if (kf_inside(c) && d2 < best && on_kf_surface(c, P, obj)) { best = d2; found = c; }
+            }
+            if (found.x >= 0) p = found;
+        }
         if (kf_inside(p) && on_kf_surface(p, P, obj)) {
             flag = 3.0;
             if (texelFetch(u_reliable, p, 0).r > 0.5) {
