@@ -261,6 +261,7 @@ class ReflectionReuser(Releasable):
         assert target is not None
         self.keyframe = KeyframeTextures(self.gl.ctx, target, cam, reflected.copy(), length.copy(),
                                          self.miss_distance)
+        self.offset.prepare(self.keyframe, self.settings.plane_tolerance)
         self.best_match.reset()
 
     def _search_stats(self, stats: ReuseStats) -> None:

@@ -9,7 +9,7 @@
 // silhouette), the search leaves the image, it runs out of u_max_steps, or the local
 // minimum is not the minimum (its distance exceeds the largest rise to a neighbour:
 // the true minimum lies more than about a pixel away, beyond the silhouette or the
-// image border). Sub-pixel refinement (beyond Alg. 9's whole pixels): the point X where the
+// image border; the rise is taken over the reflective neighbours). Sub-pixel refinement (beyond Alg. 9's whole pixels): the point X where the
 // line from E_cur to M (mirrored in s*'s tangent plane) meets that plane, projected into
 // the keyframe — exact on a planar mirror, first order on curved ones; kept when within
 // one pixel of s*, snapped to s* within 0.01 pixel. Output per pixel (texel units, GL orientation): (ox, oy, valid 0/1, steps).
@@ -73,20 +73,19 @@ void main() {
     for (; steps < u_max_steps; ++steps) {
         float best = 3.4e38, rise = 0.0;
         ivec2 best_p = sc;
-        bool best_continuous = true;
         for (int k = 0; k < 8; ++k) {
             ivec2 q = sc + RING[k];
             if (!kf_inside(q)) continue;
             float dq = match_distance(q, R);
-            bool cont = kf_reflective(q) && kf_same_surface(sc, q);
-            if (cont) rise = max(rise, dq - former);
-            if (dq < best) { best = dq; best_p = q; best_continuous = cont; }
+            if (kf_reflective(q)) rise = max(rise, dq - former);
+            if (dq < best) { best = dq; best_p = q; }
         }
         if (best >= former) {                       // local minimum at sc
             valid = former <= rise;                 // ... and within about a pixel of the true one
             break;
         }
-        if (!best_continuous) break;                // the minimum lies outside the silhouette
+        // the minimum lies outside the silhouette (the surface test only for the step taken)
+        if (!(kf_reflective(best_p) && kf_same_surface(sc, best_p))) break;
         former = best;
         sc = best_p;
     }

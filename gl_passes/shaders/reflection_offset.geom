@@ -1,10 +1,10 @@
 #version 430 core
 // Reflection offset (thesis §5.4.2): drops the grid triangles (POINTS: the samples)
-// whose reuse is unreliable: a vertex without a valid match; vertices on different
-// surfaces (a depth discontinuity of the keyframe); an area grown more than
+// whose reuse is unreliable: a vertex without a valid match; an area grown more than
 // u_growth times by the offsets; (beyond the thesis, u_reflected_jump > 0) reflected
 // ray lengths that differ by more than that fraction (a discontinuity of the
-// reflected scene, whose gap would otherwise be smeared).
+// reflected scene, whose gap would otherwise be smeared). Triangles across a depth
+// discontinuity of the keyframe are not in the index buffer (reflection_offset.py).
 #include "reuse_common.glsl"
 
 #ifdef POINTS
@@ -21,8 +21,6 @@ uniform float u_growth;
 uniform float u_reflected_jump;
 
 in vec4 v_reflection[];
-in vec3 v_position[];
-flat in ivec2 v_pixel[];
 flat in int v_valid[];
 out vec4 f_reflection;
 
@@ -31,7 +29,6 @@ void main() {
 #ifndef POINTS
     for (int i = 0; i < 3; ++i) {
         int j = (i + 1) % 3;
-        if (!kf_same_surface(v_pixel[i], v_pixel[j])) return;
         float ra = v_reflection[i].a, rb = v_reflection[j].a;
         if (u_reflected_jump > 0.0 && abs(ra - rb) > u_reflected_jump * min(ra, rb)) return;
     }
