@@ -158,7 +158,7 @@ def recomputed_cell(r: dict) -> str:
 
 
 def write_report(out: Path, args: argparse.Namespace, info: dict, rows: list[dict], seconds: float) -> None:
-    facts = [f"Scenes {', '.join(args.scenes)}; fly-through paths with seeds {PATH_SEEDS}; {args.frames} frames "
+    facts = [f"Scenes {', '.join(args.scenes)}; fly-through paths with seeds {args.seeds}; {args.frames} frames "
              f"a path at {args.res}² (thesis: 500 frames at 1024²); tracers {', '.join(args.tracers)}.",
              "Ours and direct reprojection are compared with full tracing by the same tracer, frame by frame."]
     lines = report_head("Temporal reflection reuse (thesis Ch. 5)", "python -m bench.temporal " + " ".join(
@@ -190,6 +190,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--frames", type=int, default=12)
     ap.add_argument("--res", type=int, default=128)
     ap.add_argument("--tracers", nargs="+", default=["embree", "clusters"], choices=["embree", "clusters"])
+    ap.add_argument("--seeds", type=int, nargs="+", default=list(PATH_SEEDS), help="fly-through path seeds")
     ap.add_argument("--setting", nargs="*", default=[], metavar="NAME=VALUE",
                     help="ReuseSettings fields for the reuse and direct streams (e.g. keyframe_threshold=0.2)")
     ap.add_argument("--out", default=str(RESULTS_DIR / "temporal"))
@@ -203,7 +204,7 @@ def main(argv: list[str] | None = None) -> None:
     for name in args.scenes:
         scene = load_named_scene(name)
         with SceneGPU(gl, scene) as sg:
-            for seed in PATH_SEEDS:
+            for seed in args.seeds:
                 cams = flythrough_path(scene.bounds, args.frames, seed=seed, width=args.res, height=args.res)
                 for tname in args.tracers:
                     def make_tracer(tname=tname, scene=scene, sg=sg):
