@@ -180,22 +180,18 @@ def test_temporal_keyframe_intervals():
     assert intervals([True]) == [1]
 
 
-def test_temporal_bench_smoke_writes_its_tables(tmp_path):
-    """bench.temporal end to end on the small mirror scene (4 frames at 32², both tracers)."""
-    import json
+def test_temporal_bench_smoke_writes_its_tables():
+    """bench.temporal end to end (tables, JSON, pictures)."""
+    from tests.helpers import run_isolated, temporal_bench_scenario
 
-    from bench.temporal import main
-
-    out = tmp_path / "temporal"
-    main(["--scenes", "mirror", "--frames", "4", "--res", "32", "--out", str(out)])
-    data = json.loads(out.with_suffix(".json").read_text())
-    assert [(r["tracer"], r["path"]) for r in data["runs"]] == [
+    res = run_isolated(temporal_bench_scenario)
+    runs = res["json"]["runs"]
+    assert [(r["tracer"], r["path"]) for r in runs] == [
         ("embree", "fly-through 0"), ("clusters", "fly-through 0"), ("embree", "fly-through 1"),
         ("clusters", "fly-through 1")]
-    for r in data["runs"]:
+    for r in runs:
         assert r["per_frame"]["keyframe"][0] and len(r["per_frame"]["mae_ours"]) == 4
         assert r["full_fps"][0] > 0 and r["ours_fps"][0] > 0
-    md = out.with_suffix(".md").read_text()
+    md = res["md"]
     assert "## Table 22" in md and "## Table 23" in md and md.count("| mirror |") == 8
-    assert (tmp_path / "temporal_mae.png").exists()
-    assert (tmp_path / "temporal_mirror_path0_embree_triplet.png").exists()
+    assert "temporal_mae.png" in res["files"] and "temporal_mirror_path0_embree_triplet.png" in res["files"]
