@@ -14,7 +14,7 @@
 // the keyframe — exact on a planar mirror, first order on curved ones; kept when within
 // one pixel of s*, snapped to s* within 0.01 pixel. Output per pixel (texel units, GL orientation): (ox, oy, valid 0/1, steps).
 // u_direct = 1: the direct-reprojection baseline, offset 0 for every reflective pixel.
-layout(local_size_x = 8, local_size_y = 8) in;
+layout(local_size_x = 32, local_size_y = 8) in;
 #include "reuse_common.glsl"
 
 layout(rgba32f, binding = UNIT_u_prev) uniform readonly image2D u_prev;
