@@ -19,7 +19,7 @@ from gl_passes.releasable import Releasable
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
 
-GROUP = (32, 8)  # best_match.comp local size (x, y)
+GROUP = 64  # best_match.comp local size (one invocation per reflective keyframe pixel)
 
 
 class BestMatchPass(Releasable):
@@ -71,7 +71,10 @@ class BestMatchPass(Releasable):
         set_uniform(p, "u_max_steps", int(max_steps))
         set_uniform(p, "u_direct", int(direct))
         set_uniform(p, "u_kf_view_proj", keyframe.camera.view_projection())
-        p.run((size[0] + GROUP[0] - 1) // GROUP[0], (size[1] + GROUP[1] - 1) // GROUP[1], 1)
+        set_uniform(p, "u_count", int(keyframe.n_pixels))
+        REUSE_UNITS.bind_storage("Pixels", keyframe.pixels)
+        if keyframe.n_pixels:
+            p.run((keyframe.n_pixels + GROUP - 1) // GROUP, 1, 1)
         self.gl.ctx.memory_barrier()
         return self.offsets
 

@@ -25,6 +25,7 @@ from scenes.camera import Camera
 #: Units of the reuse shaders (best_match.comp, reflection_offset.*, reflection_compose.comp).
 REUSE_UNITS = Units(
     images=("u_prev", "u_offsets", "u_out", "u_flag"),
+    storage=("Pixels",),
     textures=("u_kf_position", "u_kf_normal", "u_kf_depth", "u_kf_obj", "u_kf_reflection", "u_offsets_tex",
               "u_position", "u_obj", "u_material", "u_inter", "u_reliable"),
 )
@@ -57,7 +58,9 @@ class ReflectionDepthImage:
 
 class KeyframeTextures:
     """The GPU side of a keyframe: its G-buffer target (kept until the next
-    keyframe) and the (Lr, r) texture; `bind()` binds them to REUSE_UNITS."""
+    keyframe) and the (Lr, r) texture; `bind()` binds them to REUSE_UNITS. `pixels`:
+    a uint32 buffer of its reflective pixels' indices y·W + x (GL rows, row 0 =
+    bottom; `n_pixels` of them), so per-pixel passes run over the reflectors only."""
 
     def __init__(self, ctx: moderngl.Context, target: RenderTarget, camera: Camera, reflected: np.ndarray,
                  ray_length: np.ndarray, miss_distance: float) -> None:
@@ -71,6 +74,9 @@ class KeyframeTextures:
         self.texture = ctx.texture(target.size, 4, dtype="f4")
         self.texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
         write_texture(self.texture, np.concatenate([reflected, r[..., None]], axis=-1))
+        ids = np.flatnonzero((r >= 0)[::-1].ravel()).astype(np.uint32)  # GL rows
+        self.n_pixels = len(ids)
+        self.pixels = ctx.buffer(ids.tobytes() if len(ids) else np.zeros(1, np.uint32).tobytes())
 
     def bind(self) -> None:
         t = self.target.textures
@@ -91,6 +97,7 @@ class KeyframeTextures:
 
     def release(self) -> None:
         self.texture.release()
+        self.pixels.release()
 
 
 @dataclass

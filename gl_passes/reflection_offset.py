@@ -47,10 +47,11 @@ def same_surface(pos: np.ndarray, nrm: np.ndarray, depth: np.ndarray, obj: np.nd
 
 
 def grid_indices(pos: np.ndarray, nrm: np.ndarray, depth: np.ndarray, obj: np.ndarray, ok: np.ndarray,
-                 tol: float) -> tuple[np.ndarray, np.ndarray]:
-    """Index buffers of the keyframe's grid mesh (arrays (H,W[,3]) in GL row order,
-    row 0 = bottom, as the vertex index y·W + x): (triangles (T·3,) uint32 whose
-    vertex pairs are all on one surface, points (P,) uint32 of the `ok` pixels)."""
+                 tol: float) -> np.ndarray:
+    """Index buffer of the keyframe's grid mesh (arrays (H,W[,3]) in GL row order,
+    row 0 = bottom, as the vertex index y·W + x): triangles (T·3,) uint32 whose
+    vertex pairs are all `ok` and on one surface. (The samples drawn as points are
+    the keyframe's reflective pixels, KeyframeTextures.pixels.)"""
     h, w = depth.shape
     hor = same_surface(pos, nrm, depth, obj, ok, 0, 1, tol)    # (x, y)–(x+1, y)
     ver = same_surface(pos, nrm, depth, obj, ok, 1, 0, tol)    # (x, y)–(x, y+1)
@@ -60,7 +61,7 @@ def grid_indices(pos: np.ndarray, nrm: np.ndarray, depth: np.ndarray, obj: np.nd
     t1 = hor[:-1] & ver[:, 1:] & dia                            # (00, 10, 11)
     t2 = dia & hor[1:] & ver[:, :-1]                            # (00, 11, 01)
     tris = np.concatenate([np.stack([p00[t1], p10[t1], p11[t1]], 1), np.stack([p00[t2], p11[t2], p01[t2]], 1)])
-    return np.ascontiguousarray(tris.reshape(-1), np.uint32), np.ascontiguousarray(ids[ok], np.uint32)
+    return np.ascontiguousarray(tris.reshape(-1), np.uint32)
 
 
 class ReflectionOffsetPass(Releasable):
@@ -110,13 +111,13 @@ class ReflectionOffsetPass(Releasable):
         ok = (np.isfinite(r) | np.isposinf(r)) & (obj > 0)
         cam = keyframe.camera
         tol = plane_tol * 2 * np.tan(np.radians(cam.fov) / 2) / cam.height
-        tris, points = grid_indices(pos, nrm, depth, obj, ok, tol)
+        tris = grid_indices(pos, nrm, depth, obj, ok, tol)
         ctx = self.gl.ctx
-        for prog, idx in ((self.mesh_prog, tris), (self.point_prog, points)):
-            buf = ctx.buffer(idx.tobytes() if len(idx) else np.zeros(1, np.uint32).tobytes())
-            self._buffers.append(buf)
-            self._vaos.append(ctx.vertex_array(prog, [], index_buffer=buf, index_element_size=4))
-        self._counts = (len(tris), len(points))
+        buf = ctx.buffer(tris.tobytes() if len(tris) else np.zeros(1, np.uint32).tobytes())
+        self._buffers.append(buf)
+        self._vaos.append(ctx.vertex_array(self.mesh_prog, [], index_buffer=buf, index_element_size=4))
+        self._vaos.append(ctx.vertex_array(self.point_prog, [], index_buffer=keyframe.pixels, index_element_size=4))
+        self._counts = (len(tris), keyframe.n_pixels)
 
     def run(self, keyframe: KeyframeTextures, offsets: moderngl.Texture, growth: float, plane_tol: float,
             reflected_jump: float) -> tuple[moderngl.Texture, moderngl.Texture]:

@@ -1,5 +1,6 @@
 #version 430 core
-// Best reflection-pixel match (thesis §5.4.1, Alg. 9), one invocation per keyframe pixel s.
+// Best reflection-pixel match (thesis §5.4.1, Alg. 9), one invocation per reflective
+// keyframe pixel s (the keyframe's pixel list; the other offsets stay invalid).
 // R = W + reflect(W - E_old, s.n)·s.r is the reflected point (Eq. 8). The match distance
 // of a candidate pixel s_n is the distance from the new eye E_cur to the line through
 // W_n and M, the mirror image of R in s_n's tangent plane (Fig. 37). A local descent
@@ -14,7 +15,7 @@
 // the keyframe — exact on a planar mirror, first order on curved ones; kept when within
 // one pixel of s*, snapped to s* within 0.01 pixel. Output per pixel (texel units, GL orientation): (ox, oy, valid 0/1, steps).
 // u_direct = 1: the direct-reprojection baseline, offset 0 for every reflective pixel.
-layout(local_size_x = 32, local_size_y = 8) in;
+layout(local_size_x = 64) in;
 #include "reuse_common.glsl"
 
 layout(rgba32f, binding = UNIT_u_prev) uniform readonly image2D u_prev;
@@ -23,6 +24,8 @@ uniform vec3 u_eye_old;
 uniform vec3 u_eye_new;
 uniform int u_max_steps;
 uniform int u_direct;
+uniform uint u_count;
+layout(std430, binding = UNIT_Pixels) readonly buffer Pixels { uint pixel_ids[]; };
 uniform mat4 u_kf_view_proj;
 
 const ivec2 RING[8] = ivec2[8](ivec2(-1, -1), ivec2(0, -1), ivec2(1, -1), ivec2(-1, 0),
@@ -53,8 +56,9 @@ vec2 subpixel(ivec2 sc, vec3 R) {
 }
 
 void main() {
-    ivec2 s = ivec2(gl_GlobalInvocationID.xy);
-    if (any(greaterThanEqual(s, u_kf_size))) return;
+    if (gl_GlobalInvocationID.x >= u_count) return;
+    uint id = pixel_ids[gl_GlobalInvocationID.x];
+    ivec2 s = ivec2(int(id) % u_kf_size.x, int(id) / u_kf_size.x);
     vec4 refl = texelFetch(u_kf_reflection, s, 0);
     if (refl.a < 0.0) { imageStore(u_offsets, s, vec4(0.0)); return; }
     if (u_direct == 1) { imageStore(u_offsets, s, vec4(0.0, 0.0, 1.0, 0.0)); return; }
