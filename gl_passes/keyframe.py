@@ -24,10 +24,10 @@ from scenes.camera import Camera
 
 #: Units of the reuse shaders (best_match.comp, reflection_offset.*, reflection_compose.comp).
 REUSE_UNITS = Units(
-    images=("u_prev", "u_offsets", "u_out", "u_flag"),
-    storage=("Pixels",),
+    images=("u_prev", "u_offsets"),
+    storage=("Pixels", "Results", "Flags"),
     textures=("u_kf_position", "u_kf_normal", "u_kf_depth", "u_kf_obj", "u_kf_reflection", "u_offsets_tex",
-              "u_position", "u_obj", "u_material", "u_inter", "u_reliable"),
+              "u_position", "u_obj", "u_inter", "u_reliable"),
 )
 
 #: Reflection-ray length used for rays that miss (they read the sky, a function of

@@ -221,7 +221,7 @@ class ReflectionReuser(Releasable):
             lap("best_match")
             inter, reliable = self.offset.run(kf, offsets, st.growth, st.plane_tolerance, st.reflected_jump)
             lap("reflection_offset")
-            out, flags = self.compose.run(target, kf, inter, reliable, st.plane_tolerance)
+            out, flags = self.compose.run(target, kf, inter, reliable, st.plane_tolerance, reflective)
             reused = flags == REUSED
             reflected[reused] = out[reused, :3]
             r = out[..., 3].astype(np.float64)

@@ -1,39 +1,38 @@
 #version 430 core
 // Composition (thesis §5.4.3): depth-based reprojection of the intermediate reflection
-// image into the new view. Per new-frame pixel q on a reflector (s > 0): its world
+// image into the new view, one invocation per new-frame pixel q on a reflector (s > 0;
+// the caller's list of them, GL rows): its world
 // point P is projected into the keyframe; when the keyframe sample there (the nearest
 // texel, or at the silhouette of P's surface the nearest of the 2×2 that is) lies
 // on P's surface (same object, P within u_plane_tol footprints of its tangent plane) the
 // reflection is the intermediate image bilinearly interpolated over the reliable
 // texels of that surface among the 2×2 around P's projection, provided the nearest
-// texel is reliable. Output (GL orientation): u_out (Lr, r) and u_flag: 0 not
-// reflective, 1 reused, 2 disoccluded (P not seen by the keyframe), 3 unreliable
-// (the intermediate image holds no reliable value there); 2 and 3 are recomputed.
-layout(local_size_x = 8, local_size_y = 8) in;
+// texel is reliable. Output per listed pixel: results (Lr, r) and flags: 1 reused,
+// 2 disoccluded (P not seen by the keyframe), 3 unreliable (the intermediate image
+// holds no reliable value there); 2 and 3 are recomputed.
+layout(local_size_x = 64) in;
 #include "reuse_common.glsl"
 
 layout(binding = UNIT_u_position) uniform sampler2D u_position;
 layout(binding = UNIT_u_obj) uniform usampler2D u_obj;
-layout(binding = UNIT_u_material) uniform sampler2D u_material;
 layout(binding = UNIT_u_inter) uniform sampler2D u_inter;
 layout(binding = UNIT_u_reliable) uniform sampler2D u_reliable;
-layout(rgba32f, binding = UNIT_u_out) uniform writeonly image2D u_out;
-layout(r32f, binding = UNIT_u_flag) uniform writeonly image2D u_flag;
+layout(std430, binding = UNIT_Pixels) readonly buffer Pixels { uint pixel_ids[]; };
+layout(std430, binding = UNIT_Results) writeonly buffer Results { vec4 results[]; };
+layout(std430, binding = UNIT_Flags) writeonly buffer Flags { uint flags[]; };
+uniform uint u_count;
 uniform mat4 u_kf_view_proj;
 uniform ivec2 u_size;
 
 void main() {
-    ivec2 q = ivec2(gl_GlobalInvocationID.xy);
-    if (any(greaterThanEqual(q, u_size))) return;
+    uint k = gl_GlobalInvocationID.x;
+    if (k >= u_count) return;
+    uint id = pixel_ids[k];
+    ivec2 q = ivec2(int(id) % u_size.x, int(id) / u_size.x);
     uint obj = texelFetch(u_obj, q, 0).r;
-    if (obj == 0u || texelFetch(u_material, q, 0).r <= 0.0) {
-        imageStore(u_out, q, vec4(0.0));
-        imageStore(u_flag, q, vec4(0.0));
-        return;
-    }
     vec3 P = texelFetch(u_position, q, 0).xyz;
     vec4 clip = u_kf_view_proj * vec4(P, 1.0);
-    float flag = 2.0;
+    uint flag = 2u;
     vec4 result = vec4(0.0);
     if (clip.w > 0.0) {
         vec2 t = (clip.xy / clip.w * 0.5 + 0.5) * vec2(u_kf_size) - 0.5;   // texel coordinates
@@ -55,7 +54,7 @@ void main() {
             if (found.x >= 0) p = found;
         }
         if (kf_inside(p) && on_kf_surface(p, P, obj)) {
-            flag = 3.0;
+            flag = 3u;
             if (texelFetch(u_reliable, p, 0).r > 0.5) {
                 ivec2 b = ivec2(floor(t));
                 vec2 f = t - vec2(b);
@@ -70,10 +69,10 @@ void main() {
                 }
                 if (wsum <= 0.0) { sum = texelFetch(u_inter, p, 0); wsum = 1.0; }
                 result = sum / wsum;
-                flag = 1.0;
+                flag = 1u;
             }
         }
     }
-    imageStore(u_out, q, result);
-    imageStore(u_flag, q, vec4(flag));
+    results[k] = result;
+    flags[k] = flag;
 }
