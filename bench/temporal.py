@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.common import RESULTS_DIR, load_named_scene, machine_info, md_table, report_head, write_json, write_text
+from bench.reflections import to_png
 from gl_passes.cluster_tracer import ClusterTracer
 from gl_passes.context import create_gl_context
 from gl_passes.reprojection import STEPS, ReflectionReuser, ReuseSettings
@@ -51,13 +52,6 @@ PATH_SEEDS = (0, 1)
 MAE_BOUND_255 = 1.0        # issue 14: MAE per channel against the full trace
 RECOMPUTED_BOUND = 0.25    # issue 14: recomputed share of the reflective pixels, average along the paths
 SPEEDUP_BOUND = 2.5        # issue 14: over full Embree tracing every frame
-
-
-def to_png(img: np.ndarray, path: Path) -> None:
-    from PIL import Image
-
-    srgb = np.where(img <= 0.0031308, 12.92 * img, 1.055 * np.power(np.clip(img, 0, None), 1 / 2.4) - 0.055)
-    Image.fromarray((np.clip(srgb, 0, 1) * 255 + 0.5).astype(np.uint8)).save(path)
 
 
 def intervals(keys: list[bool]) -> list[int]:

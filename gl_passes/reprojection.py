@@ -50,6 +50,10 @@ from scenes.camera import Camera
 #: Flag of pixels traced as part of a keyframe (or by the full-tracing baseline).
 TRACED = 4
 MODES: tuple[str, ...] = ("reuse", "direct", "full")
+#: Timed steps (Table 23): diffuse = G-buffer pass and its read-back; keyframe = storing
+#: the reflection depth image and its grid mesh; best_match (§5.4.1); reflection_offset
+#: (§5.4.2); warp = composition (§5.4.3); recompute = the tracer (all reflective pixels
+#: on keyframes and in full tracing); blend = mix(diffuse, reflected, s).
 STEPS = ("diffuse", "keyframe", "best_match", "reflection_offset", "warp", "recompute", "blend")
 
 
