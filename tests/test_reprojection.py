@@ -279,3 +279,30 @@ def test_reuser_frees_what_it_creates():
 
     before, after = gl_object_growth(State, lambda s, i: s.ru.next_frame(cams[i % 4]), 8)
     assert after == before
+
+
+def test_search_starts_from_the_previous_offsets_and_is_bounded(gl):
+    """Alg. 9: a search starts at the previous frame's offset when valid (fewer steps
+    along a steady move than a search from the pixel itself), and max_steps bounds it
+    (a search that reaches the bound is an invalid match, its pixels recomputed)."""
+    scene = planar_mirror_scene()
+    cam = mirror_camera(64)
+    cams = [cam, *(moved(cam, (0.1 * k, 0.0, 0.0)) for k in (1, 2, 3))]
+    tracer = EmbreeTracer(scene)
+    steps = {}
+    with SceneGPU(gl, scene) as sg:
+        for warm in (True, False):
+            with ReflectionReuser(gl, sg, tracer, ReuseSettings(keyframe_threshold=1.0)) as ru:
+                for c in cams:
+                    if not warm:
+                        ru.best_match.reset()  # no previous offsets: every search starts at its pixel
+                    f = ru.next_frame(c)
+                steps[warm] = f.stats.search_steps_mean
+        with ReflectionReuser(gl, sg, tracer, ReuseSettings(keyframe_threshold=1.0, max_steps=1)) as ru:
+            ru.next_frame(cam)
+            bounded = ru.next_frame(cams[3])
+    print(f"search steps, warm / cold start: {steps[True]:.2f} / {steps[False]:.2f}")
+    assert steps[True] < 0.5 * steps[False], steps
+    assert bounded.stats.search_steps_max == 1 and bounded.stats.step_bound_hits > 100
+    assert bounded.stats.invalid_matches >= bounded.stats.step_bound_hits
+    assert bounded.stats.unreliable > 0
