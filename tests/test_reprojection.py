@@ -306,3 +306,13 @@ def test_search_starts_from_the_previous_offsets_and_is_bounded(gl):
     assert bounded.stats.search_steps_max == 1 and bounded.stats.step_bound_hits > 100
     assert bounded.stats.invalid_matches >= bounded.stats.step_bound_hits
     assert bounded.stats.unreliable > 0
+
+
+def test_frames_without_reflectors_are_the_diffuse_image(gl):
+    scene = Scene(props(), name="diffuse_only")
+    cam = mirror_camera(32)
+    frames = _frames(gl, scene, [cam, moved(cam, (0.1, 0.0, 0.0)), cam.with_size(24, 24)])
+    assert [f.stats.keyframe for f in frames] == [True, False, True]  # a new size starts a keyframe
+    for f in frames:
+        assert f.stats.reflective == 0 and f.stats.recomputed_fraction == 0.0 and not f.flags.any()
+        assert_images_equal(f.color, f.diffuse, "color_is_diffuse")
