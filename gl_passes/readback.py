@@ -28,3 +28,11 @@ def read_texture_layer(arr_tex: moderngl.TextureArray, layer: int) -> np.ndarray
     dtype = _DTYPES[arr_tex.dtype]
     full = np.frombuffer(arr_tex.read(), dtype=dtype).reshape(-1, h, w, arr_tex.components)[layer, ::-1]
     return np.ascontiguousarray(full[..., 0] if arr_tex.components == 1 else full)
+
+
+def write_texture(tex: moderngl.Texture, image: np.ndarray) -> None:
+    """Numpy image (H,W[,C]), row 0 = top, into `tex` (same size and components,
+    its dtype), flipped to GL's bottom-up rows: the inverse of `read_texture`."""
+    w, h = tex.size
+    arr = np.asarray(image, dtype=_DTYPES[tex.dtype]).reshape(h, w, tex.components)
+    tex.write(np.ascontiguousarray(arr[::-1]).tobytes())

@@ -139,21 +139,32 @@ def aggregate_ray_length(lengths: np.ndarray, reflective: np.ndarray, ss: int) -
     return np.where(count > 0, out, np.nan)
 
 
-def _render(scene: Scene, camera: Camera, supersample: int, glossy_rays: int, trace: bool,
-            chunk: int, caster: RayCaster | None) -> ReflectionResult:
-    ss = int(supersample)
-    if ss < 1:
-        raise ValueError("supersample must be >= 1")
-    if glossy_rays < 1:
-        raise ValueError("glossy_rays must be >= 1")
-    caster = caster if caster is not None else RayCaster(scene)
-    if caster.scene is not scene:
-        raise ValueError("caster was built for another scene")
-    H, W = camera.height, camera.width
-    cam = camera.with_size(W * ss, H * ss)
-    dirs = cam.pixel_directions().reshape(-1, 3)
+@dataclass
+class SampleShading:
+    """Per-sample results of `_shade_samples` (N primary rays): color, diffuse,
+    reflected (N,3) float32; specular (N,) float32; reflective (N,) bool; length
+    (N,) float64 mirror-ray length (+inf miss, NaN non-reflective); hit_points (N,3)
+    float64 and hit_normals (N,3) float32 (NaN where no mirror hit)."""
+
+    color: np.ndarray
+    diffuse: np.ndarray
+    reflected: np.ndarray
+    specular: np.ndarray
+    reflective: np.ndarray
+    length: np.ndarray
+    hit_points: np.ndarray
+    hit_normals: np.ndarray
+
+
+def _shade_samples(caster: RayCaster, eye: np.ndarray, dirs: np.ndarray, glossy_rays: int, trace: bool,
+                   chunk: int, per_viewpoint: bool = True) -> SampleShading:
+    """Every rule of the module docstring for primary rays from `eye` along unit
+    `dirs` (N,3), before any ss×ss averaging. per_viewpoint=False casts the primary
+    rays in the scene's one BVH, restarting past back faces (no per-viewpoint BVH
+    build, a fixed cost per eye that sparse rays cannot amortise; differs from the
+    exact culling only where a back face is coplanar with a front face)."""
+    scene = caster.scene
     n_samples = len(dirs)
-    eye = np.asarray(camera.eye, np.float64)
     sun = np.asarray(scene.sun_direction, np.float64)
     diag = scene.diagonal
     offset = ORIGIN_OFFSET * max(diag, 1e-6)
@@ -174,7 +185,7 @@ def _render(scene: Scene, camera: Camera, supersample: int, glossy_rays: int, tr
         # Primary rays all start at the eye: exact back-face culling with the
         # per-viewpoint BVH (as the G-buffer's rasteriser; restarting past back faces
         # would let a coplanar back face hide a front face, e.g. tiles on a wall).
-        hits = caster.cast_from(eye, d)
+        hits = caster.cast_from(eye, d) if per_viewpoint else caster.intersect(np.broadcast_to(eye, d.shape), d)
         diff, n_shade = caster.shade_hits(hits, d)
         diffuse[sl] = diff
         color[sl] = diff
@@ -236,6 +247,26 @@ def _render(scene: Scene, camera: Camera, supersample: int, glossy_rays: int, tr
         reflected[gi] = out
         sf = s[idx].astype(np.float32)[:, None]
         color[gi] = dif * (1.0 - sf) + out * sf
+
+    return SampleShading(color, diffuse, reflected, spec, reflective, length, hit_points, hit_normals)
+
+
+def _render(scene: Scene, camera: Camera, supersample: int, glossy_rays: int, trace: bool,
+            chunk: int, caster: RayCaster | None) -> ReflectionResult:
+    ss = int(supersample)
+    if ss < 1:
+        raise ValueError("supersample must be >= 1")
+    if glossy_rays < 1:
+        raise ValueError("glossy_rays must be >= 1")
+    caster = caster if caster is not None else RayCaster(scene)
+    if caster.scene is not scene:
+        raise ValueError("caster was built for another scene")
+    H, W = camera.height, camera.width
+    cam = camera.with_size(W * ss, H * ss)
+    dirs = cam.pixel_directions().reshape(-1, 3)
+    sh = _shade_samples(caster, np.asarray(camera.eye, np.float64), dirs, glossy_rays, trace, chunk)
+    color, diffuse, reflected, spec = sh.color, sh.diffuse, sh.reflected, sh.specular
+    reflective, length, hit_points, hit_normals = sh.reflective, sh.length, sh.hit_points, sh.hit_normals
 
     shape2 = (H * ss, W * ss)
     refl_img = reflective.reshape(shape2)

@@ -117,6 +117,17 @@ class Camera:
         d = f + xs[None, :, None] * r + ys[:, None, None] * u
         return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
+    def directions_at(self, pixels: np.ndarray) -> np.ndarray:
+        """(N,3) float64 unit directions through the centres of integer pixels
+        (N,2) = (x, y), row 0 at the top; equal to pixel_directions()[y, x]."""
+        px = np.asarray(pixels, np.float64).reshape(-1, 2)
+        r, u, f = self.basis()
+        t = np.tan(np.radians(self.fov) / 2)
+        xs = ((px[:, 0] + 0.5) / self.width * 2 - 1) * t * self.aspect
+        ys = (1 - (px[:, 1] + 0.5) / self.height * 2) * t
+        d = f + xs[:, None] * r + ys[:, None] * u
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World points (...,3) → (pixel xy (...,2) float64 with row 0 at the top,
         eye-space depth (...,) positive in front of the camera)."""

@@ -10,7 +10,8 @@
   loopback port), `frame_camera`;
 * the plugin: `write_small_glb`;
 * GL scenarios that could take the process down (another context type, a lost
-  context) run in a fresh interpreter: `run_isolated(scenario)`.
+  context) or open their own context (a bench script's main) run in a fresh
+  interpreter: `run_isolated(scenario)`.
 """
 
 from __future__ import annotations
@@ -336,3 +337,19 @@ def worker_context_loss() -> dict:
     alive = w.alive
     w.stop()
     return {"first": float(first.mask.mean()), "error": error, "alive": alive, "stopped": not w.alive}
+
+
+def temporal_bench_scenario() -> dict:
+    """Scenario (own process: the bench opens its own GL context on its thread):
+    bench.temporal on the small mirror scene, 4 frames at 32², both tracers."""
+    import json
+    import tempfile
+    from pathlib import Path
+
+    from bench.temporal import main
+
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "temporal"
+        main(["--scenes", "mirror", "--frames", "4", "--res", "32", "--out", str(out)])
+        return {"json": json.loads(out.with_suffix(".json").read_text()), "md": out.with_suffix(".md").read_text(),
+                "files": sorted(p.name for p in Path(tmp).iterdir())}

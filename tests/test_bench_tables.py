@@ -171,3 +171,27 @@ def test_reflection_step_breakdown_from_the_timing_rows():
                            row("mirror", 512, 1, 10.0, 1.0)])
     assert "(about 15–18× from 512² to 2048²)" in text and "(60–115 clusters)" in text
     assert "costs about half of Embree's trace" in text
+
+
+def test_temporal_keyframe_intervals():
+    from bench.temporal import intervals
+
+    assert intervals([True, False, False, True, False]) == [3, 2]
+    assert intervals([True]) == [1]
+
+
+def test_temporal_bench_smoke_writes_its_tables():
+    """bench.temporal end to end (tables, JSON, pictures)."""
+    from tests.helpers import run_isolated, temporal_bench_scenario
+
+    res = run_isolated(temporal_bench_scenario)
+    runs = res["json"]["runs"]
+    assert [(r["tracer"], r["path"]) for r in runs] == [
+        ("embree", "fly-through 0"), ("clusters", "fly-through 0"), ("embree", "fly-through 1"),
+        ("clusters", "fly-through 1")]
+    for r in runs:
+        assert r["per_frame"]["keyframe"][0] and len(r["per_frame"]["mae_ours"]) == 4
+        assert r["full_fps"][0] > 0 and r["ours_fps"][0] > 0
+    md = res["md"]
+    assert "## Table 22" in md and "## Table 23" in md and md.count("| mirror |") == 8
+    assert "temporal_mae.png" in res["files"] and "temporal_mirror_path0_embree_triplet.png" in res["files"]

@@ -1,0 +1,112 @@
+"""Keyframes of the temporal reflection reuse (thesis Ch. 5): the reflection depth
+image of §5.3 and the keyframe policy of §5.4.4.
+
+A keyframe's reflection depth image B holds per pixel s (B.1) the normal s.n and
+depth s.d, (B.2) the specular factor s.f, (B.3) the reflected colour s.Lr and
+(B.4) the reflected-ray length s.r. B.1–B.2 come from the G-buffer pass, B.3–B.4
+from a tracer (gl_passes.reprojection.Tracer). On the GPU the keyframe's G-buffer
+textures are kept as they are (position, normal, depth, object id) and B.3–B.4 go
+into one rgba32f texture (Lr, r); `REUSE_UNITS` names the units every reuse shader
+binds them to (reuse_common.glsl).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import moderngl
+import numpy as np
+
+from gl_passes.bindings import Units
+from gl_passes.gbuffer import RenderTarget
+from gl_passes.readback import read_texture, write_texture
+from scenes.camera import Camera
+
+#: Units of the reuse shaders (best_match.comp, reflection_offset.*, reflection_compose.comp).
+REUSE_UNITS = Units(
+    images=("u_prev", "u_offsets"),
+    storage=("Pixels", "Results", "Flags"),
+    textures=("u_kf_position", "u_kf_normal", "u_kf_depth", "u_kf_obj", "u_kf_reflection", "u_offsets_tex",
+              "u_position", "u_obj", "u_inter", "u_reliable"),
+)
+
+#: Reflection-ray length used for rays that miss (they read the sky, a function of
+#: direction only), in scene diagonals: a far point in that direction.
+MISS_DIAGONALS = 100.0
+
+
+@dataclass
+class ReflectionDepthImage:
+    """A keyframe's reflection depth image (thesis §5.3), numpy, row 0 = top:
+    normal (H,W,3) float32 world unit normals and depth (H,W) float32 eye-space z
+    (+inf background) (B.1); specular (H,W) float32 s ∈ [0, 1] (B.2); reflected
+    (H,W,3) float32 linear RGB (B.3) and ray_length (H,W) float64 world units
+    (+inf: the ray missed; NaN: not reflective) (B.4); camera: the keyframe camera."""
+
+    normal: np.ndarray
+    depth: np.ndarray
+    specular: np.ndarray
+    reflected: np.ndarray
+    ray_length: np.ndarray
+    camera: Camera
+
+    @property
+    def reflective(self) -> np.ndarray:
+        """(H,W) bool: pixels with s > 0 on geometry."""
+        return (self.specular > 0) & np.isfinite(self.depth)
+
+
+class KeyframeTextures:
+    """The GPU side of a keyframe: its G-buffer target (kept until the next
+    keyframe) and the (Lr, r) texture; `bind()` binds them to REUSE_UNITS. `pixels`:
+    a uint32 buffer of its reflective pixels' indices y·W + x (GL rows, row 0 =
+    bottom; `n_pixels` of them), so per-pixel passes run over the reflectors only."""
+
+    def __init__(self, ctx: moderngl.Context, target: RenderTarget, camera: Camera, reflected: np.ndarray,
+                 ray_length: np.ndarray, miss_distance: float) -> None:
+        self.target = target
+        self.camera = camera
+        self.reflected = reflected
+        self.ray_length = ray_length
+        r = np.where(np.isposinf(ray_length), miss_distance, ray_length)
+        r = np.where(np.isfinite(r), r, -1.0)
+        self.max_ray_length = float(r.max(initial=0.0))
+        self.texture = ctx.texture(target.size, 4, dtype="f4")
+        self.texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        write_texture(self.texture, np.concatenate([reflected, r[..., None]], axis=-1))
+        ids = np.flatnonzero((r >= 0)[::-1].ravel()).astype(np.uint32)  # GL rows
+        self.n_pixels = len(ids)
+        self.pixels = ctx.buffer(ids.tobytes() if len(ids) else np.zeros(1, np.uint32).tobytes())
+
+    def bind(self) -> None:
+        t = self.target.textures
+        for name, key in (("u_kf_position", "position"), ("u_kf_normal", "normal"), ("u_kf_depth", "depth"),
+                          ("u_kf_obj", "obj_id")):
+            REUSE_UNITS.bind_texture(name, t[key])
+        REUSE_UNITS.bind_texture("u_kf_reflection", self.texture)
+
+    def image(self) -> ReflectionDepthImage:
+        """Read the keyframe back as a ReflectionDepthImage."""
+        t = self.target.textures
+        tri = read_texture(t["tri_id"])
+        return ReflectionDepthImage(
+            normal=read_texture(t["normal"])[..., :3].copy(),
+            depth=np.where(tri > 0, read_texture(t["depth"]), np.float32(np.inf)).astype(np.float32),
+            specular=read_texture(t["material"])[..., 0].copy(), reflected=self.reflected,
+            ray_length=self.ray_length, camera=self.camera)
+
+    def release(self) -> None:
+        self.texture.release()
+        self.pixels.release()
+
+
+@dataclass
+class KeyframePolicy:
+    """§5.4.4: the next frame is a keyframe when more than `threshold` of the
+    reflective pixels of this frame were recomputed (thesis: 0.3)."""
+
+    threshold: float = 0.3
+    due: bool = True
+
+    def update(self, recomputed_fraction: float) -> None:
+        self.due = recomputed_fraction > self.threshold

@@ -1,0 +1,290 @@
+"""Temporal reuse of reflections across frames (thesis Ch. 5, Alg. 8; DESIGN.md
+technique 4): `ReflectionReuser(gl, scene_gpu, tracer).next_frame(camera)`.
+
+Per frame (Alg. 8): the diffuse colour, position, normal, object id and s of the
+new view (G-buffer pass); then
+
+* keyframe: the tracer computes the reflected colour and ray length of every
+  reflective pixel; with the G-buffer they form the reflection depth image
+  (§5.3, gl_passes.keyframe), kept until the next keyframe;
+* otherwise: best match (§5.4.1, Alg. 9, gl_passes.best_match) → reflection offset
+  (§5.4.2, gl_passes.reflection_offset) → composition (§5.4.3,
+  gl_passes.composition); the disoccluded and unreliable pixels, and only those,
+  are recomputed by the tracer (sparse rays where the tracer can, `Tracer.sparse`);
+
+and the output colour = mix(diffuse, reflected, s). Keyframe policy (§5.4.4,
+gl_passes.keyframe.KeyframePolicy): the next frame is a keyframe when more than
+`keyframe_threshold` of this frame's reflective pixels were recomputed.
+
+Baselines (ReuseSettings.mode): "direct" — depth reprojection of the keyframe's
+reflection as if it were view-independent (offsets all 0, Fig. 34/39 left);
+"full" — the tracer on every reflective pixel of every frame.
+
+The tracer is injected (gl_passes never imports reference): the Embree one is
+reference.reflection_tracer.EmbreeTracer (exact ray lengths, sparse), the cluster
+method gl_passes.cluster_tracer.ClusterTracer (Ch. 4; traces whole frames).
+One reuser per camera stream, on its GL context's thread; release() frees its
+GL resources (not the tracer's, which the caller owns).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Literal, Protocol
+
+import numpy as np
+
+from gl_passes.best_match import BestMatchPass
+from gl_passes.composition import DISOCCLUDED, NOT_REFLECTIVE, REUSED, UNRELIABLE, CompositionPass
+from gl_passes.context import GLContext
+from gl_passes.gbuffer import GBufferPass
+from gl_passes.keyframe import MISS_DIAGONALS, KeyframePolicy, KeyframeTextures, ReflectionDepthImage
+from gl_passes.readback import read_texture
+from gl_passes.reflection_offset import ReflectionOffsetPass
+from gl_passes.releasable import Releasable
+from gl_passes.upload import SceneGPU
+from scenes.buffers import ReflectionBuffers
+from scenes.camera import Camera
+
+#: Flag of pixels traced as part of a keyframe (or by the full-tracing baseline).
+TRACED = 4
+MODES: tuple[str, ...] = ("reuse", "direct", "full")
+#: Timed steps (Table 23): diffuse = G-buffer pass and its read-back; keyframe = storing
+#: the reflection depth image and its grid mesh; best_match (§5.4.1); reflection_offset
+#: (§5.4.2); warp = composition (§5.4.3); recompute = the tracer (all reflective pixels
+#: on keyframes and in full tracing); blend = mix(diffuse, reflected, s).
+STEPS = ("diffuse", "keyframe", "best_match", "reflection_offset", "warp", "recompute", "blend")
+
+
+class Tracer(Protocol):
+    """Reflections of selected pixels of a camera's image: `trace(camera, pixels)`
+    with pixels (N,2) int (x, y), row 0 at the top → (reflected (N,3) float32 linear
+    RGB, ray_length (N,) float64 world units, +inf on a miss, NaN where the tracer
+    finds no reflective surface). `sparse`: the cost scales with N (ray tracers);
+    False: the tracer renders the whole frame whatever N (the cluster method)."""
+
+    name: str
+    sparse: bool
+
+    def trace(self, camera: Camera, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+@dataclass(frozen=True)
+class ReuseSettings:
+    """Parameters of the reuse (thesis values where it gives one).
+
+    mode: "reuse" (Ch. 5), "direct" or "full" (baselines); keyframe_threshold:
+    recomputed fraction of the reflective pixels above which the next frame is a
+    keyframe (§5.4.4: 0.3); max_steps: bound on Alg. 9's descent steps per pixel
+    (a search that reaches it is invalid); growth: area ratio above which a warped
+    triangle is dropped (§5.5.1: 16); plane_tolerance: same-surface test (depth
+    discontinuity), in pixel footprints; reflected_jump: beyond the thesis, a
+    triangle whose vertices' reflected-ray lengths differ by more than this fraction
+    is dropped (0 = off, the thesis: its growth limit alone catches the gaps of the
+    reflected scene; on costs recomputed pixels for less smearing, see
+    bench/results/temporal.md); miss_diagonals: the ray length given to rays that miss
+    (sky), in scene diagonals; sync_timings: glFinish after each step, so the step
+    times are the steps' own."""
+
+    mode: Literal["reuse", "direct", "full"] = "reuse"
+    keyframe_threshold: float = 0.3
+    max_steps: int = 64
+    growth: float = 16.0
+    plane_tolerance: float = 1.0
+    reflected_jump: float = 0.0
+    miss_diagonals: float = MISS_DIAGONALS
+    sync_timings: bool = True
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
+        if not 0.0 <= self.keyframe_threshold <= 1.0:
+            raise ValueError("keyframe_threshold must be in [0, 1]")
+        if self.max_steps < 1:
+            raise ValueError("max_steps must be >= 1")
+        for name in ("growth", "plane_tolerance", "miss_diagonals"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive")
+        if self.reflected_jump < 0:
+            raise ValueError("reflected_jump must be >= 0")
+
+
+@dataclass
+class ReuseStats:
+    """One frame's account: keyframe (this frame was traced as a keyframe);
+    reflective pixels; recomputed (traced) of them, split into disoccluded and
+    unreliable on reused frames; search steps of Alg. 9 (mean over the keyframe's
+    reflective pixels, max) and the invalid matches among them, among which
+    step_bound_hits reached max_steps; timings_ms per STEPS plus "total"."""
+
+    keyframe: bool
+    reflective: int
+    recomputed: int
+    disoccluded: int = 0
+    unreliable: int = 0
+    search_steps_mean: float = 0.0
+    search_steps_max: int = 0
+    invalid_matches: int = 0
+    step_bound_hits: int = 0
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def recomputed_fraction(self) -> float:
+        """Recomputed / reflective pixels (0 without reflective pixels)."""
+        return self.recomputed / self.reflective if self.reflective else 0.0
+
+
+@dataclass
+class ReuseFrame(ReflectionBuffers):
+    """ReflectionBuffers of the frame (one sample per pixel: specular = s,
+    ray_length of the reflected ray, reused or traced) plus flags (H,W) uint8:
+    composition.NOT_REFLECTIVE / REUSED / DISOCCLUDED / UNRELIABLE, or TRACED on
+    keyframes and full tracing; and stats."""
+
+    flags: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.uint8))
+    stats: ReuseStats = field(default_factory=lambda: ReuseStats(False, 0, 0))
+
+    @property
+    def recomputed(self) -> np.ndarray:
+        """(H,W) bool: pixels traced in this frame."""
+        return self.flags >= DISOCCLUDED
+
+
+class ReflectionReuser(Releasable):
+    """Temporal reflection reuse for one camera stream (Alg. 8) on `gl`'s thread."""
+
+    def __init__(self, gl: GLContext, scene_gpu: SceneGPU, tracer: Tracer,
+                 settings: ReuseSettings | None = None) -> None:
+        gl.check_thread()
+        self.gl = gl
+        self.scene_gpu = scene_gpu
+        self.tracer = tracer
+        self.settings = settings or ReuseSettings()
+        self.policy = KeyframePolicy(self.settings.keyframe_threshold)
+        self._frame_gb = GBufferPass(gl)
+        self._key_gb = GBufferPass(gl)
+        self.best_match = BestMatchPass(gl)
+        self.offset = ReflectionOffsetPass(gl)
+        self.compose = CompositionPass(gl)
+        self.keyframe: KeyframeTextures | None = None
+        self.frames = 0
+
+    @property
+    def miss_distance(self) -> float:
+        return self.settings.miss_diagonals * self.scene_gpu.scene.diagonal
+
+    def keyframe_image(self) -> ReflectionDepthImage | None:
+        """The current keyframe's reflection depth image (§5.3), read back."""
+        return self.keyframe.image() if self.keyframe is not None else None
+
+    def next_frame(self, camera: Camera) -> ReuseFrame:
+        """The frame for `camera` (near/far fitted to the scene when absent)."""
+        self.gl.check_thread()
+        st = self.settings
+        ctx = self.gl.ctx
+        cam = camera if camera.near is not None else camera.fit_clip(self.scene_gpu.scene.bounds)
+        timings: dict[str, float] = dict.fromkeys(STEPS, 0.0)
+        t_start = t = time.perf_counter()
+
+        def lap(name: str) -> None:
+            nonlocal t
+            if st.sync_timings:
+                ctx.finish()
+            now = time.perf_counter()
+            timings[name] += (now - t) * 1e3
+            t = now
+
+        # diffuse components and the new view's geometry (Alg. 8, first line)
+        target = self._frame_gb.draw(self.scene_gpu, cam)
+        tex = target.textures
+        diffuse = read_texture(tex["color"])[..., :3]
+        s = np.where(read_texture(tex["tri_id"]) > 0, read_texture(tex["material"])[..., 0], 0.0).astype(np.float32)
+        reflective = s > 0
+        n_refl = int(reflective.sum())
+        lap("diffuse")
+        kf = self.keyframe
+        is_key = (st.mode == "full" or self.policy.due or kf is None
+                  or kf.target.size != (cam.width, cam.height))
+        reflected = np.zeros((cam.height, cam.width, 3), np.float32)
+        length = np.full((cam.height, cam.width), np.nan)
+        stats = ReuseStats(keyframe=is_key, reflective=n_refl, recomputed=0)
+        if is_key:
+            flags = np.where(reflective, TRACED, NOT_REFLECTIVE).astype(np.uint8)
+            self._trace_into(cam, reflective, reflected, length)
+            stats.recomputed = n_refl
+            lap("recompute")
+            if st.mode != "full":
+                self._store_keyframe(cam, reflected, length)
+                self.policy.due = False
+            lap("keyframe")
+        else:
+            assert kf is not None
+            offsets = self.best_match.run(kf, np.asarray(cam.eye), st.max_steps, st.plane_tolerance,
+                                          direct=st.mode == "direct")
+            lap("best_match")
+            inter, reliable = self.offset.run(kf, offsets, st.growth, st.plane_tolerance, st.reflected_jump)
+            lap("reflection_offset")
+            out, flags = self.compose.run(target, kf, inter, reliable, st.plane_tolerance, reflective)
+            reused = flags == REUSED
+            reflected[reused] = out[reused, :3]
+            r = out[..., 3].astype(np.float64)
+            length[reused] = np.where(r[reused] >= 0.999 * self.miss_distance, np.inf, r[reused])
+            lap("warp")
+            redo = flags >= DISOCCLUDED
+            self._trace_into(cam, redo, reflected, length)
+            stats.recomputed = int(redo.sum())
+            stats.disoccluded = int((flags == DISOCCLUDED).sum())
+            stats.unreliable = int((flags == UNRELIABLE).sum())
+            lap("recompute")
+            self.policy.update(stats.recomputed_fraction)
+        color = diffuse * (1.0 - s[..., None]) + reflected * s[..., None]
+        lap("blend")
+        timings["total"] = (time.perf_counter() - t_start) * 1e3
+        stats.timings_ms = timings
+        if not is_key and st.mode == "reuse":
+            self._search_stats(stats)
+        self.frames += 1
+        return ReuseFrame(color=color.astype(np.float32), reflected=reflected, diffuse=diffuse.copy(), specular=s,
+                          reflective=reflective, ray_length=length, flags=flags, stats=stats)
+
+    def _trace_into(self, cam: Camera, mask: np.ndarray, reflected: np.ndarray, length: np.ndarray) -> None:
+        ys, xs = np.nonzero(mask)
+        if len(ys) == 0:
+            return
+        col, r = self.tracer.trace(cam, np.stack([xs, ys], axis=1))
+        reflected[ys, xs] = col
+        length[ys, xs] = r
+
+    def _store_keyframe(self, cam: Camera, reflected: np.ndarray, length: np.ndarray) -> None:
+        """§5.3: this frame's G-buffer target becomes the keyframe's (the passes swap)."""
+        if self.keyframe is not None:
+            self.keyframe.release()
+        self._frame_gb, self._key_gb = self._key_gb, self._frame_gb
+        target = self._key_gb.target
+        assert target is not None
+        self.keyframe = KeyframeTextures(self.gl.ctx, target, cam, reflected.copy(), length.copy(),
+                                         self.miss_distance)
+        self.offset.prepare(self.keyframe, self.settings.plane_tolerance)
+        self.best_match.reset()
+
+    def _search_stats(self, stats: ReuseStats) -> None:
+        """Alg. 9's step counts over the keyframe's reflective pixels (read back
+        after the timed steps)."""
+        assert self.keyframe is not None
+        off = self.best_match.read()
+        refl = np.isfinite(self.keyframe.ray_length) | np.isposinf(self.keyframe.ray_length)
+        steps = off[..., 3][refl]
+        valid = off[..., 2][refl] > 0.5
+        stats.search_steps_mean = float(steps.mean()) if steps.size else 0.0
+        stats.search_steps_max = int(steps.max(initial=0))
+        stats.invalid_matches = int((~valid).sum())
+        stats.step_bound_hits = int((steps >= self.settings.max_steps).sum())
+
+    def release(self) -> None:
+        self.gl.check_thread()
+        if self.keyframe is not None:
+            self.keyframe.release()
+            self.keyframe = None
+        for p in (self._frame_gb, self._key_gb, self.best_match, self.offset, self.compose):
+            p.release()

@@ -1,0 +1,99 @@
+#version 430 core
+// Best reflection-pixel match (thesis §5.4.1, Alg. 9), one invocation per reflective
+// keyframe pixel s (the keyframe's pixel list; the other offsets stay invalid).
+// R = W + reflect(W - E_old, s.n)·s.r is the reflected point (Eq. 8). The match distance
+// of a candidate pixel s_n is the distance from the new eye E_cur to the line through
+// W_n and M, the mirror image of R in s_n's tangent plane (Fig. 37). A local descent
+// over the 3×3 hollow neighbourhood, started at s + (previous frame's offset) when that
+// is valid, moves to the neighbour of least distance while it decreases. Invalid: the
+// better neighbour lies across a depth discontinuity (outside the reflector's
+// silhouette), the search leaves the image, it runs out of u_max_steps, or the local
+// minimum is not the minimum (its distance exceeds the largest rise to a neighbour:
+// the true minimum lies more than about a pixel away, beyond the silhouette or the
+// image border; the rise is taken over the reflective neighbours). Sub-pixel refinement (beyond Alg. 9's whole pixels): the point X where the
+// line from E_cur to M (mirrored in s*'s tangent plane) meets that plane, projected into
+// the keyframe — exact on a planar mirror, first order on curved ones; kept when within
+// one pixel of s*, snapped to s* within 0.01 pixel. Output per pixel (texel units, GL orientation): (ox, oy, valid 0/1, steps).
+// u_direct = 1: the direct-reprojection baseline, offset 0 for every reflective pixel.
+layout(local_size_x = 64) in;
+#include "reuse_common.glsl"
+
+layout(rgba32f, binding = UNIT_u_prev) uniform readonly image2D u_prev;
+layout(rgba32f, binding = UNIT_u_offsets) uniform writeonly image2D u_offsets;
+uniform vec3 u_eye_old;
+uniform vec3 u_eye_new;
+uniform int u_max_steps;
+uniform int u_direct;
+uniform uint u_count;
+layout(std430, binding = UNIT_Pixels) readonly buffer Pixels { uint pixel_ids[]; };
+uniform mat4 u_kf_view_proj;
+
+const ivec2 RING[8] = ivec2[8](ivec2(-1, -1), ivec2(0, -1), ivec2(1, -1), ivec2(-1, 0),
+                               ivec2(1, 0), ivec2(-1, 1), ivec2(0, 1), ivec2(1, 1));
+
+float match_distance(ivec2 n, vec3 R) {
+    vec3 w = texelFetch(u_kf_position, n, 0).xyz;
+    vec3 nn = texelFetch(u_kf_normal, n, 0).xyz;
+    vec3 m = R - 2.0 * dot(R - w, nn) * nn;        // R mirrored in s_n's tangent plane
+    vec3 dir = normalize(w - m);
+    vec3 v = u_eye_new - w;
+    return length(v - dot(v, dir) * dir);           // E_cur to the line through M and W_n
+}
+
+vec2 subpixel(ivec2 sc, vec3 R) {
+    vec3 w = texelFetch(u_kf_position, sc, 0).xyz;
+    vec3 nn = texelFetch(u_kf_normal, sc, 0).xyz;
+    vec3 m = R - 2.0 * dot(R - w, nn) * nn;
+    vec3 d = m - u_eye_new;
+    float denom = dot(d, nn);
+    if (abs(denom) < 1e-12) return vec2(0.0);
+    vec3 x = u_eye_new + d * (dot(w - u_eye_new, nn) / denom);
+    vec4 clip = u_kf_view_proj * vec4(x, 1.0);
+    if (clip.w <= 0.0) return vec2(0.0);
+    vec2 delta = (clip.xy / clip.w * 0.5 + 0.5) * vec2(u_kf_size) - 0.5 - vec2(sc);
+    if (any(greaterThan(abs(delta), vec2(1.0)))) return vec2(0.0);
+    return mix(delta, vec2(0.0), lessThan(abs(delta), vec2(0.01)));
+}
+
+void main() {
+    if (gl_GlobalInvocationID.x >= u_count) return;
+    uint id = pixel_ids[gl_GlobalInvocationID.x];
+    ivec2 s = ivec2(int(id) % u_kf_size.x, int(id) / u_kf_size.x);
+    vec4 refl = texelFetch(u_kf_reflection, s, 0);
+    if (refl.a < 0.0) { imageStore(u_offsets, s, vec4(0.0)); return; }
+    if (u_direct == 1) { imageStore(u_offsets, s, vec4(0.0, 0.0, 1.0, 0.0)); return; }
+    vec3 w = texelFetch(u_kf_position, s, 0).xyz;
+    vec3 n = texelFetch(u_kf_normal, s, 0).xyz;
+    vec3 R = w + reflect(normalize(w - u_eye_old), n) * refl.a;
+    vec4 prev = imageLoad(u_prev, s);
+    ivec2 sc = s;
+    if (prev.z > 0.5) {
+        ivec2 start = s + ivec2(round(prev.xy));
+        if (kf_inside(start) && kf_reflective(start)) sc = start;
+    }
+    float former = match_distance(sc, R);
+    int steps = 0;
+    bool valid = false;
+    for (; steps < u_max_steps; ++steps) {
+        float best = 3.4e38, rise = 0.0;
+        ivec2 best_p = sc;
+        for (int k = 0; k < 8; ++k) {
+            ivec2 q = sc + RING[k];
+            if (!kf_inside(q)) continue;
+            float dq = match_distance(q, R);
+            if (kf_reflective(q)) rise = max(rise, dq - former);
+            if (dq < best) { best = dq; best_p = q; }
+        }
+        if (best >= former) {                       // local minimum at sc
+            valid = former <= rise;                 // ... and within about a pixel of the true one
+            break;
+        }
+        // the minimum lies outside the silhouette (the surface test only for the step taken)
+        if (!(kf_reflective(best_p) && kf_same_surface(sc, best_p))) break;
+        former = best;
+        sc = best_p;
+    }
+    vec2 offset = vec2(sc - s);
+    if (valid) offset += subpixel(sc, R);
+    imageStore(u_offsets, s, vec4(offset, valid ? 1.0 : 0.0, float(steps)));
+}
