@@ -58,7 +58,7 @@ from service.routes import client, renders, scenes, stream
 from service.routes import service as service_routes
 from service.schemas import BuiltinParams, BuiltinSceneRequest, ErrorResponse, ValidationErrorResponse
 from service.store import SceneStore
-from service.stream import JobFrameSource, StreamSlots
+from service.stream import ReuseFrameSource, StreamSlots
 from service.worker import RenderWorker
 
 log = logging.getLogger("depthview.service")
@@ -87,8 +87,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.metrics = Metrics()
     app.state.stream_slots = StreamSlots(settings)
-    #: Makes each stream's FrameSource (issue 14: one holding a ReflectionReuser).
-    app.state.frame_source = JobFrameSource
+    #: Makes each stream's FrameSource (cluster reflections through a per-stream ReflectionReuser).
+    app.state.frame_source = ReuseFrameSource
     errors.install(app)
     for router in (service_routes.probes, service_routes.metrics_router, scenes.router, renders.frames,
                    renders.reconstructions, renders.depth_images, stream.router, client.router):

@@ -25,11 +25,14 @@ frame times however fast the client sends. Frames are JPEG
 re-rendered).
 
 Each stream owns a ``FrameSource`` (made by ``app.state.frame_source(render,
-scene_id)``, closed with the socket): ``JobFrameSource`` renders every frame with the
-frames endpoint's jobs (``service.frames.render``) through the worker's bounded queue.
-It is the seam for the temporal reflection reuse (thesis Ch. 5, issue 14): a source
-holding one ``ReflectionReuser`` per stream reports its reused-pixel ratio and keyframe
-flag in the same stats; until then every frame is a keyframe with ratio 0.
+scene_id)``, closed with the socket). The service's is ``ReuseFrameSource``: frames with
+``reflections: "cluster"`` go through one ``ReflectionReuser`` per stream (thesis Ch. 5,
+issue 14; the cluster method of Ch. 4 traces the pixels it recomputes), whose stats give
+``reused_ratio`` (reused / reflective pixels; 0 on keyframes) and ``keyframe``; every
+other frame renders from scratch with the frames endpoint's jobs (``JobFrameSource``,
+``service.frames.render``: a keyframe, 0 reused). Either way frames are jobs in the
+worker's bounded queue; the reuser lives on the worker thread and is released there
+(``RenderWorker.run_before_next_job``) when the socket closes.
 """
 
 from __future__ import annotations
@@ -50,14 +53,18 @@ from pydantic import ValidationError
 from starlette.concurrency import run_in_threadpool
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
+from gl_passes.cluster_tracer import ClusterTracer
+from gl_passes.reprojection import ReflectionReuser, ReuseSettings
 from scenes.camera import look_at_scene
+from scenes.model import Scene
 from service import errors, image_io
 from service.budget import check_budget, frame_bytes
 from service.config import Settings
 from service.deps import Render, check_size
 from service.frames import render
-from service.jobs import Job
+from service.jobs import ATLAS_BUDGET, ATLAS_MAX, Job
 from service.schemas import StreamRequest
+from service.worker import GLState
 
 log = logging.getLogger("depthview.stream")
 T = TypeVar("T")
@@ -121,6 +128,66 @@ class JobFrameSource:
 
     def close(self) -> None:
         pass
+
+
+class _Reuse:
+    """A stream's ReflectionReuser and its ClusterTracer; touched only on the worker thread."""
+
+    def __init__(self) -> None:
+        self.reuser: ReflectionReuser | None = None
+        self.tracer: ClusterTracer | None = None
+        self.key: tuple[Any, ...] | None = None
+
+    def get(self, state: GLState, scene_key: str, scene: Scene, glossy_rays: int) -> ReflectionReuser:
+        gpu = state.scene_gpu(scene_key, scene)
+        key = (id(gpu), glossy_rays)  # a new upload (the GPU cache evicted the old one) or lobe: start over
+        if self.reuser is None or key != self.key:
+            self.release(state)
+            self.tracer = ClusterTracer(state.gl, gpu, glossy_rays=glossy_rays, atlas_max=ATLAS_MAX,
+                                        atlas_budget=ATLAS_BUDGET)
+            self.reuser = ReflectionReuser(state.gl, gpu, self.tracer, ReuseSettings(sync_timings=False))
+            self.key = key
+        return self.reuser
+
+    def release(self, state: GLState | None = None) -> None:
+        for obj in (self.reuser, self.tracer):
+            if obj is not None:
+                obj.release()
+        self.reuser = self.tracer = self.key = None
+
+
+class ReuseFrameSource(JobFrameSource):
+    """The stream's frame source: frames with ``reflections: "cluster"`` go through one
+    ``ReflectionReuser`` per stream (thesis Ch. 5, Alg. 8), whose tracer for the
+    recomputed pixels is the cluster method (Ch. 4, one sample per pixel; the frames
+    endpoint supersamples 2×2); its stats give the reused-pixel ratio (reused / reflective
+    pixels, 0 on keyframes) and the keyframe flag. Every other frame renders as
+    ``JobFrameSource`` renders it. ``close()`` frees the reuser on the worker thread."""
+
+    def __init__(self, r: Render, scene_id: str) -> None:
+        super().__init__(r, scene_id)
+        self._reuse = _Reuse()
+        self._used = False
+
+    async def render(self, req: StreamRequest) -> SourceFrame:
+        if req.effects.reflections != "cluster":
+            return await super().render(req)
+        timed = _TimedRender(self.r.settings, self.r.store, self.r.worker, self.r.metrics)
+        t0 = time.perf_counter()
+        scene = await timed.scene(self.scene_id)
+        camera = req.to_camera().fit_clip(scene.bounds)
+        reuse, scene_id, rays = self._reuse, self.scene_id, req.effects.glossy_rays
+        self._used = True
+        frame = await timed.job(lambda state: reuse.get(state, scene_id, scene, rays).next_frame(camera),
+                                f"stream frame {scene_id[:12]}")
+        st = frame.stats
+        ratio = 0.0 if st.keyframe or not st.reflective else 1.0 - st.recomputed_fraction
+        return SourceFrame(np.asarray(frame.color, np.float32), time.perf_counter() - t0, timed.queue_wait_s,
+                           float(ratio), bool(st.keyframe))
+
+    def close(self) -> None:
+        if self._used:
+            self.r.worker.run_before_next_job(self._reuse.release)
 
 
 SourceFactory = Callable[[Render, str], FrameSource]

@@ -68,6 +68,7 @@ class _Job:
 
 
 _STOP = object()
+_WAKE = object()  # wakes an idle worker to run its chores
 
 
 @dataclass
@@ -156,6 +157,7 @@ class RenderWorker:
         self._stats_lock = threading.Lock()
         self._evict_lock = threading.Lock()
         self._evictions: set[str] = set()
+        self._chores: list[Callable[[GLState], Any]] = []
         self._stopping = False
         self._state: GLState | None = None
         #: Why the GL context could not be created (None when fine).
@@ -249,6 +251,18 @@ class RenderWorker:
         with self._evict_lock:
             self._evictions.add(key)
 
+    def run_before_next_job(self, fn: Callable[[GLState], Any]) -> None:
+        """Run `fn(state)` on the worker thread before its next job, outside the queue
+        (never refused, never behind a full queue): releasing a client's GL objects, e.g.
+        a stream's ReflectionReuser. An idle worker runs it at once; chores still pending
+        at shutdown run before the context is released. Safe from any thread."""
+        with self._evict_lock:
+            self._chores.append(fn)
+        try:
+            self._q.put_nowait(_WAKE)
+        except queue.Full:  # busy: it runs the chore before its next job
+            pass
+
     # --- introspection -------------------------------------------------------------------
     @property
     def queue_depth(self) -> int:
@@ -304,9 +318,11 @@ class RenderWorker:
                 if item is _STOP:
                     break
                 self._process_evictions()
-                self._execute(item)
+                if item is not _WAKE:
+                    self._execute(item)
         finally:
             self._ready.clear()
+            self._process_evictions()
             if self._state is not None:
                 try:
                     self._state.release()
@@ -317,9 +333,15 @@ class RenderWorker:
     def _process_evictions(self) -> None:
         with self._evict_lock:
             keys, self._evictions = self._evictions, set()
+            chores, self._chores = self._chores, []
         if self._state is not None:
             for key in keys:
                 self._state.forget(key)
+            for fn in chores:
+                try:
+                    fn(self._state)
+                except Exception:  # noqa: BLE001 - a failed release must not end the thread
+                    log.exception("worker chore failed")
 
     def _execute(self, job: _Job) -> None:
         fut = job.future

@@ -72,17 +72,39 @@ def test_frames_are_jpeg_while_moving_then_png_at_rest(client):
         assert moved["id"] == 2 and not np.array_equal(decode(jpeg2), decode(jpeg))
 
 
-def test_effects_are_rendered_as_the_frames_endpoint_renders_them(client):
+def test_reflective_frames_go_through_the_streams_reflection_reuser(client, monkeypatch):
+    """Cluster reflections (mirror scene): the first frame is a keyframe (0 % reused), a
+    small camera step reuses most reflective pixels (Ch. 5); the frames look like the
+    frames endpoint's (the reuser traces one sample per pixel, /frames 2×2); the reuser
+    is released on the worker thread when the socket closes."""
+    from gl_passes.reprojection import ReflectionReuser
+
+    released = []
+    real_release = ReflectionReuser.release
+    monkeypatch.setattr(ReflectionReuser, "release", lambda self: (released.append(self), real_release(self)))
     mirror = builtin_id("mirror")
-    body = {"camera": {"eye": [2.5, 1.6, 3.0], "target": [0.0, 0.9, -0.5]}, "width": W, "height": H,
+    size = {"width": 96, "height": 64}
+    body = {"camera": {"eye": [2.5, 1.6, 3.0], "target": [0.0, 0.9, -0.5]}, **size,
             "effects": {"reflections": "cluster"}}
+    moved = {**body, "camera": {"eye": [2.45, 1.6, 3.02], "target": [0.0, 0.9, -0.5]}}
     with client.websocket_connect(f"/scenes/{mirror}/stream") as ws:
         ws.receive_json()
-        ws.send_json(body)
-        receive_frame(ws)
-        _, png = receive_frame(ws)
-    ref = client.post(f"/scenes/{mirror}/frames", json=body)
-    assert ref.status_code == 200 and np.array_equal(decode(png), decode(ref.content))
+        ws.send_json({**body, "id": 1})
+        key, _ = receive_frame(ws)
+        ws.send_json({**moved, "id": 2})
+        reused, jpeg = receive_frame(ws)
+        ws.send_json({**moved, "id": 3, "effects": {"reflections": "none"}})  # not reflective: no reuse
+        plain, _ = receive_frame(ws)
+    assert (key["keyframe"], key["reused_ratio"]) == (True, 0.0)
+    assert reused["keyframe"] is False and reused["reused_ratio"] > 0.5, reused
+    assert (plain["keyframe"], plain["reused_ratio"]) == (True, 0.0)
+    ref = client.post(f"/scenes/{mirror}/frames", json=moved)
+    assert ref.status_code == 200
+    assert np.abs(decode(jpeg).astype(int) - decode(ref.content).astype(int)).mean() < 8
+    deadline = time.monotonic() + 5
+    while not released and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert len(released) == 1 and released[0].keyframe is None
 
 
 @pytest.mark.parametrize(("message", "status", "words"), [
@@ -304,3 +326,28 @@ def test_stream_settings_come_from_the_environment_and_are_checked():
                 {"DEPTHVIEW_STREAM_MAX_TOTAL": "0"}, {"DEPTHVIEW_STREAM_MAX_PIXELS": "many"}):
         with pytest.raises(ValueError):
             Settings.from_env(bad)
+
+
+def test_worker_chores_run_on_its_thread_even_when_the_queue_is_full():
+    from service.worker import RenderWorker
+
+    w = RenderWorker(queue_size=1).start()
+    try:
+        assert w.wait_ready(60), w.startup_error
+        ran = []
+        w.run_before_next_job(lambda state: ran.append(threading.get_ident()))
+        deadline = time.monotonic() + 5
+        while not ran and time.monotonic() < deadline:  # an idle worker runs it at once
+            time.sleep(0.01)
+        assert ran == [w.thread_id]
+        gate = threading.Event()
+        busy = w.submit(lambda state: gate.wait(10))
+        time.sleep(0.1)
+        queued = w.submit(lambda state: len(ran))  # the queue (size 1) is full now
+        w.run_before_next_job(lambda state: ran.append(threading.get_ident()))  # never refused
+        w.run_before_next_job(lambda state: 1 / 0)  # a failing chore does not end the thread
+        gate.set()
+        assert busy.result(10) is True and queued.result(10) == 2  # the chore ran before the next job
+        assert w.alive and w.submit(lambda state: "ok").result(10) == "ok"
+    finally:
+        w.stop()
