@@ -329,13 +329,15 @@ class StreamSession:
             self._wake.set()
 
     async def _render_loop(self) -> None:
-        last: tuple[np.ndarray, StreamRequest] | None = None
+        last: tuple[SourceFrame, StreamRequest] | None = None
         while True:
             with anyio.move_on_after(None if last is None else self.settings.stream_rest_s) as waited:
                 await self._wake.wait()
             if waited.cancelled_caught:  # the camera rested: the same view, lossless
                 assert last is not None
-                await self._send(SourceFrame(last[0], 0.0, 0.0), last[1], "png", superseded=0, rest=True)
+                f, req = last  # re-sent: no render, the reuse stats of the frame it repeats
+                await self._send(SourceFrame(f.color, 0.0, 0.0, f.reused_ratio, f.keyframe), req, "png",
+                                 superseded=0, rest=True)
                 last = None
                 continue
             self._wake.clear()
@@ -354,7 +356,7 @@ class StreamSession:
                 await self.error(status, f"{type(exc).__name__}: {str(exc)[:300]}", req.id)
                 continue
             await self._send(frame, req, "jpeg", superseded=superseded, rest=False)
-            last = (frame.color, req)
+            last = (frame, req)
 
     async def _send(self, frame: SourceFrame, req: StreamRequest, fmt: str, superseded: int, rest: bool) -> None:
         t0 = time.perf_counter()
