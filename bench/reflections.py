@@ -56,7 +56,7 @@ from bench.common import (
     write_text,
 )
 from gl_passes.context import create_gl_context
-from gl_passes.reflections import STEPS, ClusterReflections
+from gl_passes.reflections import DEFAULT_SETTINGS, STEPS, ClusterReflections
 from gl_passes.upload import SceneGPU
 from reference.image_metrics import (
     error_image,
@@ -436,7 +436,7 @@ def main(argv: list[str] | None = None) -> None:
         return
 
     gl = create_gl_context()
-    refl = ClusterReflections(gl)
+    refl = ClusterReflections(gl, DEFAULT_SETTINGS)  # what the service renders with
     quality, timings, paths = [], [], []
     for name in args.scenes:
         scene = load_named_scene(name)

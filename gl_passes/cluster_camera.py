@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import moderngl
 import numpy as np
 
+from gl_passes.cluster_units import UNITS
 from gl_passes.clustering import ClusterStats
 from gl_passes.context import GLContext
 from gl_passes.shaders import compute_program
@@ -335,7 +336,7 @@ class ClusterExtentPass:
 
     def __init__(self, gl: GLContext) -> None:
         self.gl = gl
-        self.prog = compute_program(gl, "cluster_extent.comp")
+        self.prog = compute_program(gl, "cluster_extent.comp", UNITS.defines())
         self.ext_buf: moderngl.Buffer | None = None
         self.frame_buf: moderngl.Buffer | None = None
 
@@ -351,19 +352,17 @@ class ClusterExtentPass:
 
     def upload_frames(self, frames: np.ndarray) -> moderngl.Buffer:
         buf = self._buffer("frame_buf", np.ascontiguousarray(frames, np.float32).tobytes())
-        buf.bind_to_storage_buffer(5)
+        UNITS.bind_storage("Frames", buf)
         return buf
 
     def run(self, stage: int, frames: np.ndarray, size: tuple[int, int], eye: np.ndarray) -> np.ndarray:
-        """Textures and SSBOs (bins 0, tri 1, normal 2, position 3; remap 3, mesh 6/7)
-        must be bound by the caller."""
+        """Textures (u_bins, u_tri, u_normal, u_position) and SSBOs (Remap,
+        MeshVerts, MeshFaces) of cluster_units.UNITS must be bound by the caller."""
         n = len(frames)
         self.upload_frames(frames)
         ext = self._buffer("ext_buf", ext_init(n).tobytes())
-        ext.bind_to_storage_buffer(4)
+        UNITS.bind_storage("Ext", ext)
         p = self.prog
-        for name, unit in (("u_bins", 0), ("u_tri", 1), ("u_normal", 2), ("u_position", 3)):
-            set_uniform(p, name, unit)
         set_uniform(p, "u_eye", np.asarray(eye, np.float64))
         set_uniform(p, "u_stage", stage)
         p.run((size[0] + GROUP - 1) // GROUP, (size[1] + GROUP - 1) // GROUP, 1)

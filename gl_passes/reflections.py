@@ -80,13 +80,14 @@ thesis's occlusion-error test (§4.7.1, reference.occlusion.captured_mask).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import moderngl
 import numpy as np
 
 from gl_passes import cluster_camera as cc
 from gl_passes.cluster_camera import ClusterCamera, ClusterExtentPass
+from gl_passes.cluster_units import UNITS
 from gl_passes.clustering import ClusteringPass
 from gl_passes.context import GLContext
 from gl_passes.gbuffer import GBufferPass
@@ -132,59 +133,96 @@ class ClusterReflectionResult(ReflectionBuffers):
     diagnostics: ClusterDiagnostics | None = None
 
 
-class ClusterReflections(Releasable):
-    """Reflection renderer on `gl`'s thread. Parameters: max_resolution caps a
-    cluster image's side; resolution_scale multiplies the texel density derived
-    from the cluster's projected sample spacing; bin_scale and bin_rule set the §4.3
-    bin counts (gl_passes.clustering); thickness is the hit tolerance in units of a step's depth span; max_shift
-    clamps the e0 → P_c shift 1 − f; atlas_budget caps the total cluster-image area
-    at that many texels per G-buffer sample (None = no cap; the non-planar images shrink
-    uniformly, planar ones keep their exact texel = sample grid, cluster_camera.pack_atlas);
-    continuity > 0 enables the crossing rule; slope > 0 the surface-crossing rule
-    (continuous surfaces up to that tan of their angle to the view ray); near_steps > 0
-    the near-origin rule (module docstring, step 5); others_peel adds the other
-    objects' second surface to non-planar cluster images (step 4); block_skip False marches every
-    texel (the block skip changes no hit; for tests)."""
+@dataclass(frozen=True)
+class ClusterSettings:
+    """Every parameter of the cluster-depth-image method (thesis Ch. 4, Alg. 6/7), one
+    frozen object shared by the pass, the service (service.jobs) and the benchmarks
+    (bench/reflections.py, bench/reflection_sweeps.py), so that the service renders
+    what the benchmark measures.
 
-    def __init__(self, gl: GLContext, max_resolution: int = 1024, resolution_scale: float = 1.0,
-                 bin_scale: float = 1.0, thickness: float = 1.0, atlas_max: int = 4096,
-                 max_shift: float = cc.MAX_SHIFT, bin_rule: str = "relative",
-                 atlas_budget: float | None = 16.0, continuity: float = CONTINUITY, slope: float = SLOPE,
-                 near_steps: int = NEAR_STEPS, block_skip: bool = True, others_peel: bool = True) -> None:
+    Clustering (§4.3): bin_scale multiplies the bin counts, bin_rule picks how they
+    follow the reflector's sample count (gl_passes.clustering).
+    Cluster cameras (§4.4): max_shift clamps the e0 → P_c shift 1 − f; resolution_scale
+    multiplies the texel density derived from the cluster's projected sample spacing;
+    max_resolution caps an image's side (texels).
+    Cluster depth images (§4.5): atlas_max caps the atlas side (texels); atlas_budget
+    caps the total image area at that many texels per G-buffer sample (None = no cap;
+    the non-planar images shrink uniformly, planar ones keep their exact texel =
+    sample grid, cluster_camera.pack_atlas); others_peel adds the other objects'
+    second surface to non-planar images (module docstring, step 4).
+    Intersection (Alg. 7): thickness is the hit tolerance in units of a step's depth
+    span; continuity > 0 enables the crossing rule; slope > 0 the surface-crossing rule
+    (continuous surfaces up to that tan of their angle to the view ray); near_steps > 0
+    the near-origin rule (module docstring, step 5); block_skip False marches every
+    texel (the block skip changes no hit; for tests).
+    Sampling (§4.2, §4.6): supersample is the G-buffer's ss×ss samples per output
+    pixel; glossy_rays the lobe rays per G-buffer sample of a glossy reflector (1 to
+    MAX_RAYS; Embree's reference traces the same lobe)."""
+
+    max_resolution: int = 1024
+    resolution_scale: float = 1.0
+    bin_scale: float = 1.0
+    bin_rule: str = "relative"
+    thickness: float = 1.0
+    atlas_max: int = 4096
+    atlas_budget: float | None = 16.0
+    max_shift: float = cc.MAX_SHIFT
+    continuity: float = CONTINUITY
+    slope: float = SLOPE
+    near_steps: int = NEAR_STEPS
+    block_skip: bool = True
+    others_peel: bool = True
+    glossy_rays: int = 8
+    supersample: int = 2
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.glossy_rays <= MAX_RAYS:
+            raise ValueError(f"glossy_rays must be in [1, {MAX_RAYS}]")
+        if self.supersample < 1:
+            raise ValueError("supersample must be >= 1")
+        if self.max_resolution < 1 or self.atlas_max < 1:
+            raise ValueError("max_resolution and atlas_max must be >= 1")
+        if self.atlas_budget is not None and self.atlas_budget <= 0:
+            raise ValueError("atlas_budget must be > 0 or None")
+
+    def replace(self, **changes) -> ClusterSettings:
+        """A copy with `changes` applied (validated again)."""
+        return replace(self, **changes)
+
+
+#: The settings the service renders with and the benchmarks measure.
+DEFAULT_SETTINGS = ClusterSettings()
+
+
+class ClusterReflections(Releasable):
+    """Reflection renderer on `gl`'s thread with one ClusterSettings (defaults:
+    DEFAULT_SETTINGS)."""
+
+    def __init__(self, gl: GLContext, settings: ClusterSettings = DEFAULT_SETTINGS) -> None:
         gl.check_thread()
         self.gl = gl
-        self.max_resolution = int(max_resolution)
-        self.resolution_scale = float(resolution_scale)
-        self.bin_scale = float(bin_scale)
-        self.thickness = float(thickness)
-        self.continuity = float(continuity)
-        self.slope = float(slope)
-        self.near_steps = int(near_steps)
-        self.others_peel = bool(others_peel)
-        self.atlas_max = int(atlas_max)
-        self.max_shift = float(max_shift)
-        self.bin_rule = bin_rule
-        self.atlas_budget = atlas_budget
+        self.settings = settings
         self.gbuffer = GBufferPass(gl)
         self.clustering = ClusteringPass(gl)
         self.extent = ClusterExtentPass(gl)
-        defines = {"FADE_FRACTION": repr(float(FADE_FRACTION)), "MAX_RAYS": str(MAX_RAYS), "BLOCK": str(BLOCK),
-                   "TRACE_GX": str(TRACE_GROUP[0]), "TRACE_GY": str(TRACE_GROUP[1])}
-        if self.continuity > 0:  # the crossing rule is compiled in only when enabled (it costs every step)
+        units = UNITS.defines()
+        defines = {**units, "FADE_FRACTION": repr(float(FADE_FRACTION)), "MAX_RAYS": str(MAX_RAYS),
+                   "BLOCK": str(BLOCK), "TRACE_GX": str(TRACE_GROUP[0]), "TRACE_GY": str(TRACE_GROUP[1])}
+        if settings.continuity > 0:  # the crossing rule is compiled in only when enabled (it costs every step)
             defines["CROSSING"] = "1"
-        if self.slope > 0:  # likewise the surface-crossing and near-origin rules
+        if settings.slope > 0:  # likewise the surface-crossing and near-origin rules
             defines["SURFACE_CROSSING"] = "1"
-        if self.near_steps > 0:
+        if settings.near_steps > 0:
             defines["NEAR_CROSSING"] = "1"
-        if not block_skip:  # exact either way (tests compare the two)
+        if not settings.block_skip:  # exact either way (tests compare the two)
             defines["NO_BLOCK_SKIP"] = "1"
-        self.depth_prog = program(gl, "cluster_depth.vert", "cluster_depth.frag")
-        self.peel_prog = program(gl, "cluster_depth.vert", "cluster_peel.frag")
+        self.depth_prog = program(gl, "cluster_depth.vert", "cluster_depth.frag", defines=units)
+        self.peel_prog = program(gl, "cluster_depth.vert", "cluster_peel.frag", defines=units)
         self.trace_prog = compute_program(gl, "reflect_trace.comp", defines)
-        self.resolve_prog = compute_program(gl, "reflect_resolve.comp")
-        self.pack_prog = compute_program(gl, "cluster_pack.comp")
+        self.resolve_prog = compute_program(gl, "reflect_resolve.comp", units)
+        self.pack_prog = compute_program(gl, "cluster_pack.comp", units)
         self.block_prog = compute_program(gl, "cluster_block_depth.comp",
-                                          {"BLOCK": str(BLOCK), "BACKGROUND_DEPTH": repr(BACKGROUND_DEPTH)})
+                                          {**units, "BLOCK": str(BLOCK), "BACKGROUND_DEPTH": repr(BACKGROUND_DEPTH)})
         self._atlas: list = []
         self._samples: moderngl.Texture | None = None
         self._outputs: dict[str, moderngl.Texture] = {}
@@ -228,15 +266,9 @@ class ClusterReflections(Releasable):
         minimum and their maximum stored (non-background) depth."""
         pack = self._texture("pack", layers[0][0].size, components=4)
         if used[0] > 0 and used[1] > 0:
-            pack.bind_to_image(5, read=False, write=True)
-            layers[0][0].use(4)
-            layers[1][0].use(9)
-            layers[2][0].use(12)
-            layers[3][0].use(15)
+            UNITS.bind_image("u_pack_image", pack, read=False, write=True)
+            self._bind_layers(layers)
             p = self.pack_prog
-            for name, unit in (("u_atlas", 4), ("u_atlas_self", 9), ("u_atlas_peel", 12),
-                               ("u_atlas_peel_other", 15)):
-                set_uniform(p, name, unit)
             set_uniform(p, "u_size", tuple(int(x) for x in used))
             p.run((used[0] + 15) // 16, (used[1] + 15) // 16, 1)
             self.gl.ctx.memory_barrier()
@@ -244,15 +276,30 @@ class ClusterReflections(Releasable):
         block_min = self._texture("block_min", csize)
         block_max = self._texture("block_max", csize)
         if used[0] > 0 and used[1] > 0:
-            block_min.bind_to_image(6, read=False, write=True)
-            block_max.bind_to_image(7, read=False, write=True)
-            pack.use(10)
+            UNITS.bind_image("u_block_min_image", block_min, read=False, write=True)
+            UNITS.bind_image("u_block_max_image", block_max, read=False, write=True)
+            UNITS.bind_texture("u_pack", pack)
             p = self.block_prog
-            set_uniform(p, "u_pack", 10)
             set_uniform(p, "u_size", tuple(int(x) for x in used))
             p.run((-(-used[0] // BLOCK) + 7) // 8, (-(-used[1] // BLOCK) + 7) // 8, 1)
             self.gl.ctx.memory_barrier()
         return pack, block_min, block_max
+
+    @staticmethod
+    def _bind_gbuffer(bins: moderngl.Texture, tex: dict[str, moderngl.Texture]) -> None:
+        """Bind the sample → bin map and the G-buffer textures to their samplers."""
+        UNITS.bind_texture("u_bins", bins)
+        for name, key in (("u_tri", "tri_id"), ("u_normal", "normal"), ("u_position", "position"),
+                          ("u_color", "color"), ("u_material", "material")):
+            UNITS.bind_texture(name, tex[key])
+
+    @staticmethod
+    def _bind_layers(layers) -> None:
+        """Bind the atlas layers' colour+depth and triangle-id textures to their samplers."""
+        for name, tex in (("u_atlas", layers[0][0]), ("u_atlas_self", layers[1][0]), ("u_atlas_peel", layers[2][0]),
+                          ("u_atlas_peel_other", layers[3][0]), ("u_atlas_self_tri", layers[1][1]),
+                          ("u_atlas_peel_tri", layers[2][1])):
+            UNITS.bind_texture(name, tex)
 
     def _texture(self, key: str, size: tuple[int, int], components: int = 4) -> moderngl.Texture:
         tex = self._outputs.get(key)
@@ -265,21 +312,21 @@ class ClusterReflections(Releasable):
         return tex
 
     # --- the technique -------------------------------------------------------------
-    def render(self, scene_gpu: SceneGPU, camera: Camera, glossy_rays: int = 8, supersample: int = 2,
-               method: str = "clusters", sync_timings: bool = True,
+    def render(self, scene_gpu: SceneGPU, camera: Camera, glossy_rays: int | None = None,
+               supersample: int | None = None, method: str = "clusters", sync_timings: bool = True,
                diagnostics: bool = False) -> ClusterReflectionResult:
         """Reflections for `camera` (near/far fitted to the scene when absent).
-        method: "clusters" (Alg. 6) or "envmap" (baseline). diagnostics=True also
-        reads back what the cluster images hold (result.diagnostics,
-        ClusterDiagnostics; after the timed steps, not in timings_ms)."""
+        method: "clusters" (Alg. 6) or "envmap" (baseline); glossy_rays and supersample
+        default to the settings'. diagnostics=True also reads back what the cluster
+        images hold (result.diagnostics, ClusterDiagnostics; after the timed steps,
+        not in timings_ms)."""
         self.gl.check_thread()
         if method not in ("clusters", "envmap"):
             raise ValueError(f"method must be 'clusters' or 'envmap', got {method!r}")
-        if not 1 <= glossy_rays <= MAX_RAYS:
-            raise ValueError(f"glossy_rays must be in [1, {MAX_RAYS}]")
-        ss = int(supersample)
-        if ss < 1:
-            raise ValueError("supersample must be >= 1")
+        st = self.settings.replace(
+            glossy_rays=self.settings.glossy_rays if glossy_rays is None else int(glossy_rays),
+            supersample=self.settings.supersample if supersample is None else int(supersample))
+        glossy_rays, ss = st.glossy_rays, st.supersample
         ctx = self.gl.ctx
         scene = scene_gpu.scene
         cam = camera if camera.near is not None else camera.fit_clip(scene.bounds)
@@ -300,28 +347,25 @@ class ClusterReflections(Releasable):
         tex = self.gbuffer.draw(scene_gpu, ss_cam).textures
         lap("gbuffer")
         # 2. clustering
-        stats = self.clustering.run(tex, scene.bounds, len(scene.objects), self.bin_scale, self.bin_rule)
+        stats = self.clustering.run(tex, scene.bounds, len(scene.objects), st.bin_scale, st.bin_rule)
         lap("clustering")
         # 3. cluster cameras
         bins = self.clustering.bins_tex
         size = bins.size
-        scene_gpu.vbo.bind_to_storage_buffer(6)
-        scene_gpu.ibo.bind_to_storage_buffer(7)
-        bins.use(0)
-        tex["tri_id"].use(1)
-        tex["normal"].use(2)
-        tex["position"].use(3)
+        UNITS.bind_storage("MeshVerts", scene_gpu.vbo)
+        UNITS.bind_storage("MeshFaces", scene_gpu.ibo)
+        self._bind_gbuffer(bins, tex)
         eye = np.asarray(cam.eye, np.float64)
         cams = cc.initial_cameras(stats, cam, scene.materials, scene.diagonal)
         atlas_size = (0, 0)
         drawn = 0
         if method == "clusters" and cams:
             ext0 = self.extent.run(0, cc.stage0_frames(cams), size, eye)
-            cc.place_centers(cams, ext0, stats, scene.diagonal, self.max_shift)
+            cc.place_centers(cams, ext0, stats, scene.diagonal, st.max_shift)
             ext1 = self.extent.run(1, cc.stage1_frames(cams), size, eye)
-            cc.finish_cameras(cams, ext1, cam, ss, self.resolution_scale, self.max_resolution)
-            budget = self.atlas_budget * size[0] * size[1] if self.atlas_budget else None
-            atlas_size = cc.pack_atlas(cams, self.atlas_max, budget)
+            cc.finish_cameras(cams, ext1, cam, ss, st.resolution_scale, st.max_resolution)
+            budget = st.atlas_budget * size[0] * size[1] if st.atlas_budget else None
+            atlas_size = cc.pack_atlas(cams, st.atlas_max, budget)
         lap("cluster_cameras")
         # 4. cluster depth images
         layers = self._atlas_target(atlas_size if atlas_size[0] else (1, 1))
@@ -332,37 +376,21 @@ class ClusterReflections(Releasable):
         frames = np.asarray([c.frame() for c in cams], np.float32).reshape(-1, cc.FRAME_FLOATS)
         self.extent.upload_frames(frames if len(frames) else np.zeros((1, cc.FRAME_FLOATS), np.float32))
         samples = self._texture("samples", size)
-        samples.bind_to_image(1, read=False, write=True)
-        bins.use(0)
-        tex["tri_id"].use(1)
-        tex["normal"].use(2)
-        tex["position"].use(3)
-        layers[0][0].use(4)
-        layers[1][0].use(9)
+        UNITS.bind_image("u_out", samples, read=False, write=True)
         pack, block_min, block_max = self._pack_layers(layers, atlas_size)
-        pack.use(10)
-        block_min.use(11)
-        block_max.use(14)
-        layers[1][1].use(8)
-        layers[2][0].use(12)
-        layers[2][1].use(13)
-        layers[3][0].use(15)
-        tex["color"].use(5)
-        tex["material"].use(6)
+        self._bind_gbuffer(bins, tex)
+        self._bind_layers(layers)
+        for name, blocks in (("u_pack", pack), ("u_block_min", block_min), ("u_block_max", block_max)):
+            UNITS.bind_texture(name, blocks)
         p = self.trace_prog
-        for name, unit in (("u_bins", 0), ("u_tri", 1), ("u_normal", 2), ("u_position", 3), ("u_atlas", 4),
-                           ("u_color", 5), ("u_material", 6), ("u_atlas_self", 9), ("u_pack", 10),
-                           ("u_atlas_self_tri", 8), ("u_block_min", 11), ("u_atlas_peel", 12),
-                           ("u_atlas_peel_tri", 13), ("u_block_max", 14), ("u_atlas_peel_other", 15)):
-            set_uniform(p, name, unit)
         set_uniform(p, "u_eye", eye)
         set_uniform(p, "u_sun", np.asarray(scene.sun_direction))
         set_uniform(p, "u_mode", 1 if method == "envmap" else 0)
         set_uniform(p, "u_rays", int(glossy_rays))
-        set_uniform(p, "u_thickness", self.thickness)
-        set_uniform(p, "u_continuity", self.continuity)
-        set_uniform(p, "u_slope", self.slope)
-        set_uniform(p, "u_near_steps", self.near_steps)
+        set_uniform(p, "u_thickness", st.thickness)
+        set_uniform(p, "u_continuity", st.continuity)
+        set_uniform(p, "u_slope", st.slope)
+        set_uniform(p, "u_near_steps", st.near_steps)
         if "u_lobe" in p:
             lobe = np.zeros((MAX_RAYS, 2), np.float32)
             lobe[:glossy_rays] = lobe_offsets(glossy_rays)
@@ -373,12 +401,10 @@ class ClusterReflections(Releasable):
         lap("intersection")
         # 6. blend + ss×ss resolve + readback
         out = {k: self._texture(k, (W, H)) for k in ("out_color", "out_reflected", "out_diffuse")}
-        for unit, k in ((2, "out_color"), (3, "out_reflected"), (4, "out_diffuse")):
-            out[k].bind_to_image(unit, read=False, write=True)
-        samples.use(7)
+        for k in ("out_color", "out_reflected", "out_diffuse"):
+            UNITS.bind_image(f"u_{k}", out[k], read=False, write=True)
+        UNITS.bind_texture("u_reflected", samples)
         p = self.resolve_prog
-        for name, unit in (("u_bins", 0), ("u_color", 5), ("u_material", 6), ("u_reflected", 7)):
-            set_uniform(p, name, unit)
         set_uniform(p, "u_ss", ss)
         p.run((W + 7) // 8, (H + 7) // 8, 1)
         ctx.memory_barrier()
@@ -451,8 +477,6 @@ class ClusterReflections(Releasable):
         prog = self.depth_prog
         ch = self._chunks(scene_gpu)
         vaos = (scene_gpu.vao(self.depth_prog), scene_gpu.vao(self.peel_prog))
-        self._atlas[1][0].use(12)
-        self._atlas[0][0].use(15)
         set_uniform(self.peel_prog, "u_sun", np.asarray(scene_gpu.scene.sun_direction))
         materials = scene_gpu.scene.materials
         ctx.enable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
@@ -476,15 +500,15 @@ class ClusterReflections(Releasable):
             set_uniform(prog, "u_clip_plane", np.array([*c.plane_normal, c.clip_offset]))
             own = c.object_id - 1
             for layer, fbo in enumerate(fbos):
-                if layer == 3 and (c.planar or not self.others_peel):
+                if layer == 3 and (c.planar or not self.settings.others_peel):
                     continue  # from a planar cluster's e0 nothing on its rays is hidden
                 prog = self.peel_prog if layer >= 2 else self.depth_prog
                 vao = vaos[layer >= 2]
                 if layer >= 2:
                     for name, value in (("u_view", c.view_matrix()), ("u_view_proj", c.view_projection()),
-                                        ("u_clip_plane", np.array([*c.plane_normal, c.clip_offset])),
-                                        ("u_prev", 12 if layer == 2 else 15)):
+                                        ("u_clip_plane", np.array([*c.plane_normal, c.clip_offset]))):
                         set_uniform(prog, name, value)
+                    UNITS.bind_texture("u_prev", self._atlas[1 if layer == 2 else 0][0])
                 fbo.use()
                 fbo.viewport = vp
                 sel = np.nonzero(vis & ((ch["obj"] == own) == (layer in (1, 2))))[0]

@@ -21,7 +21,7 @@ import trimesh
 
 from gl_passes.cluster_camera import mirror_point
 from gl_passes.clustering import MAX_PHI_BINS, MAX_THETA_BINS, bins_per_reflector
-from gl_passes.reflections import ClusterReflections
+from gl_passes.reflections import ClusterReflections, ClusterSettings
 from gl_passes.upload import SceneGPU
 from reference.image_metrics import mean_abs_error, occlusion_error_mask, occlusion_error_percentage
 from reference.raycast import RayCaster
@@ -221,7 +221,7 @@ def test_hit_rule_options_keep_mirror_exact_and_curved_bounds(gl, options):
     """The optional hit rules (crossing rule `continuity`, surface crossing `slope`,
     near-origin `near_steps`; each compiled in only when on) and the plain
     thin-surface rule keep the planar mirror exact and the curved bounds."""
-    with ClusterReflections(gl, **options) as r:
+    with ClusterReflections(gl, ClusterSettings(**options)) as r:
         scene = planar_mirror_scene()
         cam = mirror_camera(96)
         ours = _render(gl, r, scene, cam)
@@ -233,7 +233,7 @@ def test_hit_rule_options_keep_mirror_exact_and_curved_bounds(gl, options):
 def test_block_skip_changes_no_hit(gl, refl):
     """Skipping blocks by their per-layer depth bounds (cluster_block_depth.comp)
     gives bit-identical frames to marching every texel, on both bench rooms."""
-    with ClusterReflections(gl, block_skip=False) as plain:
+    with ClusterReflections(gl, ClusterSettings(block_skip=False)) as plain:
         for name in ("living_room", "bathroom"):
             scene = make_builtin(name)
             cam = flythrough_path(scene.bounds, 8, width=48, height=48)[1]
