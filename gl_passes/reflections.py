@@ -102,6 +102,7 @@ from scenes.glossy import FADE_FRACTION, lobe_offsets
 
 MAX_RAYS = 64
 CHUNK = 512  # triangles per culling chunk of the cluster depth images
+CHUNK_CACHE = 4  # scenes whose chunk records (bounds, normal cones) are kept
 BLOCK = 8    # atlas texels per side of a depth-bounds block (march skipping)
 TRACE_GROUP = (8, 8)  # intersection workgroup (x, y)
 GL_CLIP_DISTANCE0 = 0x3000
@@ -155,6 +156,9 @@ class ClusterSettings:
     (continuous surfaces up to that tan of their angle to the view ray); near_steps > 0
     the near-origin rule (module docstring, step 5); block_skip False marches every
     texel (the block skip changes no hit; for tests).
+    backface_chunks skips, per cluster camera, the triangle chunks whose every
+    triangle faces away from e_c (cluster_camera.backfacing_chunks): back-face
+    culling would discard them all, so the images are unchanged (False: for tests).
     Sampling (§4.2, §4.6): supersample is the G-buffer's ss×ss samples per output
     pixel; glossy_rays the lobe rays per G-buffer sample of a glossy reflector (1 to
     MAX_RAYS; Embree's reference traces the same lobe)."""
@@ -174,6 +178,7 @@ class ClusterSettings:
     others_peel: bool = True
     glossy_rays: int = 8
     supersample: int = 2
+    backface_chunks: bool = True
 
     def __post_init__(self) -> None:
         if not 1 <= self.glossy_rays <= MAX_RAYS:
@@ -464,8 +469,11 @@ class ClusterReflections(Releasable):
         lo = np.minimum.reduceat(tri.min(axis=1), first, axis=0) if first else np.zeros((0, 3))
         hi = np.maximum.reduceat(tri.max(axis=1), first, axis=0) if first else np.zeros((0, 3))
         cached = {"scene": scene, "obj": np.asarray(obj, np.int64), "first": np.asarray(first, np.int64),
-                  "count": np.asarray(count, np.int64), "bounds": np.stack([lo, hi], axis=1).astype(np.float64)}
-        self._chunk_cache = {key: cached}
+                  "count": np.asarray(count, np.int64), "bounds": np.stack([lo, hi], axis=1).astype(np.float64),
+                  "cones": cc.chunk_cones(scene.vertices, scene.faces, np.asarray(first, np.int64))}
+        self._chunk_cache[key] = cached
+        while len(self._chunk_cache) > CHUNK_CACHE:
+            self._chunk_cache.pop(next(iter(self._chunk_cache)))
         return cached
 
     def _draw_atlas(self, scene_gpu: SceneGPU, cams: list[ClusterCamera], fbos: list[moderngl.Framebuffer]) -> int:
@@ -494,6 +502,8 @@ class ClusterReflections(Releasable):
                 continue
             vp = c.atlas
             vis = cc.visible_boxes(c, ch["bounds"])
+            if self.settings.backface_chunks:
+                vis &= ~cc.backfacing_chunks(c, ch["cones"])
             prog = self.depth_prog
             set_uniform(prog, "u_view", c.view_matrix())
             set_uniform(prog, "u_view_proj", c.view_projection())

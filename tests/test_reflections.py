@@ -241,3 +241,31 @@ def test_block_skip_changes_no_hit(gl, refl):
             assert fast.reflective.mean() > 0.05
             assert_images_equal(fast.color, slow.color, f"{name}_color")
             assert_images_equal(fast.ray_length, slow.ray_length, f"{name}_ray_length")  # NaN = NaN, inf = inf
+
+
+def test_backfacing_chunks_are_all_back_faces_and_change_no_pixel(gl, refl):
+    """Chunk back-face culling (cluster_camera.backfacing_chunks) is conservative:
+    every triangle of a skipped chunk faces away from the cluster camera's e_c
+    (GL would cull it), some chunks are skipped, and the frame is bit-identical to
+    drawing every frustum-visible chunk."""
+    from gl_passes.cluster_camera import backfacing_chunks
+
+    scene = make_builtin("bathroom")
+    cam = flythrough_path(scene.bounds, 8, width=48, height=48)[1]
+    with SceneGPU(gl, scene) as sg, ClusterReflections(gl, ClusterSettings(backface_chunks=False)) as plain:
+        cam = cam.fit_clip(scene.bounds)
+        fast, slow = refl.render(sg, cam), plain.render(sg, cam)
+        assert fast.drawn_chunks < slow.drawn_chunks
+        assert_images_equal(fast.color, slow.color, "backface_color")
+        assert_images_equal(fast.ray_length, slow.ray_length, "backface_ray_length")
+        ch = refl._chunks(sg)
+    tri = scene.vertices[scene.faces.astype(np.int64)]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    skipped = 0
+    for c in fast.cameras:
+        for k in np.nonzero(backfacing_chunks(c, ch["cones"]))[0]:
+            sl = slice(int(ch["first"][k]), int(ch["first"][k] + ch["count"][k]))
+            facing = np.einsum("ij,ij->i", normal[sl], tri[sl, 0] - c.center)
+            assert np.all(facing >= 0), "a skipped chunk holds a front-facing triangle"
+            skipped += 1
+    assert skipped > 0
