@@ -273,7 +273,7 @@ def done_when(quality: list[dict], timings: list[dict], paths: list[dict]) -> li
     for res in sorted({t["res"] for t in timings}):
         for t in (t for t in timings if t["res"] == res and t["scene"] in ROOMS):
             steps = t["ours_ms"]
-            top = max(STEPS, key=lambda k: steps[k])
+            top = max(STEPS, key=lambda k: steps.get(k, 0.0))
             need = ("required: faster than Embree" if res >= 2048
                     else "required: as close to Embree as the step breakdown allows")
             verdict = ("holds" if t["speedup"] > 1.0 else "does not hold") if res >= 2048 else (
@@ -384,7 +384,7 @@ def write_report(out: Path, info: dict, quality: list[dict], timings: list[dict]
           "differ by up to ±20 % per step, more for the single 2048² runs.", "",
           md_table(["scene", "res", "clusters", *STEPS, "total", "Embree BVH", "Embree trace", "fps ours",
                     "fps Embree", "ours / Embree speed"],
-                   [[t["scene"], t["res"], t["clusters"], *(f(t["ours_ms"][k]) for k in STEPS),
+                   [[t["scene"], t["res"], t["clusters"], *(f(t["ours_ms"].get(k, float("nan"))) for k in STEPS),
                      f(t["ours_ms"]["total"]), f(t["embree_build_ms"]), f(t["embree_trace_ms"]),
                      f(t["fps_ours"], 2), f(t["fps_embree"], 2), f(t["speedup"], 2) + "×"] for t in timings]), "",
           step_breakdown(timings), ""]

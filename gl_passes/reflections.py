@@ -113,7 +113,7 @@ N_LAYERS = 4
 CONTINUITY = 0.0  # crossing rule (off by default): max relative depth jump between texels of one surface
 SLOPE = 0.0  # surface-crossing rule (opt-in, e.g. 10): steepest surface, tan of its angle to the view ray
 NEAR_STEPS = 0  # near-origin rule (opt-in, e.g. 4): in the ray's first texels a hit needs a refined crossing
-STEPS = ("gbuffer", "clustering", "cluster_cameras", "depth_images", "intersection", "resolve")
+STEPS = ("scene_setup", "gbuffer", "clustering", "cluster_cameras", "depth_images", "intersection", "resolve")
 
 
 @dataclass
@@ -122,7 +122,9 @@ class ClusterReflectionResult(ReflectionBuffers):
     the cluster cameras; timings_ms: per step (STEPS) plus "total"; atlas_size:
     (w, h) texels; drawn_chunks: triangle chunks drawn into the cluster images
     (after culling); diagnostics: ClusterDiagnostics when render(diagnostics=True),
-    else None."""
+    else None; cache_hits: per cached step whether it hit its cache ("scene_setup":
+    the scene's camera-independent records, chunk bounds and normal cones, came
+    from the per-scene cache; callers may add theirs, e.g. the service's "upload")."""
 
     method: str = "clusters"
     supersample: int = 2
@@ -132,6 +134,7 @@ class ClusterReflectionResult(ReflectionBuffers):
     atlas_size: tuple[int, int] = (0, 0)
     drawn_chunks: int = 0
     diagnostics: ClusterDiagnostics | None = None
+    cache_hits: dict[str, bool] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -348,6 +351,11 @@ class ClusterReflections(Releasable):
             timings[name] = (now - t) * 1e3
             t = now
 
+        # 0. camera-independent per-scene records (cached: a later frame of the scene pays nothing)
+        cache_hit = self._chunk_cache_hit(scene_gpu)
+        if method == "clusters":
+            self._chunks(scene_gpu)
+        lap("scene_setup")
         # 1. supersampled G-buffer
         tex = self.gbuffer.draw(scene_gpu, ss_cam).textures
         lap("gbuffer")
@@ -423,7 +431,7 @@ class ClusterReflections(Releasable):
             color=col[..., :3].copy(), reflected=ref[..., :3].copy(), diffuse=dif[..., :3].copy(),
             specular=col[..., 3].copy(), reflective=dif[..., 3] > 0, ray_length=ref[..., 3].astype(np.float64),
             method=method, supersample=ss, n_clusters=len(cams), cameras=cams, timings_ms=timings,
-            atlas_size=atlas_size, drawn_chunks=drawn, diagnostics=diag)
+            atlas_size=atlas_size, drawn_chunks=drawn, diagnostics=diag, cache_hits={"scene_setup": cache_hit})
 
     def _diagnostics(self, cams: list[ClusterCamera], layers: list,
                      atlas_size: tuple[int, int]) -> ClusterDiagnostics:
@@ -449,6 +457,10 @@ class ClusterReflections(Releasable):
                       supersample: int = 2) -> ClusterReflectionResult:
         """Environment-map baseline (the service's method="envmap")."""
         return self.render(scene_gpu, camera, glossy_rays, supersample, method="envmap")
+
+    def _chunk_cache_hit(self, scene_gpu: SceneGPU) -> bool:
+        cached = self._chunk_cache.get(id(scene_gpu))
+        return cached is not None and cached["scene"] is scene_gpu.scene
 
     def _chunks(self, scene_gpu: SceneGPU) -> dict[str, np.ndarray]:
         """Per-object runs of at most CHUNK triangles with their AABBs (cached per

@@ -19,6 +19,7 @@ builder                result of the job
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
@@ -61,12 +62,21 @@ def _reflection_renderer(gl: Any) -> ClusterReflections:
 
 
 def reflection_job(scene_key: str, scene: Scene, camera: Camera, method: str, glossy_rays: int) -> Job[Any]:
-    """Reflections with the GL method `method` (cluster | envmap)."""
+    """Reflections with the GL method `method` (cluster | envmap). The result's
+    timings_ms and cache_hits gain "upload" (the scene's GPU upload, ~0 when cached): a
+    later frame of the scene reuses the upload and the renderer's per-scene records
+    (cache_hits["scene_setup"])."""
 
     def run(state: GLState) -> Any:
+        t0 = time.perf_counter()
+        hit = state.has_scene(scene_key)
         gpu = state.scene_gpu(scene_key, scene)
+        upload_ms = (time.perf_counter() - t0) * 1e3
         renderer = state.resource("reflections", _reflection_renderer)
-        return renderer.render(gpu, camera, glossy_rays=glossy_rays, method=GL_REFLECTION_METHODS[method])
+        result = renderer.render(gpu, camera, glossy_rays=glossy_rays, method=GL_REFLECTION_METHODS[method])
+        result.timings_ms["upload"] = upload_ms
+        result.cache_hits["upload"] = hit
+        return result
 
     return run
 

@@ -17,7 +17,7 @@ from scenes.model import AreaLight, Scene
 from service.budget import check_budget, frame_bytes, reconstruction_bytes, set_bytes
 from service.deps import RenderDep, check_size, require_token
 from service.depth_sets import embree_set, encode_set, needs_gl, plan_set, set_metrics
-from service.effects import encode_reflections, raytrace
+from service.effects import encode_reflections, raytrace_cached, server_timing
 from service.errors import json_safe, responses
 from service.jobs import frame_job, reconstruction_job, reflection_job, set_job, soft_shadow_job
 from service.schemas import DepthImagesRequest, FrameRequest, ReconstructionRequest
@@ -53,18 +53,20 @@ depth_images = APIRouter(prefix="/scenes/{scene_id}", tags=["depth images"], dep
                **responses({**RENDER_ERRORS, 422: "invalid camera, effects or size, or over the memory budget"})})
 async def render_frame(scene_id: str, req: FrameRequest, r: RenderDep) -> Response:
     t0 = time.perf_counter()
+    timing: dict[str, str] = {}
     try:
-        body = await _frame(r, scene_id, req)
+        body = await _frame(r, scene_id, req, timing)
     except HTTPException as exc:
         r.metrics.frame_error(exc.status_code)
         raise
     dt = time.perf_counter() - t0
     r.metrics.frame(req.format)
     return Response(body, media_type=MEDIA_TYPES[req.format], headers={
-        "X-Render-Seconds": f"{dt:.4f}", "Content-Disposition": f'inline; filename="frame.{req.format}"'})
+        "X-Render-Seconds": f"{dt:.4f}", "Content-Disposition": f'inline; filename="frame.{req.format}"', **timing})
 
 
-async def _frame(r: RenderDep, scene_id: str, req: FrameRequest) -> bytes:
+async def _frame(r: RenderDep, scene_id: str, req: FrameRequest, timing: dict[str, str]) -> bytes:
+    """The encoded frame; reflective frames put their per-step `Server-Timing` into `timing`."""
     check_size(r.settings, req.width, req.height)
     check_budget(r.settings, frame_bytes(req))
     scene = await r.scene(scene_id)
@@ -77,10 +79,14 @@ async def _frame(r: RenderDep, scene_id: str, req: FrameRequest) -> bytes:
         gbuf = await r.job(frame_job(scene_id, scene, camera, req.cull_back_faces), label)
         return await r.encode(encode_frame, gbuf, req.format)
     if method == "raytrace":
-        result = await r.cpu(raytrace, scene, camera, rays)
+        result, steps, hits = await r.cpu(raytrace_cached, scene_id, scene, camera, rays)
     else:
         result = await r.job(reflection_job(scene_id, scene, camera, method, rays), label)
-    return await r.encode(encode_reflections, result, req.format)
+        steps, hits = result.timings_ms, result.cache_hits
+    t0 = time.perf_counter()
+    body = await r.encode(encode_reflections, result, req.format)
+    timing["Server-Timing"] = server_timing({**steps, "encode": (time.perf_counter() - t0) * 1e3}, hits)
+    return body
 
 
 async def _soft_shadow_frame(r: RenderDep, scene_id: str, scene: Scene, camera: Camera, req: FrameRequest,
