@@ -92,6 +92,7 @@ from gl_passes.clustering import ClusteringPass
 from gl_passes.context import GLContext
 from gl_passes.gbuffer import GBufferPass
 from gl_passes.readback import read_texture
+from gl_passes.reconstruction import simplify
 from gl_passes.releasable import Releasable
 from gl_passes.shaders import compute_program, program
 from gl_passes.uniforms import set_uniform
@@ -162,6 +163,13 @@ class ClusterSettings:
     backface_chunks skips, per cluster camera, the triangle chunks whose every
     triangle faces away from e_c (cluster_camera.backfacing_chunks): back-face
     culling would discard them all, so the images are unchanged (False: for tests).
+    Level of detail (§4.5, beyond the thesis): lod_errors are the absolute error
+    bounds of the simplified levels (meshoptimizer, built once per scene) as
+    fractions of the scene diagonal, finest first (() = full detail only); per
+    non-planar cluster image (planar ones stay exact) each object other than the
+    reflector is drawn at the coarsest
+    level whose error is at most lod_texels texels of that image at the object's
+    nearest depth (so the stored depths move by at most that many texels' width).
     Sampling (§4.2, §4.6): supersample is the G-buffer's ss×ss samples per output
     pixel; glossy_rays the lobe rays per G-buffer sample of a glossy reflector (1 to
     MAX_RAYS; Embree's reference traces the same lobe)."""
@@ -182,6 +190,8 @@ class ClusterSettings:
     glossy_rays: int = 8
     supersample: int = 2
     backface_chunks: bool = True
+    lod_errors: tuple[float, ...] = (0.0001, 0.00025, 0.001, 0.004)
+    lod_texels: float = 1.0
 
     def __post_init__(self) -> None:
         if not 1 <= self.glossy_rays <= MAX_RAYS:
@@ -192,6 +202,10 @@ class ClusterSettings:
             raise ValueError("max_resolution and atlas_max must be >= 1")
         if self.atlas_budget is not None and self.atlas_budget <= 0:
             raise ValueError("atlas_budget must be > 0 or None")
+        if any(e <= 0 for e in self.lod_errors) or list(self.lod_errors) != sorted(self.lod_errors):
+            raise ValueError("lod_errors must be positive and increasing")
+        if self.lod_texels <= 0:
+            raise ValueError("lod_texels must be > 0")
 
     def replace(self, **changes) -> ClusterSettings:
         """A copy with `changes` applied (validated again)."""
@@ -460,51 +474,115 @@ class ClusterReflections(Releasable):
 
     def _chunk_cache_hit(self, scene_gpu: SceneGPU) -> bool:
         cached = self._chunk_cache.get(id(scene_gpu))
-        return cached is not None and cached["scene"] is scene_gpu.scene
+        return cached is not None and cached["scene"] is scene_gpu.scene and cached["vbo"] is scene_gpu.vbo
 
-    def _chunks(self, scene_gpu: SceneGPU) -> dict[str, np.ndarray]:
-        """Per-object runs of at most CHUNK triangles with their AABBs (cached per
-        SceneGPU): the unit of frustum culling for the cluster images, finer than
-        SceneGPU.object_bounds so that large objects (floors, walls) are mostly culled."""
-        key = id(scene_gpu)
-        cached = self._chunk_cache.get(key)
-        if cached is not None and cached["scene"] is scene_gpu.scene:
-            return cached
-        scene = scene_gpu.scene
+    @staticmethod
+    def _chunk_table(scene, ranges: list[tuple[int, int]], faces: np.ndarray) -> dict[str, np.ndarray]:
+        """Per-object runs of at most CHUNK triangles of `faces` (object k owns rows
+        ranges[k] = (first, count)) with their AABBs (n, 2, 3) and normal cones
+        (cluster_camera.chunk_cones)."""
         obj, first, count = [], [], []
-        for k, (f0, n) in enumerate(scene_gpu.ranges):
+        for k, (f0, n) in enumerate(ranges):
             for a in range(0, n, CHUNK):
                 obj.append(k)
                 first.append(f0 + a)
                 count.append(min(CHUNK, n - a))
-        tri = scene.vertices[scene.faces.astype(np.int64)]  # (F,3,3)
+        tri = scene.vertices[faces.astype(np.int64)]  # (F,3,3)
         lo = np.minimum.reduceat(tri.min(axis=1), first, axis=0) if first else np.zeros((0, 3))
         hi = np.maximum.reduceat(tri.max(axis=1), first, axis=0) if first else np.zeros((0, 3))
-        cached = {"scene": scene, "obj": np.asarray(obj, np.int64), "first": np.asarray(first, np.int64),
-                  "count": np.asarray(count, np.int64), "bounds": np.stack([lo, hi], axis=1).astype(np.float64),
-                  "cones": cc.chunk_cones(scene.vertices, scene.faces, np.asarray(first, np.int64))}
-        self._chunk_cache[key] = cached
+        first_a = np.asarray(first, np.int64)
+        return {"obj": np.asarray(obj, np.int64), "first": first_a, "count": np.asarray(count, np.int64),
+                "bounds": np.stack([lo, hi], axis=1).astype(np.float64),
+                "cones": cc.chunk_cones(scene.vertices, faces, first_a)}
+
+    def _lod_table(self, scene_gpu: SceneGPU, error: float) -> dict:
+        """The scene's objects simplified (meshoptimizer, absolute error ≤ `error`
+        scene units, gl_passes.reconstruction.simplify) in one index buffer over the
+        scene's vertex buffer: its chunk table, `error`, the buffer and its VAOs for
+        the depth and peel programs."""
+        scene = scene_gpu.scene
+        parts, ranges, f0 = [], [], 0
+        for o, off in zip(scene.objects, scene.vertex_offsets[:-1], strict=True):
+            tri = simplify(o.vertices, o.faces, error).astype(np.int64) + int(off) if len(o.faces) else np.zeros((0, 3))
+            parts.append(tri.astype(np.uint32))
+            ranges.append((f0, len(tri)))
+            f0 += len(tri)
+        faces = np.concatenate(parts) if parts else np.zeros((0, 3), np.uint32)
+        table = self._chunk_table(scene, ranges, faces)
+        ibo = self.gl.ctx.buffer(np.ascontiguousarray(faces, np.uint32).tobytes() or bytes(12))
+        vaos = tuple(self.gl.ctx.vertex_array(prog, [(scene_gpu.vbo, *scene_gpu.vertex_format(prog))],
+                                              index_buffer=ibo, index_element_size=4)
+                     for prog in (self.depth_prog, self.peel_prog))
+        return {**table, "error": float(error), "ibo": ibo, "vaos": vaos, "triangles": len(faces)}
+
+    @staticmethod
+    def _release_entry(entry: dict) -> None:
+        for lod in entry["lods"]:
+            for vao in lod["vaos"]:
+                vao.release()
+            lod["ibo"].release()
+
+    def _chunks(self, scene_gpu: SceneGPU) -> dict:
+        """The camera-independent records of a scene (cached per SceneGPU, CHUNK_CACHE
+        scenes): the unit of frustum culling for the cluster images, per-object runs of
+        at most CHUNK triangles (finer than SceneGPU.object_bounds, so large objects,
+        floors and walls, are mostly culled) with AABBs and normal cones; under "lods"
+        the same for each level of detail of settings.lod_errors (× scene diagonal)."""
+        key = id(scene_gpu)
+        if self._chunk_cache_hit(scene_gpu):
+            return self._chunk_cache[key]
+        old = self._chunk_cache.pop(key, None)
+        if old is not None:
+            self._release_entry(old)
+        scene = scene_gpu.scene
+        cached = {"scene": scene, "vbo": scene_gpu.vbo, **self._chunk_table(scene, scene_gpu.ranges, scene.faces),
+                  "lods": []}
+        self._chunk_cache[key] = cached  # registered first: released with the cache whatever follows
+        for rel in self.settings.lod_errors:
+            cached["lods"].append(self._lod_table(scene_gpu, rel * scene.diagonal))
         while len(self._chunk_cache) > CHUNK_CACHE:
-            self._chunk_cache.pop(next(iter(self._chunk_cache)))
+            self._release_entry(self._chunk_cache.pop(next(iter(self._chunk_cache))))
         return cached
+
+    def _lod_levels(self, c: ClusterCamera, object_bounds: np.ndarray, errors: list[float]) -> np.ndarray:
+        """(n_objects,) int: per object the coarsest level (0 = full detail, l ≥ 1 =
+        errors[l-1]) whose error is at most settings.lod_texels texels of the cluster
+        image where the object is nearest to e_c (its AABB's least depth along the
+        camera axis, at least near; texel = the atlas viewport's tangent extent per
+        texel × depth)."""
+        lvl = np.zeros(len(object_bounds), np.int64)
+        if not errors or c.atlas[2] <= 0 or c.atlas[3] <= 0:
+            return lvl
+        lo, hi = object_bounds[:, 0], object_bounds[:, 1]
+        fwd = np.asarray(c.forward, np.float64)
+        depth = np.minimum(lo * fwd, hi * fwd).sum(axis=1) - float(fwd @ c.center)
+        depth = np.maximum(depth, c.near)
+        u0, v0, u1, v1 = c.rect
+        texel = depth * max((u1 - u0) / c.atlas[2], (v1 - v0) / c.atlas[3])
+        for level, err in enumerate(errors, start=1):
+            lvl[err <= self.settings.lod_texels * texel] = level
+        return lvl
 
     def _draw_atlas(self, scene_gpu: SceneGPU, cams: list[ClusterCamera], fbos: list[moderngl.Framebuffer]) -> int:
         """Render every cluster image into its atlas viewport: layer 0 = the objects
-        other than the cluster's reflector, layer 1 = the reflector itself; only the
-        triangle chunks that survive frustum culling are drawn (adjacent visible
-        chunks of one object in one draw). Returns the number of chunks drawn."""
+        other than the cluster's reflector, layer 1 = the reflector itself, layer 2 its
+        second surface, layer 3 the others' second surface; only the triangle chunks
+        that survive frustum and back-face culling are drawn (adjacent visible chunks
+        of one object in one draw), the other objects at their level of detail
+        (_lod_levels; the reflector always at full detail: its triangle ids are the
+        self-hit test's). Returns the number of chunks drawn."""
         ctx = self.gl.ctx
-        prog = self.depth_prog
         ch = self._chunks(scene_gpu)
-        vaos = (scene_gpu.vao(self.depth_prog), scene_gpu.vao(self.peel_prog))
-        set_uniform(self.peel_prog, "u_sun", np.asarray(scene_gpu.scene.sun_direction))
+        tables = [ch, *ch["lods"]]
+        errors = [lod["error"] for lod in ch["lods"]]
+        vaos = [(scene_gpu.vao(self.depth_prog), scene_gpu.vao(self.peel_prog)), *(lod["vaos"] for lod in ch["lods"])]
+        sun = np.asarray(scene_gpu.scene.sun_direction)
         materials = scene_gpu.scene.materials
         ctx.enable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         ctx.depth_func = "<"
         ctx.front_face = "ccw"
         ctx.cull_face = "back"
         ctx.enable_direct(GL_CLIP_DISTANCE0)
-        set_uniform(prog, "u_sun", np.asarray(scene_gpu.scene.sun_direction))
         drawn = 0
         used = (0, 0, max(c.atlas[0] + c.atlas[2] for c in cams), max(c.atlas[1] + c.atlas[3] for c in cams))
         for fbo in fbos:  # one clear of the used atlas area (tri id clears to 0)
@@ -512,45 +590,54 @@ class ClusterReflections(Releasable):
         for c in cams:
             if not c.valid:
                 continue
-            vp = c.atlas
-            vis = cc.visible_boxes(c, ch["bounds"])
-            if self.settings.backface_chunks:
-                vis &= ~cc.backfacing_chunks(c, ch["cones"])
-            prog = self.depth_prog
-            set_uniform(prog, "u_view", c.view_matrix())
-            set_uniform(prog, "u_view_proj", c.view_projection())
-            set_uniform(prog, "u_clip_plane", np.array([*c.plane_normal, c.clip_offset]))
             own = c.object_id - 1
+            # Planar clusters stay exact (their texels are the samples' mirror rays): full detail.
+            level = self._lod_levels(c, scene_gpu.object_bounds, [] if c.planar else errors)
+            level[own] = 0
+            vis = {}
+            for lv in np.unique(level):
+                t = tables[lv]
+                v = cc.visible_boxes(c, t["bounds"]) & (level[t["obj"]] == lv)
+                if self.settings.backface_chunks:
+                    v &= ~cc.backfacing_chunks(c, t["cones"])
+                vis[int(lv)] = v
+            for prog in (self.depth_prog, self.peel_prog):
+                for name, value in (("u_view", c.view_matrix()), ("u_view_proj", c.view_projection()),
+                                    ("u_clip_plane", np.array([*c.plane_normal, c.clip_offset])), ("u_sun", sun)):
+                    set_uniform(prog, name, value)
             for layer, fbo in enumerate(fbos):
                 if layer == 3 and (c.planar or not self.settings.others_peel):
                     continue  # from a planar cluster's e0 nothing on its rays is hidden
                 prog = self.peel_prog if layer >= 2 else self.depth_prog
-                vao = vaos[layer >= 2]
                 if layer >= 2:
-                    for name, value in (("u_view", c.view_matrix()), ("u_view_proj", c.view_projection()),
-                                        ("u_clip_plane", np.array([*c.plane_normal, c.clip_offset]))):
-                        set_uniform(prog, name, value)
                     UNITS.bind_texture("u_prev", self._atlas[1 if layer == 2 else 0][0])
                 fbo.use()
-                fbo.viewport = vp
-                sel = np.nonzero(vis & ((ch["obj"] == own) == (layer in (1, 2))))[0]
-                drawn += len(sel)
-                # Merge runs of consecutive chunks of the same object into one draw.
-                i = 0
-                while i < len(sel):
-                    j = i
-                    while j + 1 < len(sel) and sel[j + 1] == sel[j] + 1 and ch["obj"][sel[j + 1]] == ch["obj"][sel[i]]:
-                        j += 1
-                    k = int(ch["obj"][sel[i]])
-                    first = int(ch["first"][sel[i]])
-                    count = int(ch["first"][sel[j]] + ch["count"][sel[j]]) - first
-                    set_uniform(prog, "u_base", first)
-                    set_uniform(prog, "u_albedo", tuple(float(x) for x in materials[k + 1, :3]))
-                    vao.render(moderngl.TRIANGLES, vertices=3 * count, first=3 * first)
-                    i = j + 1
+                fbo.viewport = c.atlas
+                for lv, v in vis.items():
+                    t = tables[lv]
+                    sel = np.nonzero(v & ((t["obj"] == own) == (layer in (1, 2))))[0]
+                    drawn += len(sel)
+                    self._draw_runs(prog, vaos[lv][layer >= 2], t, sel, materials)
         ctx.disable_direct(GL_CLIP_DISTANCE0)
         ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         return drawn
+
+    @staticmethod
+    def _draw_runs(prog, vao, t: dict, sel: np.ndarray, materials: np.ndarray) -> None:
+        """Draw the chunks `sel` of chunk table `t`, merging runs of consecutive
+        chunks of the same object into one draw."""
+        i = 0
+        while i < len(sel):
+            j = i
+            while j + 1 < len(sel) and sel[j + 1] == sel[j] + 1 and t["obj"][sel[j + 1]] == t["obj"][sel[i]]:
+                j += 1
+            k = int(t["obj"][sel[i]])
+            first = int(t["first"][sel[i]])
+            count = int(t["first"][sel[j]] + t["count"][sel[j]]) - first
+            set_uniform(prog, "u_base", first)
+            set_uniform(prog, "u_albedo", tuple(float(x) for x in materials[k + 1, :3]))
+            vao.render(moderngl.TRIANGLES, vertices=3 * count, first=3 * first)
+            i = j + 1
 
     def release(self) -> None:
         self.gl.check_thread()
@@ -558,6 +645,9 @@ class ClusterReflections(Releasable):
         self.clustering.release()
         self.extent.release()
         self._release_atlas()
+        for entry in self._chunk_cache.values():
+            self._release_entry(entry)
+        self._chunk_cache.clear()
         for t in self._outputs.values():
             t.release()
         self._outputs.clear()
