@@ -1,7 +1,13 @@
 """Reflections with cluster depth images (thesis Ch. 4, Alg. 6/7; DESIGN.md technique 3).
 
-`ClusterReflections(gl).render(scene_gpu, camera, glossy_rays=8)`:
+`ClusterReflections(gl, settings).render(scene_gpu, camera)`; every parameter of the
+method lives in one frozen `ClusterSettings` (DEFAULT_SETTINGS: what the service
+renders and the benchmarks measure); every texture, image and storage unit of its
+shaders comes from gl_passes.cluster_units.UNITS.
 
+0. per-scene records that do not depend on the camera (cached for CHUNK_CACHE
+   scenes, step "scene_setup", ~0 on a scene's later frames): triangle chunks with
+   AABBs and normal cones, and the levels of detail (meshoptimizer) with theirs;
 1. G-buffer at ss×ss supersampling (GBufferPass at ss·W × ss·H);
 2. clustering of the reflective samples on the GPU (gl_passes.clustering, §4.3);
 3. one cluster camera per cluster (gl_passes.cluster_camera, §4.4): per-cluster
@@ -13,7 +19,10 @@
    are exact: shrinking them caused ~1.2 points of the occlusion error), with
    frustum culling of 512-triangle
    chunks (finer than SceneGPU.object_bounds, so large floors and walls are mostly
-   culled) and the fitting plane as a clip plane. Four layers per cluster image:
+   culled), back-face culling of whole chunks (cluster_camera.backfacing_chunks:
+   exact, GL would cull every triangle of them), the other objects of non-planar
+   clusters at a level of detail within `lod_texels` texels (ClusterSettings), and
+   the fitting plane as a clip plane. Four layers per cluster image:
    every object except the cluster's own reflector; the reflector alone (its
    self-reflections) — otherwise the reflector's far side, which faces e_c, hides
    what its rays see; and the reflector's second surface (one depth peel,
