@@ -326,6 +326,15 @@ def done_when_issue17(quality: list[dict], timings: list[dict]) -> list[str]:
     return lines
 
 
+def _sweep_section(sweeps: list[dict], key: str, title: str, text: str, headers: list[str], row) -> list[str]:
+    """Markdown of one sweep table (empty when no scene has `key`): title, text, and
+    one row per swept value, the scene first, then row(r)."""
+    t = [s for s in sweeps if key in s]
+    if not t:
+        return []
+    return [title, "", text, "", md_table(["scene", *headers], [[s["scene"], *row(r)] for s in t for r in s[key]]), ""]
+
+
 def sweeps_markdown(sweeps: list[dict]) -> list[str]:
     """Markdown for Tables 15–18 and 20 (empty when there are no sweeps)."""
     if not sweeps:
@@ -357,29 +366,24 @@ def sweeps_markdown(sweeps: list[dict]) -> list[str]:
                md_table(["scene", "image scale", "fps ours", "occlusion error"],
                         [[s["scene"], r["scale"], f(r["fps"], 3), f(r["occlusion_thesis_ray_pct"]) + " %"]
                          for s in t for r in s["table17"]]), ""]
-    t = [s for s in sweeps if "tablelayers" in s]
-    if t:
-        md += ["### Cluster-image layers (beyond the thesis): the other objects' second surface", "",
-               "Non-planar clusters' images get a fourth layer, the second surface of the objects other than the "
-               "reflector (their shifted camera e_c is not on the rays, so what a ray meets can hide behind another "
-               "object seen from e_c); planar clusters (e_c = e0 on every ray) skip it. Occlusion error: the "
-               "thesis's definition, per reflected ray.", "",
-               md_table(["scene", "others' 2nd surface", "fps ours", "occlusion error"],
-                        [[s["scene"], "on" if r["others_peel"] else "off", f(r["fps"], 3),
-                          f(r["occlusion_thesis_ray_pct"]) + " %"] for s in t for r in s["tablelayers"]]), ""]
-    t = [s for s in sweeps if "tablelod" in s]
-    if t:
-        md += ["### Levels of detail (beyond the thesis): the other objects of non-planar cluster images", "",
-               "Each object other than the reflector drawn at the coarsest meshoptimizer level (built once per "
-               "scene) whose error is at most `lod_texels` texels of the cluster image at its nearest depth; planar "
-               "clusters and the reflector stay at full detail. MAE against Embree (0–255); occlusion error: the "
-               "thesis's definition, per reflected ray.", "",
-               md_table(["scene", "LOD error bound [texels]", "fps ours", "depth images [ms]", "chunks drawn", "MAE",
-                         "occlusion error"],
-                        [[s["scene"], "off" if r["lod_texels"] == 0 else r["lod_texels"], f(r["fps"], 3),
-                          f(r.get("depth_images_ms", float("nan")), 0), r.get("drawn_chunks", "–"),
-                          f(r.get("mae_255", float("nan")), 2), f(r["occlusion_thesis_ray_pct"]) + " %"]
-                         for s in t for r in s["tablelod"]]), ""]
+    md += _sweep_section(
+        sweeps, "tablelayers", "### Cluster-image layers (beyond the thesis): the other objects' second surface",
+        "Non-planar clusters' images get a fourth layer, the second surface of the objects other than the "
+        "reflector (their shifted camera e_c is not on the rays, so what a ray meets can hide behind another "
+        "object seen from e_c); planar clusters (e_c = e0 on every ray) skip it. Occlusion error: the "
+        "thesis's definition, per reflected ray.",
+        ["others' 2nd surface", "fps ours", "occlusion error"],
+        lambda r: ["on" if r["others_peel"] else "off", f(r["fps"], 3), f(r["occlusion_thesis_ray_pct"]) + " %"])
+    md += _sweep_section(
+        sweeps, "tablelod", "### Levels of detail (beyond the thesis): the other objects of non-planar cluster images",
+        "Each object other than the reflector drawn at the coarsest meshoptimizer level (built once per "
+        "scene) whose error is at most `lod_texels` texels of the cluster image at its nearest depth; planar "
+        "clusters and the reflector stay at full detail. MAE against Embree (0–255); occlusion error: the "
+        "thesis's definition, per reflected ray.",
+        ["LOD error bound [texels]", "fps ours", "depth images [ms]", "chunks drawn", "MAE", "occlusion error"],
+        lambda r: ["off" if r["lod_texels"] == 0 else r["lod_texels"], f(r["fps"], 3),
+                   f(r.get("depth_images_ms", float("nan")), 0), r.get("drawn_chunks", "–"),
+                   f(r.get("mae_255", float("nan")), 2), f(r["occlusion_thesis_ray_pct"]) + " %"])
     t = [s for s in sweeps if "table18" in s]
     if t:
         md += ["### Table 18: diffuse triangles (thesis: 289k / 162k / 132k / 63k → 10 / 12 / 15 / 15 fps)", "",
