@@ -3,7 +3,7 @@
 On the Table 12 view of each scene (bench.reflections.view_camera), one parameter
 at a time, everything else at its default:
 
-* Table 15: number of clusters (ClusterReflections bin_scale 0.25–2; above 1 large
+* Table 15: number of clusters (ClusterSettings bin_scale 0.25–2; above 1 large
   reflectors get more than MAXTHETABINS × MAXPHIBINS bins, for this sweep only) —
   fps, and the thesis-defined occlusion error per reflected ray (Fig. 27: more
   clusters, fewer occlusion errors);
@@ -12,7 +12,10 @@ at a time, everything else at its default:
 * Table 18: diffuse triangle count (built-in detail 0.25–1) — fps of ours and of
   Embree (BVH build + trace);
 * layers (beyond the thesis): the other objects' second surface in non-planar
-  cluster images (ClusterReflections others_peel off / on) — fps and occlusion error;
+  cluster images (ClusterSettings others_peel off / on) — fps and occlusion error;
+* lod (beyond the thesis): levels of detail of the other objects in non-planar
+  cluster images, off and at 0.5 / 1 / 2 texels of error (ClusterSettings
+  lod_texels) — fps, depth-image time, chunks drawn, MAE and occlusion error;
 * Table 20: glossy reflections with 8 and 49 rays per reflective pixel (the
   G-buffer sample, as the thesis's first-pass pixel) — intersection time, fps of ours
   and of Embree with the same lobe rays, MAE against that Embree image.
@@ -36,7 +39,7 @@ import numpy as np
 from bench.common import RESULTS_DIR, load_named_scene, write_json
 from bench.reflections import occlusion_metrics, report_from_json, view_camera
 from gl_passes.context import create_gl_context
-from gl_passes.reflections import ClusterReflections
+from gl_passes.reflections import DEFAULT_SETTINGS, ClusterReflections
 from gl_passes.upload import SceneGPU
 from reference.image_metrics import mean_abs_error
 from reference.raycast import RayCaster
@@ -49,6 +52,8 @@ IMAGE_SCALES = (0.5, 1.0, 2.0)
 DETAILS = (1.0, 0.5, 0.25)
 GLOSSY_RAYS = (8, 49)
 OTHERS_PEEL = (False, True)
+#: Level-of-detail sweep: off (full detail), then the error bound in texels (lod_texels).
+LOD_TEXELS = (0.0, 0.5, 1.0, 2.0)
 
 
 def _ours(refl: ClusterReflections, sg: SceneGPU, cam, repeat: int, **kw):
@@ -68,14 +73,16 @@ def _embree(scene, cam, **kw):
 
 
 def _config_row(gl, sg: SceneGPU, cam, ref, repeat: int, **options) -> dict:
-    """fps, cluster count and thesis occlusion error per ray of ClusterReflections(**options)."""
-    refl = ClusterReflections(gl, **options)
+    """fps, cluster count and thesis occlusion error per ray with DEFAULT_SETTINGS changed by `options`."""
+    refl = ClusterReflections(gl, DEFAULT_SETTINGS.replace(**options))
     try:
         r, total, _ = _ours(refl, sg, cam, repeat)
         occ = occlusion_metrics(refl.render(sg, cam, diagnostics=True), ref)[0]["occlusion_thesis_ray_pct"]
     finally:
         refl.release()
-    return {"clusters": r.n_clusters, "fps": 1e3 / total, "occlusion_thesis_ray_pct": occ}
+    return {"clusters": r.n_clusters, "fps": 1e3 / total, "occlusion_thesis_ray_pct": occ,
+            "depth_images_ms": r.timings_ms["depth_images"], "drawn_chunks": r.drawn_chunks,
+            "mae_255": float(mean_abs_error(r.color, ref.color) * 255)}
 
 
 def sweep_scene(gl, name: str, res: int, repeat: int, tables: set[str]) -> dict:
@@ -85,14 +92,16 @@ def sweep_scene(gl, name: str, res: int, repeat: int, tables: set[str]) -> dict:
     out: dict = {"scene": name, "res": res}
     try:
         ref, _ = _embree(scene, cam)
-        # Tables 15, 17 and layers: one ClusterReflections option swept (row key, option name, values).
+        # Tables 15, 17 and layers: one ClusterSettings field swept (row key, option name, values).
         for table, key, option, values in (("15", "bin_scale", "bin_scale", BIN_SCALES),
                                            ("17", "scale", "resolution_scale", IMAGE_SCALES),
-                                           ("layers", "others_peel", "others_peel", OTHERS_PEEL)):
+                                           ("layers", "others_peel", "others_peel", OTHERS_PEEL),
+                                           ("lod", "lod_texels", "lod_texels", LOD_TEXELS)):
             if table in tables:
                 out[f"table{table}"] = rows = []
                 for v in values:
-                    rows.append({key: v, **_config_row(gl, sg, cam, ref, repeat, **{option: v})})
+                    opts = {"lod_errors": ()} if option == "lod_texels" and v == 0 else {option: v}
+                    rows.append({key: v, **_config_row(gl, sg, cam, ref, repeat, **opts)})
                     print(name, f"T{table}", rows[-1], flush=True)
         refl = ClusterReflections(gl)
         try:
@@ -145,7 +154,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--scenes", nargs="+", default=["living_room", "bathroom"])
     ap.add_argument("--res", type=int, default=512)
     ap.add_argument("--repeat", type=int, default=2)
-    ap.add_argument("--tables", default="15,16,17,18,20,layers",
+    ap.add_argument("--tables", default="15,16,17,18,20,layers,lod",
                     help="comma list; 16 and 18 run on the first scene only")
     ap.add_argument("--out", default=str(RESULTS_DIR / "reflections"))
     args = ap.parse_args(argv)

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import moderngl
 import numpy as np
 
+from gl_passes.cluster_units import UNITS
 from gl_passes.clustering import ClusterStats
 from gl_passes.context import GLContext
 from gl_passes.shaders import compute_program
@@ -325,6 +326,46 @@ def visible_boxes(cam: ClusterCamera, bounds: np.ndarray) -> np.ndarray:
     return ~(out | below)
 
 
+def chunk_cones(vertices: np.ndarray, faces: np.ndarray, first: np.ndarray) -> np.ndarray:
+    """(n, 8) per run of triangles starting at `first` (a run ends where the next
+    begins, the last at len(faces)): c (3), the centre of its AABB; a (3), the unit
+    mean of its triangles' geometric normals n_i (counter-clockwise winding, the GL
+    front face); ε = max |n_i − a|; m = min n_i·(v0_i − c) (scene units). A
+    zero-area triangle is never rasterised and bounds neither ε nor m."""
+    v = np.asarray(vertices, np.float64)
+    tri = v[np.asarray(faces, np.int64)]  # (F,3,3)
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    length = np.linalg.norm(n, axis=1)
+    live = length > 0
+    n = np.where(live[:, None], n / np.maximum(length, 1e-300)[:, None], 0.0)
+    first = np.asarray(first, np.int64)
+    if len(first) == 0:
+        return np.zeros((0, 8))
+    lo = np.minimum.reduceat(tri.min(axis=1), first, axis=0)
+    hi = np.maximum.reduceat(tri.max(axis=1), first, axis=0)
+    c = 0.5 * (lo + hi)
+    a = np.add.reduceat(n, first, axis=0)
+    a /= np.maximum(np.linalg.norm(a, axis=1), 1e-300)[:, None]
+    run = np.repeat(np.arange(len(first)), np.diff(np.append(first, len(tri))))
+    dev = np.where(live, np.linalg.norm(n - a[run], axis=1), 0.0)
+    off = np.where(live, np.einsum("ij,ij->i", n, tri[:, 0] - c[run]), np.inf)
+    eps = np.maximum.reduceat(dev, first)
+    m = np.minimum.reduceat(off, first)
+    return np.concatenate([c, a, eps[:, None], m[:, None]], axis=1)
+
+
+def backfacing_chunks(cam: ClusterCamera, cones: np.ndarray) -> np.ndarray:
+    """(n,) bool: runs of triangles (chunk_cones) all of whose triangles face away
+    from the cluster camera's centre e_c, so back-face culling (GL_BACK, ccw front)
+    would discard every one of them: n_i·(v0_i − e_c) = n_i·(v0_i − c) + n_i·(c − e_c)
+    ≥ m + a·(c − e_c) − ε·|c − e_c| > 0. Conservative (false only costs a draw)."""
+    if len(cones) == 0:
+        return np.zeros(0, bool)
+    d = cones[:, :3] - np.asarray(cam.center, np.float64)
+    bound = cones[:, 7] + np.einsum("ij,ij->i", cones[:, 3:6], d) - cones[:, 6] * np.linalg.norm(d, axis=1)
+    return bound > 1e-6 * np.maximum(np.linalg.norm(d, axis=1), 1e-12)
+
+
 def visible_objects(cam: ClusterCamera, object_bounds: np.ndarray) -> list[int]:
     """0-based objects whose AABB may intersect the cluster frustum."""
     return [int(k) for k in np.nonzero(visible_boxes(cam, object_bounds))[0]]
@@ -335,7 +376,7 @@ class ClusterExtentPass:
 
     def __init__(self, gl: GLContext) -> None:
         self.gl = gl
-        self.prog = compute_program(gl, "cluster_extent.comp")
+        self.prog = compute_program(gl, "cluster_extent.comp", UNITS.defines())
         self.ext_buf: moderngl.Buffer | None = None
         self.frame_buf: moderngl.Buffer | None = None
 
@@ -351,19 +392,17 @@ class ClusterExtentPass:
 
     def upload_frames(self, frames: np.ndarray) -> moderngl.Buffer:
         buf = self._buffer("frame_buf", np.ascontiguousarray(frames, np.float32).tobytes())
-        buf.bind_to_storage_buffer(5)
+        UNITS.bind_storage("Frames", buf)
         return buf
 
     def run(self, stage: int, frames: np.ndarray, size: tuple[int, int], eye: np.ndarray) -> np.ndarray:
-        """Textures and SSBOs (bins 0, tri 1, normal 2, position 3; remap 3, mesh 6/7)
-        must be bound by the caller."""
+        """Textures (u_bins, u_tri, u_normal, u_position) and SSBOs (Remap,
+        MeshVerts, MeshFaces) of cluster_units.UNITS must be bound by the caller."""
         n = len(frames)
         self.upload_frames(frames)
         ext = self._buffer("ext_buf", ext_init(n).tobytes())
-        ext.bind_to_storage_buffer(4)
+        UNITS.bind_storage("Ext", ext)
         p = self.prog
-        for name, unit in (("u_bins", 0), ("u_tri", 1), ("u_normal", 2), ("u_position", 3)):
-            set_uniform(p, name, unit)
         set_uniform(p, "u_eye", np.asarray(eye, np.float64))
         set_uniform(p, "u_stage", stage)
         p.run((size[0] + GROUP - 1) // GROUP, (size[1] + GROUP - 1) // GROUP, 1)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from gl_passes.context import GLContext
-from gl_passes.reflections import ClusterReflections
+from gl_passes.reflections import DEFAULT_SETTINGS, ClusterReflections, ClusterSettings
 from gl_passes.releasable import Releasable
 from gl_passes.upload import SceneGPU
 from scenes.camera import Camera
@@ -17,15 +17,16 @@ class ClusterTracer(Releasable):
     """`trace(camera, pixels)` by ClusterReflections.render(supersample=1): reflected
     (N,3) (the diffuse colour where the cluster pass sees no reflector) and the
     marched ray length (N,) (+inf: miss, NaN: not reflective). Owns its
-    ClusterReflections (keyword arguments go to it)."""
+    ClusterReflections, made with `settings` (the service's and the bench's by default)."""
 
     name = "clusters"
     sparse = False
 
-    def __init__(self, gl: GLContext, scene_gpu: SceneGPU, glossy_rays: int = 8, **options: object) -> None:
+    def __init__(self, gl: GLContext, scene_gpu: SceneGPU, glossy_rays: int = 8,
+                 settings: ClusterSettings = DEFAULT_SETTINGS) -> None:
         self.scene_gpu = scene_gpu
         self.glossy_rays = int(glossy_rays)
-        self.renderer = ClusterReflections(gl, **options)  # type: ignore[arg-type]
+        self.renderer = ClusterReflections(gl, settings)
 
     def trace(self, camera: Camera, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         px = np.asarray(pixels, np.int64).reshape(-1, 2)

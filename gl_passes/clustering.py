@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import moderngl
 import numpy as np
 
+from gl_passes.cluster_units import UNITS
 from gl_passes.context import GLContext
 from gl_passes.readback import read_texture
 from gl_passes.shaders import compute_program
@@ -98,8 +99,8 @@ class ClusteringPass:
     def __init__(self, gl: GLContext) -> None:
         gl.check_thread()
         self.gl = gl
-        self.count_prog = compute_program(gl, "cluster_count.comp")
-        self.assign_prog = compute_program(gl, "cluster_assign.comp")
+        self.count_prog = compute_program(gl, "cluster_count.comp", UNITS.defines())
+        self.assign_prog = compute_program(gl, "cluster_assign.comp", UNITS.defines())
         self.bins_tex: moderngl.Texture | None = None
         self._remap = np.full(1, -1, np.int32)  # raw bin → cluster index of the last run (−1: empty bin)
         self._buffers: dict[str, moderngl.Buffer] = {}
@@ -127,18 +128,14 @@ class ClusteringPass:
             self.bins_tex = ctx.texture(size, 1, dtype="u4")
             self.bins_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
         groups = ((size[0] + GROUP - 1) // GROUP, (size[1] + GROUP - 1) // GROUP, 1)
-        textures["obj_id"].use(0)
-        textures["material"].use(1)
-        textures["normal"].use(2)
-        textures["position"].use(3)
+        for name, key in (("u_obj", "obj_id"), ("u_material", "material"), ("u_normal", "normal"),
+                          ("u_position", "position")):
+            UNITS.bind_texture(name, textures[key])
 
         # Pass 1: reflective samples per object.
         counts_buf = self.buffer("obj_count", np.zeros(n_objects + 1, np.uint32).tobytes())
-        counts_buf.bind_to_storage_buffer(0)
-        prog = self.count_prog
-        set_uniform(prog, "u_obj", 0)
-        set_uniform(prog, "u_material", 1)
-        prog.run(*groups)
+        UNITS.bind_storage("ObjCount", counts_buf)
+        self.count_prog.run(*groups)
         ctx.memory_barrier()
         obj_samples = np.frombuffer(counts_buf.read(size=4 * (n_objects + 1)), np.uint32).copy()
 
@@ -148,16 +145,14 @@ class ClusteringPass:
         n_bins = int(per_obj.sum())
         table = np.zeros((n_objects + 1, 4), np.uint32)
         table[:, 0], table[:, 1], table[:, 2] = base, np.maximum(bins[:, 0], 1), np.maximum(bins[:, 1], 1)
-        self.buffer("bin_table", table.tobytes()).bind_to_storage_buffer(1)
+        UNITS.bind_storage("BinTable", self.buffer("bin_table", table.tobytes()))
         stats_buf = self.buffer("bin_stats", np.zeros(max(n_bins, 1) * STATS_STRIDE, np.uint32).tobytes())
-        stats_buf.bind_to_storage_buffer(2)
-        self.bins_tex.bind_to_image(0, read=False, write=True)
+        UNITS.bind_storage("BinStats", stats_buf)
+        UNITS.bind_image("u_bin_image", self.bins_tex, read=False, write=True)
         lo, hi = (np.asarray(b, np.float64) for b in bounds)
         pad = 1e-3 * max(float(np.linalg.norm(hi - lo)), 1e-6)
         lo, hi = lo - pad, hi + pad
         prog = self.assign_prog
-        for name, unit in (("u_obj", 0), ("u_material", 1), ("u_normal", 2), ("u_position", 3)):
-            set_uniform(prog, name, unit)
         set_uniform(prog, "u_lo", lo)
         self._lo, self._ext = lo, hi - lo
         set_uniform(prog, "u_inv_ext", 1.0 / (hi - lo))
@@ -179,7 +174,7 @@ class ClusteringPass:
         remap = np.full(max(n_bins, 1), -1, np.int32)
         remap[nonempty] = np.arange(len(nonempty), dtype=np.int32)
         self._remap = remap
-        self.buffer("remap", remap.tobytes()).bind_to_storage_buffer(3)
+        UNITS.bind_storage("Remap", self.buffer("remap", remap.tobytes()))
         return ClusterStats(object_id=owner, bin=nonempty, count=count, mean_position=mean_pos,
                             mean_normal=unit_n, normal_sum_length=length, bins_per_object=bins,
                             object_samples=obj_samples)

@@ -1,7 +1,13 @@
 """Reflections with cluster depth images (thesis Ch. 4, Alg. 6/7; DESIGN.md technique 3).
 
-`ClusterReflections(gl).render(scene_gpu, camera, glossy_rays=8)`:
+`ClusterReflections(gl, settings).render(scene_gpu, camera)`; every parameter of the
+method lives in one frozen `ClusterSettings` (DEFAULT_SETTINGS: what the service
+renders and the benchmarks measure); every texture, image and storage unit of its
+shaders comes from gl_passes.cluster_units.UNITS.
 
+0. per-scene records that do not depend on the camera (cached for CHUNK_CACHE
+   scenes, step "scene_setup", ~0 on a scene's later frames): triangle chunks with
+   AABBs and normal cones, and the levels of detail (meshoptimizer) with theirs;
 1. G-buffer at ss×ss supersampling (GBufferPass at ss·W × ss·H);
 2. clustering of the reflective samples on the GPU (gl_passes.clustering, §4.3);
 3. one cluster camera per cluster (gl_passes.cluster_camera, §4.4): per-cluster
@@ -13,7 +19,10 @@
    are exact: shrinking them caused ~1.2 points of the occlusion error), with
    frustum culling of 512-triangle
    chunks (finer than SceneGPU.object_bounds, so large floors and walls are mostly
-   culled) and the fitting plane as a clip plane. Four layers per cluster image:
+   culled), back-face culling of whole chunks (cluster_camera.backfacing_chunks:
+   exact, GL would cull every triangle of them), the other objects of non-planar
+   clusters at a level of detail within `lod_texels` texels (ClusterSettings), and
+   the fitting plane as a clip plane. Four layers per cluster image:
    every object except the cluster's own reflector; the reflector alone (its
    self-reflections) — otherwise the reflector's far side, which faces e_c, hides
    what its rays see; and the reflector's second surface (one depth peel,
@@ -80,17 +89,19 @@ thesis's occlusion-error test (§4.7.1, reference.occlusion.captured_mask).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import moderngl
 import numpy as np
 
 from gl_passes import cluster_camera as cc
 from gl_passes.cluster_camera import ClusterCamera, ClusterExtentPass
+from gl_passes.cluster_units import UNITS
 from gl_passes.clustering import ClusteringPass
 from gl_passes.context import GLContext
 from gl_passes.gbuffer import GBufferPass
 from gl_passes.readback import read_texture
+from gl_passes.reconstruction import simplify
 from gl_passes.releasable import Releasable
 from gl_passes.shaders import compute_program, program
 from gl_passes.uniforms import set_uniform
@@ -101,6 +112,7 @@ from scenes.glossy import FADE_FRACTION, lobe_offsets
 
 MAX_RAYS = 64
 CHUNK = 512  # triangles per culling chunk of the cluster depth images
+CHUNK_CACHE = 4  # scenes whose chunk records (bounds, normal cones) are kept
 BLOCK = 8    # atlas texels per side of a depth-bounds block (march skipping)
 TRACE_GROUP = (8, 8)  # intersection workgroup (x, y)
 GL_CLIP_DISTANCE0 = 0x3000
@@ -111,7 +123,7 @@ N_LAYERS = 4
 CONTINUITY = 0.0  # crossing rule (off by default): max relative depth jump between texels of one surface
 SLOPE = 0.0  # surface-crossing rule (opt-in, e.g. 10): steepest surface, tan of its angle to the view ray
 NEAR_STEPS = 0  # near-origin rule (opt-in, e.g. 4): in the ray's first texels a hit needs a refined crossing
-STEPS = ("gbuffer", "clustering", "cluster_cameras", "depth_images", "intersection", "resolve")
+STEPS = ("scene_setup", "gbuffer", "clustering", "cluster_cameras", "depth_images", "intersection", "resolve")
 
 
 @dataclass
@@ -120,7 +132,9 @@ class ClusterReflectionResult(ReflectionBuffers):
     the cluster cameras; timings_ms: per step (STEPS) plus "total"; atlas_size:
     (w, h) texels; drawn_chunks: triangle chunks drawn into the cluster images
     (after culling); diagnostics: ClusterDiagnostics when render(diagnostics=True),
-    else None."""
+    else None; cache_hits: per cached step whether it hit its cache ("scene_setup":
+    the scene's camera-independent records, chunk bounds and normal cones, came
+    from the per-scene cache; callers may add theirs, e.g. the service's "upload")."""
 
     method: str = "clusters"
     supersample: int = 2
@@ -130,61 +144,116 @@ class ClusterReflectionResult(ReflectionBuffers):
     atlas_size: tuple[int, int] = (0, 0)
     drawn_chunks: int = 0
     diagnostics: ClusterDiagnostics | None = None
+    cache_hits: dict[str, bool] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class ClusterSettings:
+    """Every parameter of the cluster-depth-image method (thesis Ch. 4, Alg. 6/7), one
+    frozen object shared by the pass, the service (service.jobs) and the benchmarks
+    (bench/reflections.py, bench/reflection_sweeps.py), so that the service renders
+    what the benchmark measures.
+
+    Clustering (§4.3): bin_scale multiplies the bin counts, bin_rule picks how they
+    follow the reflector's sample count (gl_passes.clustering).
+    Cluster cameras (§4.4): max_shift clamps the e0 → P_c shift 1 − f; resolution_scale
+    multiplies the texel density derived from the cluster's projected sample spacing;
+    max_resolution caps an image's side (texels).
+    Cluster depth images (§4.5): atlas_max caps the atlas side (texels); atlas_budget
+    caps the total image area at that many texels per G-buffer sample (None = no cap;
+    the non-planar images shrink uniformly, planar ones keep their exact texel =
+    sample grid, cluster_camera.pack_atlas); others_peel adds the other objects'
+    second surface to non-planar images (module docstring, step 4).
+    Intersection (Alg. 7): thickness is the hit tolerance in units of a step's depth
+    span; continuity > 0 enables the crossing rule; slope > 0 the surface-crossing rule
+    (continuous surfaces up to that tan of their angle to the view ray); near_steps > 0
+    the near-origin rule (module docstring, step 5); block_skip False marches every
+    texel (the block skip changes no hit; for tests).
+    backface_chunks skips, per cluster camera, the triangle chunks whose every
+    triangle faces away from e_c (cluster_camera.backfacing_chunks): back-face
+    culling would discard them all, so the images are unchanged (False: for tests).
+    Level of detail (§4.5, beyond the thesis): lod_errors are the absolute error
+    bounds of the simplified levels (meshoptimizer, built once per scene) as
+    fractions of the scene diagonal, finest first (() = full detail only); per
+    non-planar cluster image (planar ones stay exact) each object other than the
+    reflector is drawn at the coarsest
+    level whose error is at most lod_texels texels of that image at the object's
+    nearest depth (so the stored depths move by at most that many texels' width).
+    Sampling (§4.2, §4.6): supersample is the G-buffer's ss×ss samples per output
+    pixel; glossy_rays the lobe rays per G-buffer sample of a glossy reflector (1 to
+    MAX_RAYS; Embree's reference traces the same lobe)."""
+
+    max_resolution: int = 1024
+    resolution_scale: float = 1.0
+    bin_scale: float = 1.0
+    bin_rule: str = "relative"
+    thickness: float = 1.0
+    atlas_max: int = 4096
+    atlas_budget: float | None = 16.0
+    max_shift: float = cc.MAX_SHIFT
+    continuity: float = CONTINUITY
+    slope: float = SLOPE
+    near_steps: int = NEAR_STEPS
+    block_skip: bool = True
+    others_peel: bool = True
+    glossy_rays: int = 8
+    supersample: int = 2
+    backface_chunks: bool = True
+    lod_errors: tuple[float, ...] = (0.0001, 0.00025, 0.001, 0.004)
+    lod_texels: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.glossy_rays <= MAX_RAYS:
+            raise ValueError(f"glossy_rays must be in [1, {MAX_RAYS}]")
+        if self.supersample < 1:
+            raise ValueError("supersample must be >= 1")
+        if self.max_resolution < 1 or self.atlas_max < 1:
+            raise ValueError("max_resolution and atlas_max must be >= 1")
+        if self.atlas_budget is not None and self.atlas_budget <= 0:
+            raise ValueError("atlas_budget must be > 0 or None")
+        if any(e <= 0 for e in self.lod_errors) or list(self.lod_errors) != sorted(self.lod_errors):
+            raise ValueError("lod_errors must be positive and increasing")
+        if self.lod_texels <= 0:
+            raise ValueError("lod_texels must be > 0")
+
+    def replace(self, **changes) -> ClusterSettings:
+        """A copy with `changes` applied (validated again)."""
+        return replace(self, **changes)
+
+
+#: The settings the service renders with and the benchmarks measure.
+DEFAULT_SETTINGS = ClusterSettings()
 
 
 class ClusterReflections(Releasable):
-    """Reflection renderer on `gl`'s thread. Parameters: max_resolution caps a
-    cluster image's side; resolution_scale multiplies the texel density derived
-    from the cluster's projected sample spacing; bin_scale and bin_rule set the §4.3
-    bin counts (gl_passes.clustering); thickness is the hit tolerance in units of a step's depth span; max_shift
-    clamps the e0 → P_c shift 1 − f; atlas_budget caps the total cluster-image area
-    at that many texels per G-buffer sample (None = no cap; the non-planar images shrink
-    uniformly, planar ones keep their exact texel = sample grid, cluster_camera.pack_atlas);
-    continuity > 0 enables the crossing rule; slope > 0 the surface-crossing rule
-    (continuous surfaces up to that tan of their angle to the view ray); near_steps > 0
-    the near-origin rule (module docstring, step 5); others_peel adds the other
-    objects' second surface to non-planar cluster images (step 4); block_skip False marches every
-    texel (the block skip changes no hit; for tests)."""
+    """Reflection renderer on `gl`'s thread with one ClusterSettings (defaults:
+    DEFAULT_SETTINGS)."""
 
-    def __init__(self, gl: GLContext, max_resolution: int = 1024, resolution_scale: float = 1.0,
-                 bin_scale: float = 1.0, thickness: float = 1.0, atlas_max: int = 4096,
-                 max_shift: float = cc.MAX_SHIFT, bin_rule: str = "relative",
-                 atlas_budget: float | None = 16.0, continuity: float = CONTINUITY, slope: float = SLOPE,
-                 near_steps: int = NEAR_STEPS, block_skip: bool = True, others_peel: bool = True) -> None:
+    def __init__(self, gl: GLContext, settings: ClusterSettings = DEFAULT_SETTINGS) -> None:
         gl.check_thread()
         self.gl = gl
-        self.max_resolution = int(max_resolution)
-        self.resolution_scale = float(resolution_scale)
-        self.bin_scale = float(bin_scale)
-        self.thickness = float(thickness)
-        self.continuity = float(continuity)
-        self.slope = float(slope)
-        self.near_steps = int(near_steps)
-        self.others_peel = bool(others_peel)
-        self.atlas_max = int(atlas_max)
-        self.max_shift = float(max_shift)
-        self.bin_rule = bin_rule
-        self.atlas_budget = atlas_budget
+        self.settings = settings
         self.gbuffer = GBufferPass(gl)
         self.clustering = ClusteringPass(gl)
         self.extent = ClusterExtentPass(gl)
-        defines = {"FADE_FRACTION": repr(float(FADE_FRACTION)), "MAX_RAYS": str(MAX_RAYS), "BLOCK": str(BLOCK),
-                   "TRACE_GX": str(TRACE_GROUP[0]), "TRACE_GY": str(TRACE_GROUP[1])}
-        if self.continuity > 0:  # the crossing rule is compiled in only when enabled (it costs every step)
+        units = UNITS.defines()
+        defines = {**units, "FADE_FRACTION": repr(float(FADE_FRACTION)), "MAX_RAYS": str(MAX_RAYS),
+                   "BLOCK": str(BLOCK), "TRACE_GX": str(TRACE_GROUP[0]), "TRACE_GY": str(TRACE_GROUP[1])}
+        if settings.continuity > 0:  # the crossing rule is compiled in only when enabled (it costs every step)
             defines["CROSSING"] = "1"
-        if self.slope > 0:  # likewise the surface-crossing and near-origin rules
+        if settings.slope > 0:  # likewise the surface-crossing and near-origin rules
             defines["SURFACE_CROSSING"] = "1"
-        if self.near_steps > 0:
+        if settings.near_steps > 0:
             defines["NEAR_CROSSING"] = "1"
-        if not block_skip:  # exact either way (tests compare the two)
+        if not settings.block_skip:  # exact either way (tests compare the two)
             defines["NO_BLOCK_SKIP"] = "1"
-        self.depth_prog = program(gl, "cluster_depth.vert", "cluster_depth.frag")
-        self.peel_prog = program(gl, "cluster_depth.vert", "cluster_peel.frag")
+        self.depth_prog = program(gl, "cluster_depth.vert", "cluster_depth.frag", defines=units)
+        self.peel_prog = program(gl, "cluster_depth.vert", "cluster_peel.frag", defines=units)
         self.trace_prog = compute_program(gl, "reflect_trace.comp", defines)
-        self.resolve_prog = compute_program(gl, "reflect_resolve.comp")
-        self.pack_prog = compute_program(gl, "cluster_pack.comp")
+        self.resolve_prog = compute_program(gl, "reflect_resolve.comp", units)
+        self.pack_prog = compute_program(gl, "cluster_pack.comp", units)
         self.block_prog = compute_program(gl, "cluster_block_depth.comp",
-                                          {"BLOCK": str(BLOCK), "BACKGROUND_DEPTH": repr(BACKGROUND_DEPTH)})
+                                          {**units, "BLOCK": str(BLOCK), "BACKGROUND_DEPTH": repr(BACKGROUND_DEPTH)})
         self._atlas: list = []
         self._samples: moderngl.Texture | None = None
         self._outputs: dict[str, moderngl.Texture] = {}
@@ -228,15 +297,9 @@ class ClusterReflections(Releasable):
         minimum and their maximum stored (non-background) depth."""
         pack = self._texture("pack", layers[0][0].size, components=4)
         if used[0] > 0 and used[1] > 0:
-            pack.bind_to_image(5, read=False, write=True)
-            layers[0][0].use(4)
-            layers[1][0].use(9)
-            layers[2][0].use(12)
-            layers[3][0].use(15)
+            UNITS.bind_image("u_pack_image", pack, read=False, write=True)
+            self._bind_layers(layers)
             p = self.pack_prog
-            for name, unit in (("u_atlas", 4), ("u_atlas_self", 9), ("u_atlas_peel", 12),
-                               ("u_atlas_peel_other", 15)):
-                set_uniform(p, name, unit)
             set_uniform(p, "u_size", tuple(int(x) for x in used))
             p.run((used[0] + 15) // 16, (used[1] + 15) // 16, 1)
             self.gl.ctx.memory_barrier()
@@ -244,15 +307,30 @@ class ClusterReflections(Releasable):
         block_min = self._texture("block_min", csize)
         block_max = self._texture("block_max", csize)
         if used[0] > 0 and used[1] > 0:
-            block_min.bind_to_image(6, read=False, write=True)
-            block_max.bind_to_image(7, read=False, write=True)
-            pack.use(10)
+            UNITS.bind_image("u_block_min_image", block_min, read=False, write=True)
+            UNITS.bind_image("u_block_max_image", block_max, read=False, write=True)
+            UNITS.bind_texture("u_pack", pack)
             p = self.block_prog
-            set_uniform(p, "u_pack", 10)
             set_uniform(p, "u_size", tuple(int(x) for x in used))
             p.run((-(-used[0] // BLOCK) + 7) // 8, (-(-used[1] // BLOCK) + 7) // 8, 1)
             self.gl.ctx.memory_barrier()
         return pack, block_min, block_max
+
+    @staticmethod
+    def _bind_gbuffer(bins: moderngl.Texture, tex: dict[str, moderngl.Texture]) -> None:
+        """Bind the sample → bin map and the G-buffer textures to their samplers."""
+        UNITS.bind_texture("u_bins", bins)
+        for name, key in (("u_tri", "tri_id"), ("u_normal", "normal"), ("u_position", "position"),
+                          ("u_color", "color"), ("u_material", "material")):
+            UNITS.bind_texture(name, tex[key])
+
+    @staticmethod
+    def _bind_layers(layers) -> None:
+        """Bind the atlas layers' colour+depth and triangle-id textures to their samplers."""
+        for name, tex in (("u_atlas", layers[0][0]), ("u_atlas_self", layers[1][0]), ("u_atlas_peel", layers[2][0]),
+                          ("u_atlas_peel_other", layers[3][0]), ("u_atlas_self_tri", layers[1][1]),
+                          ("u_atlas_peel_tri", layers[2][1])):
+            UNITS.bind_texture(name, tex)
 
     def _texture(self, key: str, size: tuple[int, int], components: int = 4) -> moderngl.Texture:
         tex = self._outputs.get(key)
@@ -265,21 +343,21 @@ class ClusterReflections(Releasable):
         return tex
 
     # --- the technique -------------------------------------------------------------
-    def render(self, scene_gpu: SceneGPU, camera: Camera, glossy_rays: int = 8, supersample: int = 2,
-               method: str = "clusters", sync_timings: bool = True,
+    def render(self, scene_gpu: SceneGPU, camera: Camera, glossy_rays: int | None = None,
+               supersample: int | None = None, method: str = "clusters", sync_timings: bool = True,
                diagnostics: bool = False) -> ClusterReflectionResult:
         """Reflections for `camera` (near/far fitted to the scene when absent).
-        method: "clusters" (Alg. 6) or "envmap" (baseline). diagnostics=True also
-        reads back what the cluster images hold (result.diagnostics,
-        ClusterDiagnostics; after the timed steps, not in timings_ms)."""
+        method: "clusters" (Alg. 6) or "envmap" (baseline); glossy_rays and supersample
+        default to the settings'. diagnostics=True also reads back what the cluster
+        images hold (result.diagnostics, ClusterDiagnostics; after the timed steps,
+        not in timings_ms)."""
         self.gl.check_thread()
         if method not in ("clusters", "envmap"):
             raise ValueError(f"method must be 'clusters' or 'envmap', got {method!r}")
-        if not 1 <= glossy_rays <= MAX_RAYS:
-            raise ValueError(f"glossy_rays must be in [1, {MAX_RAYS}]")
-        ss = int(supersample)
-        if ss < 1:
-            raise ValueError("supersample must be >= 1")
+        st = self.settings.replace(
+            glossy_rays=self.settings.glossy_rays if glossy_rays is None else int(glossy_rays),
+            supersample=self.settings.supersample if supersample is None else int(supersample))
+        glossy_rays, ss = st.glossy_rays, st.supersample
         ctx = self.gl.ctx
         scene = scene_gpu.scene
         cam = camera if camera.near is not None else camera.fit_clip(scene.bounds)
@@ -296,32 +374,34 @@ class ClusterReflections(Releasable):
             timings[name] = (now - t) * 1e3
             t = now
 
+        # 0. camera-independent per-scene records (cached: a later frame of the scene pays nothing)
+        cache_hit = self._chunk_cache_hit(scene_gpu)
+        if method == "clusters":
+            self._chunks(scene_gpu)
+        lap("scene_setup")
         # 1. supersampled G-buffer
         tex = self.gbuffer.draw(scene_gpu, ss_cam).textures
         lap("gbuffer")
         # 2. clustering
-        stats = self.clustering.run(tex, scene.bounds, len(scene.objects), self.bin_scale, self.bin_rule)
+        stats = self.clustering.run(tex, scene.bounds, len(scene.objects), st.bin_scale, st.bin_rule)
         lap("clustering")
         # 3. cluster cameras
         bins = self.clustering.bins_tex
         size = bins.size
-        scene_gpu.vbo.bind_to_storage_buffer(6)
-        scene_gpu.ibo.bind_to_storage_buffer(7)
-        bins.use(0)
-        tex["tri_id"].use(1)
-        tex["normal"].use(2)
-        tex["position"].use(3)
+        UNITS.bind_storage("MeshVerts", scene_gpu.vbo)
+        UNITS.bind_storage("MeshFaces", scene_gpu.ibo)
+        self._bind_gbuffer(bins, tex)
         eye = np.asarray(cam.eye, np.float64)
         cams = cc.initial_cameras(stats, cam, scene.materials, scene.diagonal)
         atlas_size = (0, 0)
         drawn = 0
         if method == "clusters" and cams:
             ext0 = self.extent.run(0, cc.stage0_frames(cams), size, eye)
-            cc.place_centers(cams, ext0, stats, scene.diagonal, self.max_shift)
+            cc.place_centers(cams, ext0, stats, scene.diagonal, st.max_shift)
             ext1 = self.extent.run(1, cc.stage1_frames(cams), size, eye)
-            cc.finish_cameras(cams, ext1, cam, ss, self.resolution_scale, self.max_resolution)
-            budget = self.atlas_budget * size[0] * size[1] if self.atlas_budget else None
-            atlas_size = cc.pack_atlas(cams, self.atlas_max, budget)
+            cc.finish_cameras(cams, ext1, cam, ss, st.resolution_scale, st.max_resolution)
+            budget = st.atlas_budget * size[0] * size[1] if st.atlas_budget else None
+            atlas_size = cc.pack_atlas(cams, st.atlas_max, budget)
         lap("cluster_cameras")
         # 4. cluster depth images
         layers = self._atlas_target(atlas_size if atlas_size[0] else (1, 1))
@@ -332,37 +412,21 @@ class ClusterReflections(Releasable):
         frames = np.asarray([c.frame() for c in cams], np.float32).reshape(-1, cc.FRAME_FLOATS)
         self.extent.upload_frames(frames if len(frames) else np.zeros((1, cc.FRAME_FLOATS), np.float32))
         samples = self._texture("samples", size)
-        samples.bind_to_image(1, read=False, write=True)
-        bins.use(0)
-        tex["tri_id"].use(1)
-        tex["normal"].use(2)
-        tex["position"].use(3)
-        layers[0][0].use(4)
-        layers[1][0].use(9)
+        UNITS.bind_image("u_out", samples, read=False, write=True)
         pack, block_min, block_max = self._pack_layers(layers, atlas_size)
-        pack.use(10)
-        block_min.use(11)
-        block_max.use(14)
-        layers[1][1].use(8)
-        layers[2][0].use(12)
-        layers[2][1].use(13)
-        layers[3][0].use(15)
-        tex["color"].use(5)
-        tex["material"].use(6)
+        self._bind_gbuffer(bins, tex)
+        self._bind_layers(layers)
+        for name, blocks in (("u_pack", pack), ("u_block_min", block_min), ("u_block_max", block_max)):
+            UNITS.bind_texture(name, blocks)
         p = self.trace_prog
-        for name, unit in (("u_bins", 0), ("u_tri", 1), ("u_normal", 2), ("u_position", 3), ("u_atlas", 4),
-                           ("u_color", 5), ("u_material", 6), ("u_atlas_self", 9), ("u_pack", 10),
-                           ("u_atlas_self_tri", 8), ("u_block_min", 11), ("u_atlas_peel", 12),
-                           ("u_atlas_peel_tri", 13), ("u_block_max", 14), ("u_atlas_peel_other", 15)):
-            set_uniform(p, name, unit)
         set_uniform(p, "u_eye", eye)
         set_uniform(p, "u_sun", np.asarray(scene.sun_direction))
         set_uniform(p, "u_mode", 1 if method == "envmap" else 0)
         set_uniform(p, "u_rays", int(glossy_rays))
-        set_uniform(p, "u_thickness", self.thickness)
-        set_uniform(p, "u_continuity", self.continuity)
-        set_uniform(p, "u_slope", self.slope)
-        set_uniform(p, "u_near_steps", self.near_steps)
+        set_uniform(p, "u_thickness", st.thickness)
+        set_uniform(p, "u_continuity", st.continuity)
+        set_uniform(p, "u_slope", st.slope)
+        set_uniform(p, "u_near_steps", st.near_steps)
         if "u_lobe" in p:
             lobe = np.zeros((MAX_RAYS, 2), np.float32)
             lobe[:glossy_rays] = lobe_offsets(glossy_rays)
@@ -373,12 +437,10 @@ class ClusterReflections(Releasable):
         lap("intersection")
         # 6. blend + ss×ss resolve + readback
         out = {k: self._texture(k, (W, H)) for k in ("out_color", "out_reflected", "out_diffuse")}
-        for unit, k in ((2, "out_color"), (3, "out_reflected"), (4, "out_diffuse")):
-            out[k].bind_to_image(unit, read=False, write=True)
-        samples.use(7)
+        for k in ("out_color", "out_reflected", "out_diffuse"):
+            UNITS.bind_image(f"u_{k}", out[k], read=False, write=True)
+        UNITS.bind_texture("u_reflected", samples)
         p = self.resolve_prog
-        for name, unit in (("u_bins", 0), ("u_color", 5), ("u_material", 6), ("u_reflected", 7)):
-            set_uniform(p, name, unit)
         set_uniform(p, "u_ss", ss)
         p.run((W + 7) // 8, (H + 7) // 8, 1)
         ctx.memory_barrier()
@@ -392,7 +454,7 @@ class ClusterReflections(Releasable):
             color=col[..., :3].copy(), reflected=ref[..., :3].copy(), diffuse=dif[..., :3].copy(),
             specular=col[..., 3].copy(), reflective=dif[..., 3] > 0, ray_length=ref[..., 3].astype(np.float64),
             method=method, supersample=ss, n_clusters=len(cams), cameras=cams, timings_ms=timings,
-            atlas_size=atlas_size, drawn_chunks=drawn, diagnostics=diag)
+            atlas_size=atlas_size, drawn_chunks=drawn, diagnostics=diag, cache_hits={"scene_setup": cache_hit})
 
     def _diagnostics(self, cams: list[ClusterCamera], layers: list,
                      atlas_size: tuple[int, int]) -> ClusterDiagnostics:
@@ -419,48 +481,117 @@ class ClusterReflections(Releasable):
         """Environment-map baseline (the service's method="envmap")."""
         return self.render(scene_gpu, camera, glossy_rays, supersample, method="envmap")
 
-    def _chunks(self, scene_gpu: SceneGPU) -> dict[str, np.ndarray]:
-        """Per-object runs of at most CHUNK triangles with their AABBs (cached per
-        SceneGPU): the unit of frustum culling for the cluster images, finer than
-        SceneGPU.object_bounds so that large objects (floors, walls) are mostly culled."""
-        key = id(scene_gpu)
-        cached = self._chunk_cache.get(key)
-        if cached is not None and cached["scene"] is scene_gpu.scene:
-            return cached
-        scene = scene_gpu.scene
+    def _chunk_cache_hit(self, scene_gpu: SceneGPU) -> bool:
+        cached = self._chunk_cache.get(id(scene_gpu))
+        return cached is not None and cached["scene"] is scene_gpu.scene and cached["vbo"] is scene_gpu.vbo
+
+    @staticmethod
+    def _chunk_table(scene, ranges: list[tuple[int, int]], faces: np.ndarray) -> dict[str, np.ndarray]:
+        """Per-object runs of at most CHUNK triangles of `faces` (object k owns rows
+        ranges[k] = (first, count)) with their AABBs (n, 2, 3) and normal cones
+        (cluster_camera.chunk_cones)."""
         obj, first, count = [], [], []
-        for k, (f0, n) in enumerate(scene_gpu.ranges):
+        for k, (f0, n) in enumerate(ranges):
             for a in range(0, n, CHUNK):
                 obj.append(k)
                 first.append(f0 + a)
                 count.append(min(CHUNK, n - a))
-        tri = scene.vertices[scene.faces.astype(np.int64)]  # (F,3,3)
+        tri = scene.vertices[faces.astype(np.int64)]  # (F,3,3)
         lo = np.minimum.reduceat(tri.min(axis=1), first, axis=0) if first else np.zeros((0, 3))
         hi = np.maximum.reduceat(tri.max(axis=1), first, axis=0) if first else np.zeros((0, 3))
-        cached = {"scene": scene, "obj": np.asarray(obj, np.int64), "first": np.asarray(first, np.int64),
-                  "count": np.asarray(count, np.int64), "bounds": np.stack([lo, hi], axis=1).astype(np.float64)}
-        self._chunk_cache = {key: cached}
+        first_a = np.asarray(first, np.int64)
+        return {"obj": np.asarray(obj, np.int64), "first": first_a, "count": np.asarray(count, np.int64),
+                "bounds": np.stack([lo, hi], axis=1).astype(np.float64),
+                "cones": cc.chunk_cones(scene.vertices, faces, first_a)}
+
+    def _lod_table(self, scene_gpu: SceneGPU, error: float) -> dict:
+        """The scene's objects simplified (meshoptimizer, absolute error ≤ `error`
+        scene units, gl_passes.reconstruction.simplify) in one index buffer over the
+        scene's vertex buffer: its chunk table, `error`, the buffer and its VAOs for
+        the depth and peel programs."""
+        scene = scene_gpu.scene
+        parts, ranges, f0 = [], [], 0
+        for o, off in zip(scene.objects, scene.vertex_offsets[:-1], strict=True):
+            tri = simplify(o.vertices, o.faces, error).astype(np.int64) + int(off) if len(o.faces) else np.zeros((0, 3))
+            parts.append(tri.astype(np.uint32))
+            ranges.append((f0, len(tri)))
+            f0 += len(tri)
+        faces = np.concatenate(parts) if parts else np.zeros((0, 3), np.uint32)
+        table = self._chunk_table(scene, ranges, faces)
+        ibo = self.gl.ctx.buffer(np.ascontiguousarray(faces, np.uint32).tobytes() or bytes(12))
+        vaos = tuple(self.gl.ctx.vertex_array(prog, [(scene_gpu.vbo, *scene_gpu.vertex_format(prog))],
+                                              index_buffer=ibo, index_element_size=4)
+                     for prog in (self.depth_prog, self.peel_prog))
+        return {**table, "error": float(error), "ibo": ibo, "vaos": vaos, "triangles": len(faces)}
+
+    @staticmethod
+    def _release_entry(entry: dict) -> None:
+        for lod in entry["lods"]:
+            for vao in lod["vaos"]:
+                vao.release()
+            lod["ibo"].release()
+
+    def _chunks(self, scene_gpu: SceneGPU) -> dict:
+        """The camera-independent records of a scene (cached per SceneGPU, CHUNK_CACHE
+        scenes): the unit of frustum culling for the cluster images, per-object runs of
+        at most CHUNK triangles (finer than SceneGPU.object_bounds, so large objects,
+        floors and walls, are mostly culled) with AABBs and normal cones; under "lods"
+        the same for each level of detail of settings.lod_errors (× scene diagonal)."""
+        key = id(scene_gpu)
+        if self._chunk_cache_hit(scene_gpu):
+            return self._chunk_cache[key]
+        old = self._chunk_cache.pop(key, None)
+        if old is not None:
+            self._release_entry(old)
+        scene = scene_gpu.scene
+        cached = {"scene": scene, "vbo": scene_gpu.vbo, **self._chunk_table(scene, scene_gpu.ranges, scene.faces),
+                  "lods": []}
+        self._chunk_cache[key] = cached  # registered first: released with the cache whatever follows
+        for rel in self.settings.lod_errors:
+            cached["lods"].append(self._lod_table(scene_gpu, rel * scene.diagonal))
+        while len(self._chunk_cache) > CHUNK_CACHE:
+            self._release_entry(self._chunk_cache.pop(next(iter(self._chunk_cache))))
         return cached
+
+    def _lod_levels(self, c: ClusterCamera, object_bounds: np.ndarray, errors: list[float]) -> np.ndarray:
+        """(n_objects,) int: per object the coarsest level (0 = full detail, l ≥ 1 =
+        errors[l-1]) whose error is at most settings.lod_texels texels of the cluster
+        image where the object is nearest to e_c (its AABB's least depth along the
+        camera axis, at least near; texel = the atlas viewport's tangent extent per
+        texel × depth)."""
+        lvl = np.zeros(len(object_bounds), np.int64)
+        if not errors or c.atlas[2] <= 0 or c.atlas[3] <= 0:
+            return lvl
+        lo, hi = object_bounds[:, 0], object_bounds[:, 1]
+        fwd = np.asarray(c.forward, np.float64)
+        depth = np.minimum(lo * fwd, hi * fwd).sum(axis=1) - float(fwd @ c.center)
+        depth = np.maximum(depth, c.near)
+        u0, v0, u1, v1 = c.rect
+        texel = depth * max((u1 - u0) / c.atlas[2], (v1 - v0) / c.atlas[3])
+        for level, err in enumerate(errors, start=1):
+            lvl[err <= self.settings.lod_texels * texel] = level
+        return lvl
 
     def _draw_atlas(self, scene_gpu: SceneGPU, cams: list[ClusterCamera], fbos: list[moderngl.Framebuffer]) -> int:
         """Render every cluster image into its atlas viewport: layer 0 = the objects
-        other than the cluster's reflector, layer 1 = the reflector itself; only the
-        triangle chunks that survive frustum culling are drawn (adjacent visible
-        chunks of one object in one draw). Returns the number of chunks drawn."""
+        other than the cluster's reflector, layer 1 = the reflector itself, layer 2 its
+        second surface, layer 3 the others' second surface; only the triangle chunks
+        that survive frustum and back-face culling are drawn (adjacent visible chunks
+        of one object in one draw), the other objects at their level of detail
+        (_lod_levels; the reflector always at full detail: its triangle ids are the
+        self-hit test's). Returns the number of chunks drawn."""
         ctx = self.gl.ctx
-        prog = self.depth_prog
         ch = self._chunks(scene_gpu)
-        vaos = (scene_gpu.vao(self.depth_prog), scene_gpu.vao(self.peel_prog))
-        self._atlas[1][0].use(12)
-        self._atlas[0][0].use(15)
-        set_uniform(self.peel_prog, "u_sun", np.asarray(scene_gpu.scene.sun_direction))
+        tables = [ch, *ch["lods"]]
+        errors = [lod["error"] for lod in ch["lods"]]
+        vaos = [(scene_gpu.vao(self.depth_prog), scene_gpu.vao(self.peel_prog)), *(lod["vaos"] for lod in ch["lods"])]
+        sun = np.asarray(scene_gpu.scene.sun_direction)
         materials = scene_gpu.scene.materials
         ctx.enable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         ctx.depth_func = "<"
         ctx.front_face = "ccw"
         ctx.cull_face = "back"
         ctx.enable_direct(GL_CLIP_DISTANCE0)
-        set_uniform(prog, "u_sun", np.asarray(scene_gpu.scene.sun_direction))
         drawn = 0
         used = (0, 0, max(c.atlas[0] + c.atlas[2] for c in cams), max(c.atlas[1] + c.atlas[3] for c in cams))
         for fbo in fbos:  # one clear of the used atlas area (tri id clears to 0)
@@ -468,43 +599,54 @@ class ClusterReflections(Releasable):
         for c in cams:
             if not c.valid:
                 continue
-            vp = c.atlas
-            vis = cc.visible_boxes(c, ch["bounds"])
-            prog = self.depth_prog
-            set_uniform(prog, "u_view", c.view_matrix())
-            set_uniform(prog, "u_view_proj", c.view_projection())
-            set_uniform(prog, "u_clip_plane", np.array([*c.plane_normal, c.clip_offset]))
             own = c.object_id - 1
+            # Planar clusters stay exact (their texels are the samples' mirror rays): full detail.
+            level = self._lod_levels(c, scene_gpu.object_bounds, [] if c.planar else errors)
+            level[own] = 0
+            vis = {}
+            for lv in np.unique(level):
+                t = tables[lv]
+                v = cc.visible_boxes(c, t["bounds"]) & (level[t["obj"]] == lv)
+                if self.settings.backface_chunks:
+                    v &= ~cc.backfacing_chunks(c, t["cones"])
+                vis[int(lv)] = v
+            for prog in (self.depth_prog, self.peel_prog):
+                for name, value in (("u_view", c.view_matrix()), ("u_view_proj", c.view_projection()),
+                                    ("u_clip_plane", np.array([*c.plane_normal, c.clip_offset])), ("u_sun", sun)):
+                    set_uniform(prog, name, value)
             for layer, fbo in enumerate(fbos):
-                if layer == 3 and (c.planar or not self.others_peel):
+                if layer == 3 and (c.planar or not self.settings.others_peel):
                     continue  # from a planar cluster's e0 nothing on its rays is hidden
                 prog = self.peel_prog if layer >= 2 else self.depth_prog
-                vao = vaos[layer >= 2]
                 if layer >= 2:
-                    for name, value in (("u_view", c.view_matrix()), ("u_view_proj", c.view_projection()),
-                                        ("u_clip_plane", np.array([*c.plane_normal, c.clip_offset])),
-                                        ("u_prev", 12 if layer == 2 else 15)):
-                        set_uniform(prog, name, value)
+                    UNITS.bind_texture("u_prev", self._atlas[1 if layer == 2 else 0][0])
                 fbo.use()
-                fbo.viewport = vp
-                sel = np.nonzero(vis & ((ch["obj"] == own) == (layer in (1, 2))))[0]
-                drawn += len(sel)
-                # Merge runs of consecutive chunks of the same object into one draw.
-                i = 0
-                while i < len(sel):
-                    j = i
-                    while j + 1 < len(sel) and sel[j + 1] == sel[j] + 1 and ch["obj"][sel[j + 1]] == ch["obj"][sel[i]]:
-                        j += 1
-                    k = int(ch["obj"][sel[i]])
-                    first = int(ch["first"][sel[i]])
-                    count = int(ch["first"][sel[j]] + ch["count"][sel[j]]) - first
-                    set_uniform(prog, "u_base", first)
-                    set_uniform(prog, "u_albedo", tuple(float(x) for x in materials[k + 1, :3]))
-                    vao.render(moderngl.TRIANGLES, vertices=3 * count, first=3 * first)
-                    i = j + 1
+                fbo.viewport = c.atlas
+                for lv, v in vis.items():
+                    t = tables[lv]
+                    sel = np.nonzero(v & ((t["obj"] == own) == (layer in (1, 2))))[0]
+                    drawn += len(sel)
+                    self._draw_runs(prog, vaos[lv][layer >= 2], t, sel, materials)
         ctx.disable_direct(GL_CLIP_DISTANCE0)
         ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         return drawn
+
+    @staticmethod
+    def _draw_runs(prog, vao, t: dict, sel: np.ndarray, materials: np.ndarray) -> None:
+        """Draw the chunks `sel` of chunk table `t`, merging runs of consecutive
+        chunks of the same object into one draw."""
+        i = 0
+        while i < len(sel):
+            j = i
+            while j + 1 < len(sel) and sel[j + 1] == sel[j] + 1 and t["obj"][sel[j + 1]] == t["obj"][sel[i]]:
+                j += 1
+            k = int(t["obj"][sel[i]])
+            first = int(t["first"][sel[i]])
+            count = int(t["first"][sel[j]] + t["count"][sel[j]]) - first
+            set_uniform(prog, "u_base", first)
+            set_uniform(prog, "u_albedo", tuple(float(x) for x in materials[k + 1, :3]))
+            vao.render(moderngl.TRIANGLES, vertices=3 * count, first=3 * first)
+            i = j + 1
 
     def release(self) -> None:
         self.gl.check_thread()
@@ -512,6 +654,9 @@ class ClusterReflections(Releasable):
         self.clustering.release()
         self.extent.release()
         self._release_atlas()
+        for entry in self._chunk_cache.values():
+            self._release_entry(entry)
+        self._chunk_cache.clear()
         for t in self._outputs.values():
             t.release()
         self._outputs.clear()

@@ -10,7 +10,7 @@ caller checks the size limits and the memory budget first.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from fastapi import HTTPException
@@ -18,7 +18,7 @@ from fastapi import HTTPException
 from scenes.camera import Camera
 from scenes.model import AreaLight, Scene
 from service.deps import Render
-from service.effects import encode_reflections, raytrace
+from service.effects import encode_reflections, raytrace_cached
 from service.jobs import frame_job, reflection_job, soft_shadow_job
 from service.schemas import FrameRequest
 from service.soft_shadows import (
@@ -35,10 +35,13 @@ from service.worker import encode_frame
 @dataclass(frozen=True)
 class Rendered:
     """A rendered frame: linear colour (H,W,3) float32 and the encoder of its buffers
-    (``encode("png" | "exr") -> bytes``; CPU only, call it off the event loop)."""
+    (``encode("png" | "exr") -> bytes``; CPU only, call it off the event loop);
+    reflective frames add their per-step milliseconds and cache hits (Server-Timing)."""
 
     color: np.ndarray
     encode: Callable[[str], bytes]
+    steps_ms: dict[str, float] = field(default_factory=dict)
+    cache_hits: dict[str, bool] = field(default_factory=dict)
 
 
 async def render(r: Render, scene_id: str, req: FrameRequest) -> Rendered:
@@ -53,10 +56,12 @@ async def render(r: Render, scene_id: str, req: FrameRequest) -> Rendered:
         gbuf = await r.job(frame_job(scene_id, scene, camera, req.cull_back_faces), label)
         return Rendered(gbuf.color, lambda fmt: encode_frame(gbuf, fmt))
     if method == "raytrace":
-        result = await r.cpu(raytrace, scene, camera, rays)
+        result, steps, hits = await r.cpu(raytrace_cached, scene_id, scene, camera, rays)
     else:
         result = await r.job(reflection_job(scene_id, scene, camera, method, rays), label)
-    return Rendered(np.asarray(result.color, np.float32), lambda fmt: encode_reflections(result, fmt))
+        steps, hits = result.timings_ms, result.cache_hits
+    return Rendered(np.asarray(result.color, np.float32), lambda fmt: encode_reflections(result, fmt),
+                    dict(steps), dict(hits))
 
 
 async def _soft_shadows(r: Render, scene_id: str, scene: Scene, camera: Camera, req: FrameRequest,

@@ -62,7 +62,7 @@ from service.budget import check_budget, frame_bytes
 from service.config import Settings
 from service.deps import Render, check_size
 from service.frames import render
-from service.jobs import ATLAS_BUDGET, ATLAS_MAX, Job
+from service.jobs import Job
 from service.schemas import StreamRequest
 from service.worker import GLState
 
@@ -143,8 +143,7 @@ class _Reuse:
         key = (id(gpu), glossy_rays)  # a new upload (the GPU cache evicted the old one) or lobe: start over
         if self.reuser is None or key != self.key:
             self.release(state)
-            self.tracer = ClusterTracer(state.gl, gpu, glossy_rays=glossy_rays, atlas_max=ATLAS_MAX,
-                                        atlas_budget=ATLAS_BUDGET)
+            self.tracer = ClusterTracer(state.gl, gpu, glossy_rays=glossy_rays)  # the service's ClusterSettings
             self.reuser = ReflectionReuser(state.gl, gpu, self.tracer, ReuseSettings(sync_timings=False))
             self.key = key
         return self.reuser

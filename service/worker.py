@@ -96,6 +96,10 @@ class GLState:
             old.release()
         return gpu
 
+    def has_scene(self, key: str) -> bool:
+        """Whether the GPU upload of the scene under `key` is cached."""
+        return key in self._gpu
+
     def forget(self, key: str) -> None:
         """Release the GPU upload cached under `key`, if any."""
         self.gl.check_thread()

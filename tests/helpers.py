@@ -151,6 +151,48 @@ def planar_mirror_scene() -> Scene:
     return Scene([quad, *others], name="planar_mirror")
 
 
+def bevelled_mirror_scene(bevel_deg: float = 45.0, width: float = 0.25) -> Scene:
+    """planar_mirror_scene's 2.4 × 1.6 mirror face (faces 0 and 1, normal +z) with a
+    bevelled frame of the same object and material: four flat strips `width` wide
+    falling back from the face's edges at `bevel_deg` to it (a normal-field break
+    at every edge; no vertex shared between face and bevel, flat normals)."""
+    x0, x1, y0, y1, z = -1.2, 1.2, 0.1, 1.7, -1.2
+    d, dz = width * np.cos(np.radians(bevel_deg)), width * np.sin(np.radians(bevel_deg))
+    X0, X1, Y0, Y1, Z = x0 - d, x1 + d, y0 - d, y1 + d, z - dz
+    quads = [[(x0, y0, z), (x1, y0, z), (x1, y1, z), (x0, y1, z)],  # the face
+             [(X0, Y0, Z), (X1, Y0, Z), (x1, y0, z), (x0, y0, z)],  # bottom bevel
+             [(x0, y1, z), (x1, y1, z), (X1, Y1, Z), (X0, Y1, Z)],  # top
+             [(X0, Y0, Z), (x0, y0, z), (x0, y1, z), (X0, Y1, Z)],  # left
+             [(x1, y0, z), (X1, Y0, Z), (X1, Y1, Z), (x1, y1, z)]]  # right
+    v = np.asarray(quads, np.float64).reshape(-1, 3)
+    faces = [f for q in range(5) for f in ([4 * q, 4 * q + 1, 4 * q + 2], [4 * q, 4 * q + 2, 4 * q + 3])]
+    n = np.cross(v[1::4] - v[0::4], v[2::4] - v[0::4])
+    n = np.repeat(n / np.linalg.norm(n, axis=1, keepdims=True), 4, axis=0)
+    mirror = SceneObject("mirror", v.astype(np.float32), faces, normals=n.astype(np.float32), material=MIRROR)
+    return Scene([mirror, *[o for o in props() if o.name != "green"]], name="bevelled_mirror")
+
+
+def tap_scene() -> Scene:
+    """A small chrome tap (MIRROR material; post r = 0.05, 0.5 high, a spout r = 0.035,
+    0.3 long, a ball cap; one object, 32 sections) among the props, and the camera
+    that sees it from 1 unit (tap_camera)."""
+    post = trimesh.creation.cylinder(radius=0.05, height=0.5, sections=32)
+    post.apply_translation((0, 0.25, 0))
+    spout = trimesh.creation.cylinder(radius=0.035, height=0.3, sections=32)
+    spout.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (0, 0, 1)))
+    spout.apply_translation((0.15, 0.46, 0))
+    cap = trimesh.creation.icosphere(3, radius=0.05)
+    cap.apply_translation((0, 0.5, 0))
+    m = trimesh.util.concatenate([post, spout, cap])
+    m.apply_translation((0.0, 0.0, 0.3))
+    return Scene([SceneObject("tap", m.vertices, m.faces, material=MIRROR), *props()], name="tap")
+
+
+def tap_camera(size: int = 96) -> Camera:
+    """tap_scene's view: the tap fills about a fifth of the frame."""
+    return Camera((0.5, 0.8, 1.3), (0.05, 0.35, 0.3), fov=40, width=size, height=size)
+
+
 def mirror_object_scene(mesh: trimesh.Trimesh, name: str, material: Material = MIRROR) -> Scene:
     """`mesh` scaled to ~1.2 units, standing on the floor at the origin, among the props."""
     m = mesh.copy()

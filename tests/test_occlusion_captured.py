@@ -284,14 +284,14 @@ def test_others_second_surface_captures_hidden_hits(gl, refl):
     never rises and falls by more than half in total (0.73/0.90/1.83/8.41 % →
     0.48/0.89/1.69/0.35 % when written); with the layer off the first three layers
     are unchanged and the fourth is empty."""
-    from gl_passes.reflections import ClusterReflections
+    from gl_passes.reflections import ClusterReflections, ClusterSettings
     from gl_passes.upload import SceneGPU
     from reference.reflections import raytrace_reflections
     from scenes.builtin import make_builtin
     from scenes.camera import flythrough_path
 
     rates = []
-    with ClusterReflections(gl, others_peel=False) as off:
+    with ClusterReflections(gl, ClusterSettings(others_peel=False)) as off:
         for name in ("living_room", "bathroom"):
             scene = make_builtin(name)
             with SceneGPU(gl, scene) as sg:

@@ -57,3 +57,34 @@ def test_png_reflection_frame_decodes(client):
     c, sid = client
     png = image_io.decode_png(frame(c, sid, "cluster", fmt="png").content)
     assert png.shape == (RES, RES, 3) and png.std() > 1
+
+
+def _server_timing(r) -> dict[str, tuple[float, str]]:
+    """Server-Timing header → {name: (dur ms, desc)}."""
+    out = {}
+    for part in r.headers["Server-Timing"].split(","):
+        name, *params = (p.strip() for p in part.split(";"))
+        kv = dict(p.split("=", 1) for p in params)
+        out[name] = (float(kv["dur"]), kv.get("desc", "").strip('"'))
+    return out
+
+
+def test_second_reflective_frame_of_a_scene_hits_the_caches_and_names_each_step(tmp_path, monkeypatch):
+    """Server-Timing names every step of a reflective frame; the second frame of a
+    scene finds its GPU upload and per-scene chunk records (cluster) or its Embree
+    BVH (raytrace) cached, the first does not."""
+    from gl_passes.reflections import STEPS
+    from service import effects
+
+    monkeypatch.setattr(effects, "CASTERS", effects.CasterCache())  # the process-wide BVH cache, emptied
+
+    with service(tmp_path) as c:
+        sid = c.post("/scenes", json={"builtin": "mirror"}).json()["id"]
+        first, second = (_server_timing(frame(c, sid, "cluster")) for _ in range(2))
+        assert set(first) == {*STEPS, "upload", "encode"}
+        for step in ("upload", "scene_setup"):
+            assert first[step][1] == "cache miss" and second[step][1] == "cache hit", step
+        assert all(ms >= 0 for ms, _ in second.values())
+        first, second = (_server_timing(frame(c, sid, "raytrace")) for _ in range(2))
+        assert set(first) == {"bvh", "trace", "encode"}
+        assert first["bvh"][1] == "cache miss" and second["bvh"] == (0.0, "cache hit")

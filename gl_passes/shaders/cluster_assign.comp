@@ -3,15 +3,15 @@
 // reflector id) and accumulate the bin's statistics (count, position and normal
 // sums in 64-bit fixed point: 32-bit atomics with carry).
 layout(local_size_x = 16, local_size_y = 16) in;
-uniform usampler2D u_obj;
-uniform sampler2D u_material;
-uniform sampler2D u_normal;
-uniform sampler2D u_position;
+layout(binding = UNIT_u_obj) uniform usampler2D u_obj;
+layout(binding = UNIT_u_material) uniform sampler2D u_material;
+layout(binding = UNIT_u_normal) uniform sampler2D u_normal;
+layout(binding = UNIT_u_position) uniform sampler2D u_position;
 uniform vec3 u_lo;       // position normalisation: q = (p - lo) * inv_ext in [0, 1]
 uniform vec3 u_inv_ext;
-layout(std430, binding = 1) readonly buffer BinTable { uvec4 bin_info[]; };  // per object id: base, n_theta, n_phi
-layout(std430, binding = 2) buffer BinStats { uint stats[]; };
-layout(r32ui, binding = 0) writeonly uniform uimage2D u_bins;  // raw bin + 1 (0 = not reflective)
+layout(std430, binding = UNIT_BinTable) readonly buffer BinTable { uvec4 bin_info[]; };  // per object id: base, n_theta, n_phi
+layout(std430, binding = UNIT_BinStats) buffer BinStats { uint stats[]; };
+layout(r32ui, binding = UNIT_u_bin_image) writeonly uniform uimage2D u_bin_image;  // raw bin + 1 (0 = not reflective)
 #define STRIDE 13u
 #define FIXED 16777216.0
 #define PI 3.14159265358979
@@ -26,7 +26,7 @@ void main() {
     ivec2 size = textureSize(u_obj, 0);
     if (any(greaterThanEqual(p, size))) return;
     uint o = texelFetch(u_obj, p, 0).r;
-    if (o == 0u || texelFetch(u_material, p, 0).r <= 0.0) { imageStore(u_bins, p, uvec4(0u)); return; }
+    if (o == 0u || texelFetch(u_material, p, 0).r <= 0.0) { imageStore(u_bin_image, p, uvec4(0u)); return; }
     vec3 n = normalize(texelFetch(u_normal, p, 0).xyz);
     float theta = atan(n.z, n.x);
     if (theta < 0.0) theta += 2.0 * PI;
@@ -35,7 +35,7 @@ void main() {
     uint i = min(uint(theta / (2.0 * PI) * float(b.y)), b.y - 1u);
     uint j = min(uint(phi / PI * float(b.z)), b.z - 1u);
     uint bin = b.x + i * b.z + j;
-    imageStore(u_bins, p, uvec4(bin + 1u));
+    imageStore(u_bin_image, p, uvec4(bin + 1u));
     uint base = bin * STRIDE;
     atomicAdd(stats[base], 1u);
     vec3 q = clamp((texelFetch(u_position, p, 0).xyz - u_lo) * u_inv_ext, 0.0, 1.0) * FIXED;

@@ -8,10 +8,10 @@
 // Blocks may straddle two cluster viewports: the bounds then only widen, i.e. the
 // skip stays conservative.
 layout(local_size_x = 8, local_size_y = 8) in;
-uniform sampler2D u_pack;   // (depth other, self, self 2nd, other 2nd)
+layout(binding = UNIT_u_pack) uniform sampler2D u_pack;   // (depth other, self, self 2nd, other 2nd)
 uniform ivec2 u_size;       // used atlas area (fine texels)
-layout(rgba32f, binding = 6) writeonly uniform image2D u_block_min;
-layout(rgba32f, binding = 7) writeonly uniform image2D u_block_max;
+layout(rgba32f, binding = UNIT_u_block_min_image) writeonly uniform image2D u_block_min_image;
+layout(rgba32f, binding = UNIT_u_block_max_image) writeonly uniform image2D u_block_max_image;
 
 void main() {
     ivec2 c = ivec2(gl_GlobalInvocationID.xy);
@@ -26,6 +26,6 @@ void main() {
             hi = max(hi, mix(d, vec4(0.0), greaterThanEqual(d, vec4(0.5 * BACKGROUND_DEPTH))));
         }
     }
-    imageStore(u_block_min, c, lo);
-    imageStore(u_block_max, c, hi);
+    imageStore(u_block_min_image, c, lo);
+    imageStore(u_block_max_image, c, hi);
 }

@@ -1,9 +1,9 @@
 #version 430 core
 // §4.3 steps 2-3: reflective samples per reflector (object id).
 layout(local_size_x = 16, local_size_y = 16) in;
-uniform usampler2D u_obj;
-uniform sampler2D u_material;
-layout(std430, binding = 0) buffer ObjCount { uint obj_count[]; };
+layout(binding = UNIT_u_obj) uniform usampler2D u_obj;
+layout(binding = UNIT_u_material) uniform sampler2D u_material;
+layout(std430, binding = UNIT_ObjCount) buffer ObjCount { uint obj_count[]; };
 shared uint s_obj;
 shared uint s_n;
 

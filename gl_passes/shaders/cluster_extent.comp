@@ -12,13 +12,13 @@
 // global record — atomics, not arithmetic, dominate this pass on llvmpipe.
 layout(local_size_x = 16, local_size_y = 16) in;
 #include "reflect_common.glsl"
-uniform usampler2D u_bins;
-uniform usampler2D u_tri;
-uniform sampler2D u_normal;
-uniform sampler2D u_position;
+layout(binding = UNIT_u_bins) uniform usampler2D u_bins;
+layout(binding = UNIT_u_tri) uniform usampler2D u_tri;
+layout(binding = UNIT_u_normal) uniform sampler2D u_normal;
+layout(binding = UNIT_u_position) uniform sampler2D u_position;
 uniform vec3 u_eye;
 uniform int u_stage;
-layout(std430, binding = 4) buffer Ext { uint ext[]; };
+layout(std430, binding = UNIT_Ext) buffer Ext { uint ext[]; };
 #define STRIDE 16u
 #define MAXTAN 20.0
 #define SPACING_FIXED 268435456.0

@@ -5,7 +5,7 @@
 #include "common.glsl"
 uniform vec3 u_albedo;
 uniform uint u_base;
-uniform sampler2D u_prev;  // first reflector layer: rgb colour, a = depth
+layout(binding = UNIT_u_prev) uniform sampler2D u_prev;  // first reflector layer: rgb colour, a = depth
 in vec3 vs_normal;
 in float vs_depth;
 layout(location = 0) out vec4 out_color;

@@ -1,8 +1,8 @@
 // Shared by the cluster/reflection compute shaders (technique 3, Ch. 4).
 // Mesh access for geometric normals, the mirror-direction rules and the glossy
 // lobe of scenes/glossy.py + reference/reflections.py (same formulas).
-layout(std430, binding = 6) readonly buffer MeshVerts { float mesh_v[]; };  // (pos, normal) × V
-layout(std430, binding = 7) readonly buffer MeshFaces { uint mesh_f[]; };   // 3 × F
+layout(std430, binding = UNIT_MeshVerts) readonly buffer MeshVerts { float mesh_v[]; };  // (pos, normal) × V
+layout(std430, binding = UNIT_MeshFaces) readonly buffer MeshFaces { uint mesh_f[]; };   // 3 × F
 
 vec3 mesh_pos(uint i) { return vec3(mesh_v[6u * i], mesh_v[6u * i + 1u], mesh_v[6u * i + 2u]); }
 
@@ -53,8 +53,8 @@ struct ClusterFrame {
     vec4 atlas;       // atlas viewport (x, y, w, h) in texels
     vec4 misc;        // glossiness, 0, 0, 0
 };
-layout(std430, binding = 5) readonly buffer Frames { ClusterFrame frames[]; };
-layout(std430, binding = 3) readonly buffer Remap { int remap[]; };  // raw bin -> cluster (-1 none)
+layout(std430, binding = UNIT_Frames) readonly buffer Frames { ClusterFrame frames[]; };
+layout(std430, binding = UNIT_Remap) readonly buffer Remap { int remap[]; };  // raw bin -> cluster (-1 none)
 
 // Order-preserving float <-> uint map for atomicMin/atomicMax on floats.
 uint f2o(float f) {

@@ -4,13 +4,13 @@
 // over the block's reflective samples, ray length +inf if any of them missed).
 layout(local_size_x = 8, local_size_y = 8) in;
 uniform int u_ss;
-uniform usampler2D u_bins;
-uniform sampler2D u_material;
-uniform sampler2D u_color;
-uniform sampler2D u_reflected;
-layout(rgba32f, binding = 2) writeonly uniform image2D u_out_color;      // rgb, mean s
-layout(rgba32f, binding = 3) writeonly uniform image2D u_out_reflected;  // rgb, ray length
-layout(rgba32f, binding = 4) writeonly uniform image2D u_out_diffuse;    // rgb, reflective samples
+layout(binding = UNIT_u_bins) uniform usampler2D u_bins;
+layout(binding = UNIT_u_material) uniform sampler2D u_material;
+layout(binding = UNIT_u_color) uniform sampler2D u_color;
+layout(binding = UNIT_u_reflected) uniform sampler2D u_reflected;
+layout(rgba32f, binding = UNIT_u_out_color) writeonly uniform image2D u_out_color;      // rgb, mean s
+layout(rgba32f, binding = UNIT_u_out_reflected) writeonly uniform image2D u_out_reflected;  // rgb, ray length
+layout(rgba32f, binding = UNIT_u_out_diffuse) writeonly uniform image2D u_out_diffuse;    // rgb, reflective samples
 
 void main() {
     ivec2 o = ivec2(gl_GlobalInvocationID.xy);

@@ -23,30 +23,30 @@
 layout(local_size_x = TRACE_GX, local_size_y = TRACE_GY) in;
 #include "common.glsl"
 #include "reflect_common.glsl"
-uniform usampler2D u_bins;
-uniform usampler2D u_tri;
-uniform sampler2D u_normal;
-uniform sampler2D u_position;
-uniform sampler2D u_material;
-uniform sampler2D u_color;
-uniform sampler2D u_atlas;
+layout(binding = UNIT_u_bins) uniform usampler2D u_bins;
+layout(binding = UNIT_u_tri) uniform usampler2D u_tri;
+layout(binding = UNIT_u_normal) uniform sampler2D u_normal;
+layout(binding = UNIT_u_position) uniform sampler2D u_position;
+layout(binding = UNIT_u_material) uniform sampler2D u_material;
+layout(binding = UNIT_u_color) uniform sampler2D u_color;
+layout(binding = UNIT_u_atlas) uniform sampler2D u_atlas;
 // Second layer, same layout: the cluster's own reflector only (self-reflections); the
 // first layer holds every other object, so the reflector cannot hide them.
-uniform sampler2D u_atlas_self;
-uniform usampler2D u_atlas_self_tri;  // triangle id per texel of the reflector layer
+layout(binding = UNIT_u_atlas_self) uniform sampler2D u_atlas_self;
+layout(binding = UNIT_u_atlas_self_tri) uniform usampler2D u_atlas_self_tri;  // triangle id per texel of the reflector layer
 // Third layer: the reflector's second surface (depth peel), so a ray passing behind
 // the reflector's nearest surface can still meet the one behind it.
-uniform sampler2D u_atlas_peel;
-uniform usampler2D u_atlas_peel_tri;
+layout(binding = UNIT_u_atlas_peel) uniform sampler2D u_atlas_peel;
+layout(binding = UNIT_u_atlas_peel_tri) uniform usampler2D u_atlas_peel_tri;
 // Fourth layer: the other objects' second surface (depth peel; non-planar clusters),
 // what the first layer hides from e_c but the reflected rays may see.
-uniform sampler2D u_atlas_peel_other;
+layout(binding = UNIT_u_atlas_peel_other) uniform sampler2D u_atlas_peel_other;
 // The layers' depths packed (cluster_pack.comp): one fetch per step; per
 // BLOCK×BLOCK block and layer their min and max stored depth
 // (cluster_block_depth.comp) for skipping stretches without a possible hit.
-uniform sampler2D u_pack;
-uniform sampler2D u_block_min;
-uniform sampler2D u_block_max;
+layout(binding = UNIT_u_pack) uniform sampler2D u_pack;
+layout(binding = UNIT_u_block_min) uniform sampler2D u_block_min;
+layout(binding = UNIT_u_block_max) uniform sampler2D u_block_max;
 uint g_own_tri;  // the sample's own triangle: never a hit (it faces away from its reflected rays)
 uniform vec3 u_eye;
 uniform int u_mode;
@@ -57,7 +57,7 @@ uniform float u_continuity;  // crossing rule: max relative depth jump of a cont
 #ifdef NEAR_CROSSING
 uniform int u_near_steps;
 #endif
-layout(rgba32f, binding = 1) writeonly uniform image2D u_out;  // reflected rgb, mirror-ray length
+layout(rgba32f, binding = UNIT_u_out) writeonly uniform image2D u_out;  // reflected rgb, mirror-ray length
 
 float f_inf() { return uintBitsToFloat(0x7f800000u); }
 

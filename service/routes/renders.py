@@ -16,6 +16,7 @@ from scenes.model import AreaLight
 from service.budget import check_budget, frame_bytes, reconstruction_bytes, set_bytes
 from service.deps import RenderDep, check_size, require_token
 from service.depth_sets import embree_set, encode_set, needs_gl, plan_set, set_metrics
+from service.effects import server_timing
 from service.errors import json_safe, responses
 from service.frames import render
 from service.jobs import reconstruction_job, set_job
@@ -44,18 +45,23 @@ depth_images = APIRouter(prefix="/scenes/{scene_id}", tags=["depth images"], dep
                **responses({**RENDER_ERRORS, 422: "invalid camera, effects or size, or over the memory budget"})})
 async def render_frame(scene_id: str, req: FrameRequest, r: RenderDep) -> Response:
     t0 = time.perf_counter()
+    timing: dict[str, str] = {}
     try:
         check_size(r.settings, req.width, req.height)
         check_budget(r.settings, frame_bytes(req))
         rendered = await render(r, scene_id, req)
+        t1 = time.perf_counter()
         body = await r.encode(rendered.encode, req.format)
+        if rendered.steps_ms:  # reflective frames name each step (and their cache hits)
+            steps = {**rendered.steps_ms, "encode": (time.perf_counter() - t1) * 1e3}
+            timing["Server-Timing"] = server_timing(steps, rendered.cache_hits)
     except HTTPException as exc:
         r.metrics.frame_error(exc.status_code)
         raise
     dt = time.perf_counter() - t0
     r.metrics.frame(req.format)
     return Response(body, media_type=MEDIA_TYPES[req.format], headers={
-        "X-Render-Seconds": f"{dt:.4f}", "Content-Disposition": f'inline; filename="frame.{req.format}"'})
+        "X-Render-Seconds": f"{dt:.4f}", "Content-Disposition": f'inline; filename="frame.{req.format}"', **timing})
 
 
 # --- reconstructions (thesis Ch. 3) -------------------------------------------------------

@@ -1,0 +1,26 @@
+"""The image, storage-buffer and texture units of the cluster-reflection shaders
+(technique 3, thesis Ch. 4: cluster_*.comp, cluster_depth.vert/frag,
+cluster_peel.frag, reflect_*.comp), in one table (gl_passes.bindings.Units).
+
+One table for the whole family, because its passes hand resources to each other
+through their bindings: the G-buffer textures and the mesh/remap/frame storage
+buffers bound for the cluster cameras' extent passes (§4.4) stay bound for the
+intersection (Alg. 7). Every shader of the family is compiled with
+`UNITS.defines()` and declares `layout(binding = UNIT_<name>)`; the Python side
+binds through `UNITS.bind_*` only."""
+
+from __future__ import annotations
+
+from gl_passes.bindings import Units
+
+UNITS = Units(
+    # images (write targets of compute passes)
+    images=("u_bin_image", "u_out", "u_out_color", "u_out_reflected", "u_out_diffuse", "u_pack_image",
+            "u_block_min_image", "u_block_max_image"),
+    # storage blocks
+    storage=("ObjCount", "BinTable", "BinStats", "Remap", "Ext", "Frames", "MeshVerts", "MeshFaces"),
+    # samplers
+    textures=("u_bins", "u_tri", "u_normal", "u_position", "u_atlas", "u_color", "u_material", "u_reflected",
+              "u_atlas_self_tri", "u_atlas_self", "u_pack", "u_block_min", "u_atlas_peel", "u_atlas_peel_tri",
+              "u_block_max", "u_atlas_peel_other", "u_obj", "u_prev"),
+)
