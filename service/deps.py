@@ -118,7 +118,7 @@ class Render:
             return await run_in_threadpool(self.store.get_scene, scene_id)
 
     async def job(self, job: Job[T], label: str) -> T:
-        """Submit a job to the GL worker and await its result: 503 (+ Retry-After)
+        """Submit a job (GL or Embree) to the worker and await its result: 503 (+ Retry-After)
         when the queue is full or there is no context, 504 past the job timeout, 422
         when the job rejects its parameters (ValueError), 500 when it raised anything
         else."""
@@ -144,7 +144,8 @@ class Render:
             raise HTTPException(500, f"{label} failed: {type(exc).__name__}: {str(exc)[:300]}") from None
 
     async def cpu(self, fn: Callable[..., T], *args: Any) -> T:
-        """`fn(*args)` in the thread pool (Embree, shading, metrics), timed as cpu."""
+        """`fn(*args)` in the thread pool, timed as cpu: CPU work that is no render
+        (shading). Embree work is a job (``service.jobs``): queued and timed."""
         with self.metrics.step("cpu"):
             return await run_in_threadpool(fn, *args)
 

@@ -1,8 +1,8 @@
 """One frame of a stored scene, as ``POST /scenes/{id}/frames`` and the stream render it.
 
 ``render(r, scene_id, req)`` loads the scene, runs the frame's jobs (G-buffer,
-reflections by method, soft shadows) on the worker and the CPU steps in the thread
-pool, and returns a ``Rendered``: the linear colour (what the stream encodes as JPEG or
+reflections by method, soft shadows; Embree's too) on the worker and the shading in the
+thread pool, and returns a ``Rendered``: the linear colour (what the stream encodes as JPEG or
 PNG) and ``encode(fmt)``, the frames endpoint's PNG/EXR encoder of every buffer. The
 caller checks the size limits and the memory budget first.
 """
@@ -18,13 +18,12 @@ from fastapi import HTTPException
 from scenes.camera import Camera
 from scenes.model import AreaLight, Scene
 from service.deps import Render
-from service.effects import encode_reflections, raytrace
-from service.jobs import frame_job, reflection_job, soft_shadow_job
+from service.effects import encode_reflections
+from service.jobs import frame_job, raytrace_job, reflection_job, soft_shadow_job
 from service.schemas import FrameRequest
 from service.soft_shadows import (
     SoftShadowRequest,
     encode_shadowed,
-    raytrace_counts,
     reference_cameras,
     resolve_light,
     shade,
@@ -53,9 +52,10 @@ async def render(r: Render, scene_id: str, req: FrameRequest) -> Rendered:
         gbuf = await r.job(frame_job(scene_id, scene, camera, req.cull_back_faces), label)
         return Rendered(gbuf.color, lambda fmt: encode_frame(gbuf, fmt))
     if method == "raytrace":
-        result = await r.cpu(raytrace, scene, camera, rays)
+        job = raytrace_job(scene, camera, rays)
     else:
-        result = await r.job(reflection_job(scene_id, scene, camera, method, rays), label)
+        job = reflection_job(scene_id, scene, camera, method, rays)
+    result = await r.job(job, label)
     return Rendered(np.asarray(result.color, np.float32), lambda fmt: encode_reflections(result, fmt))
 
 
@@ -71,7 +71,5 @@ async def _soft_shadows(r: Render, scene_id: str, scene: Scene, camera: Camera, 
     except ValueError as exc:
         raise HTTPException(422, f"soft_shadows light: {exc}") from None
     gbuf, counts = await r.job(soft_shadow_job(scene_id, scene, camera, ss), label)
-    if counts is None:
-        counts = await r.cpu(raytrace_counts, scene, gbuf, ss)
     color = await r.cpu(shade, scene, gbuf, counts, ss)
     return Rendered(color, lambda fmt: encode_shadowed(color, gbuf, counts, fmt))
