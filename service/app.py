@@ -75,7 +75,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             SceneStore, settings.data_dir, settings.scene_cache_size, settings.max_triangles)
         worker = RenderWorker(queue_size=settings.queue_size, job_timeout_s=settings.job_timeout_s,
                               gpu_cache_size=settings.gpu_cache_size, backend=settings.gl_backend,
-                              device=settings.gl_device)
+                              device=settings.gl_device, scene_loader=app.state.store.get_scene)
         app.state.worker = worker.start()
         try:
             yield

@@ -1,7 +1,7 @@
 """Frame effects for the service: reflections by method (thesis Ch. 4).
 
-`cluster` and `envmap` run as GL jobs on the worker thread (`service.jobs.reflection_job`);
-`raytrace` is the Embree reference: a job too (`raytrace_job`), queued and timed like
+`cluster` and `envmap` run as GL jobs on the worker thread (`service.jobs.ReflectionJob`);
+`raytrace` is the Embree reference: a job too (`RaytraceJob`), queued and timed like
 the others, that makes no GL call. All return linear colour (H,W,3) plus the reflection buffers for EXR."""
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from service import image_io
 
 
 def raytrace(scene: Scene, camera: Camera, glossy_rays: int) -> Any:
-    """The Embree reference (CPU, no GL; run as `service.jobs.raytrace_job`)."""
+    """The Embree reference (CPU, no GL; run as `service.jobs.RaytraceJob`)."""
     return raytrace_reflections(scene, camera, supersample=2, glossy_rays=glossy_rays)
 
 

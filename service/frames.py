@@ -19,7 +19,7 @@ from scenes.camera import Camera
 from scenes.model import AreaLight, Scene
 from service.deps import Render
 from service.effects import encode_reflections
-from service.jobs import frame_job, raytrace_job, reflection_job, soft_shadow_job
+from service.jobs import FrameJob, RaytraceJob, ReflectionJob, SoftShadowJob
 from service.schemas import FrameRequest
 from service.soft_shadows import (
     SoftShadowRequest,
@@ -49,12 +49,12 @@ async def render(r: Render, scene_id: str, req: FrameRequest) -> Rendered:
     if req.effects.soft_shadows is not None:
         return await _soft_shadows(r, scene_id, scene, camera, req, label)
     if method == "none":
-        gbuf = await r.job(frame_job(scene_id, scene, camera, req.cull_back_faces), label)
+        gbuf = await r.job(FrameJob(scene_id, scene, camera, req.cull_back_faces), label)
         return Rendered(gbuf.color, lambda fmt: encode_frame(gbuf, fmt))
     if method == "raytrace":
-        job = raytrace_job(scene, camera, rays)
+        job = RaytraceJob(scene_id, scene, camera, rays)
     else:
-        job = reflection_job(scene_id, scene, camera, method, rays)
+        job = ReflectionJob(scene_id, scene, camera, method, rays)
     result = await r.job(job, label)
     return Rendered(np.asarray(result.color, np.float32), lambda fmt: encode_reflections(result, fmt))
 
@@ -70,6 +70,6 @@ async def _soft_shadows(r: Render, scene_id: str, scene: Scene, camera: Camera, 
         reference_cameras(scene, light, "conventional", 16)
     except ValueError as exc:
         raise HTTPException(422, f"soft_shadows light: {exc}") from None
-    gbuf, counts = await r.job(soft_shadow_job(scene_id, scene, camera, ss), label)
+    gbuf, counts = await r.job(SoftShadowJob(scene_id, scene, camera, ss), label)
     color = await r.cpu(shade, scene, gbuf, counts, ss)
     return Rendered(color, lambda fmt: encode_shadowed(color, gbuf, counts, fmt))

@@ -78,6 +78,8 @@ class GLState:
     gl: GLContext
     gbuffer: GBufferPass
     gpu_cache_size: int = 4
+    #: Loads a stored scene by its content address (jobs that arrive without their scene).
+    scene_loader: Callable[[str], Scene] | None = None
     _gpu: OrderedDict[str, SceneGPU] = field(default_factory=OrderedDict)
     _resources: dict[str, Any] = field(default_factory=dict)
 
@@ -95,6 +97,12 @@ class GLState:
             log.debug("releasing GPU upload of scene %s", old_key)
             old.release()
         return gpu
+
+    def scene(self, key: str) -> Scene:
+        """The scene stored under the content address `key` (from the scene loader)."""
+        if self.scene_loader is None:
+            raise LookupError(f"no scene loader to load scene {key}")
+        return self.scene_loader(key)
 
     def forget(self, key: str) -> None:
         """Release the GPU upload cached under `key`, if any."""
@@ -143,10 +151,12 @@ class RenderWorker:
     def __init__(self, queue_size: int = 32, job_timeout_s: float = 120.0, gpu_cache_size: int = 4,
                  backend: str | None = None, device: int | None = None,
                  context_factory: Callable[[], GLContext] | None = None,
-                 gbuffer_factory: Callable[[GLContext], GBufferPass] | None = None, name: str = "depthview-gl") -> None:
+                 gbuffer_factory: Callable[[GLContext], GBufferPass] | None = None, name: str = "depthview-gl",
+                 scene_loader: Callable[[str], Scene] | None = None) -> None:
         self.queue_size = int(queue_size)
         self.job_timeout_s = float(job_timeout_s)
         self.gpu_cache_size = int(gpu_cache_size)
+        self._scene_loader = scene_loader
         self._context_factory = context_factory or (lambda: create_gl_context(backend, device))
         self._gbuffer_factory = gbuffer_factory or GBufferPass
         self._q: queue.Queue[Any] = queue.Queue(maxsize=self.queue_size)
@@ -297,7 +307,8 @@ class RenderWorker:
         except BaseException:
             gl.release()
             raise
-        self._state = GLState(gl=gl, gbuffer=gbuffer, gpu_cache_size=self.gpu_cache_size)
+        self._state = GLState(gl=gl, gbuffer=gbuffer, gpu_cache_size=self.gpu_cache_size,
+                              scene_loader=self._scene_loader)
         self.renderer, self.backend = gl.renderer, gl.backend
         self.gl_version = getattr(gl, "version", None)
         self.is_software = bool(gl.is_software)

@@ -320,17 +320,17 @@ def worker_context_loss() -> dict:
     two frames: {"first": coverage of the frame before, "error": what the frame
     after raised (None if it did not), "alive": worker thread alive after,
     "stopped": stop() finished}."""
-    from service.jobs import frame_job
+    from service.jobs import FrameJob
     from service.worker import RenderWorker
 
     sc = make_builtin("cornell")
     cam = look_at_scene(sc.bounds, width=32, height=24).fit_clip(sc.bounds)
     w = RenderWorker(queue_size=4).start()
     assert w.wait_ready(60), w.startup_error
-    first = w.submit(frame_job("a", sc, cam)).result(60)
+    first = w.submit(FrameJob("a", sc, cam)).result(60)
     w.submit(lambda state: state.gl.ctx.release()).result(60)  # the context is gone
     try:
-        w.submit(frame_job("b", sc, cam)).result(60)
+        w.submit(FrameJob("b", sc, cam)).result(60)
         error = None
     except Exception as exc:  # noqa: BLE001 - reported to the test
         error = f"{type(exc).__name__}: {exc}"

@@ -456,6 +456,28 @@ def test_embree_paths_are_queued_and_timed_like_gl_jobs(tmp_path, cornell_id, mo
         assert r.status_code == 504 and time.monotonic() - t0 < 1.4, r.text
 
 
+def test_jobs_are_picklable_specs_that_load_their_scene_by_address(client, cornell_id):
+    """A job pickles without its scene (only the content address travels) and, on a
+    worker, loads the scene from the store by that address."""
+    import pickle
+
+    from service.jobs import FrameJob
+
+    scene = client.app.state.store.get_scene(cornell_id)
+    cam = Camera(**frame_camera(FRAME_SCENE), width=W, height=H).fit_clip(scene.bounds)
+    job = FrameJob(cornell_id, scene, cam)
+    data = pickle.dumps(job)
+    assert len(data) < 4096  # the camera and the address, not the geometry
+    spec = pickle.loads(data)
+    assert spec.scene is None and spec.scene_key == cornell_id and spec.camera == cam
+    worker: RenderWorker = client.app.state.worker
+    loaded, direct = worker.submit(spec).result(30), worker.submit(job).result(30)
+    np.testing.assert_array_equal(loaded.color, direct.color)
+    missing = FrameJob("0" * 64, None, cam)
+    with pytest.raises(LookupError):
+        worker.submit(missing).result(30)
+
+
 def test_concurrent_frames_all_run_on_the_gl_thread(client, cornell_id):
     worker: RenderWorker = client.app.state.worker
     base = frame_camera()

@@ -18,7 +18,7 @@ from service.deps import RenderDep, check_size, require_token
 from service.depth_sets import encode_set, plan_set
 from service.errors import json_safe, responses
 from service.frames import render
-from service.jobs import reconstruction_job, set_job
+from service.jobs import ReconstructionJob, SetJob
 from service.schemas import DepthImagesRequest, FrameRequest, ReconstructionRequest
 from service.soft_shadows import reference_cameras, resolve_light
 
@@ -79,7 +79,7 @@ async def reconstruct(scene_id: str, req: ReconstructionRequest, r: RenderDep) -
         raise HTTPException(422, f"reconstruction viewpoints: {exc}") from None
     if req.method == "peeling":
         cams = cams[:1]
-    job = reconstruction_job(scene_id, scene, cams, req.method, req.reconstruction, req.layers)
+    job = ReconstructionJob(scene_id, scene, cams, req.method, req.reconstruction, req.layers)
     parts = await r.job(job, f"reconstruction {scene_id[:12]}")
     names = [f"{req.method}_{k}" for k in range(len(parts))]
     body = await r.encode(glb_bytes, parts, names)
@@ -99,7 +99,7 @@ async def render_depth_images(scene_id: str, req: DepthImagesRequest, r: RenderD
     check_budget(r.settings, set_bytes(req))
     scene = await r.scene(scene_id)
     plan = plan_set(scene, req.method, req.redundancy, req.to_cameras(), req.width, req.height, req.layers)
-    job = set_job(scene_id, scene, plan, req.intermediate_views if req.metrics else None, req.seed)
+    job = SetJob(scene_id, scene, plan, req.intermediate_views if req.metrics else None, req.seed)
     images, metrics = await r.job(job, f"depth images {scene_id[:12]}")
     body = await r.encode(encode_set, images, req.format)
     media = SET_MEDIA_TYPES[req.format]
