@@ -117,14 +117,14 @@ class Render:
         with self.metrics.step("scene_load"):
             return await run_in_threadpool(self.store.get_scene, scene_id)
 
-    async def job(self, job: Job[T], label: str) -> T:
+    async def job(self, job: Job[T], label: str, pin: str | None = None) -> T:
         """Submit a job (GL or Embree) to the worker and await its result: 503 (+ Retry-After)
         when the queue is full or there is no context, 504 past the job timeout, 422
         when the job rejects its parameters (ValueError), 500 when it raised anything
         else."""
         settings = self.settings
         try:
-            fut = self.worker.submit(job, timeout=settings.job_timeout_s, label=label)
+            fut = self.worker.submit(job, timeout=settings.job_timeout_s, label=label, pin=pin)
         except (QueueFull, WorkerUnavailable) as exc:
             raise unavailable(str(exc), settings) from None
         try:

@@ -51,6 +51,10 @@ class WorkerUnavailable(WorkerError):
     """The worker has no GL context (start-up failed) or is shutting down (HTTP 503)."""
 
 
+class WorkerDied(WorkerUnavailable):
+    """A worker process died while running the job; it is replaced (HTTP 503)."""
+
+
 class JobExpired(WorkerError, TimeoutError):
     """The job's deadline passed before the worker got to it (HTTP 504)."""
 
@@ -82,6 +86,8 @@ class GLState:
     scene_loader: Callable[[str], Scene] | None = None
     _gpu: OrderedDict[str, SceneGPU] = field(default_factory=OrderedDict)
     _resources: dict[str, Any] = field(default_factory=dict)
+    #: Per-client state on this worker (a stream's ReflectionReuser), by client key.
+    clients: dict[str, Any] = field(default_factory=dict)
 
     def scene_gpu(self, key: str, scene: Scene) -> SceneGPU:
         """The GPU upload of `scene`, cached under `key` (a content address: the same
@@ -126,6 +132,12 @@ class GLState:
     def release(self) -> None:
         """Release every GL object, then the context (worker thread only)."""
         self.gl.check_thread()
+        for key, client in list(self.clients.items()):
+            try:
+                client.release(self)
+            except Exception:  # noqa: BLE001 - release the rest anyway
+                log.exception("releasing client state %s failed", key)
+        self.clients.clear()
         for key, gpu in list(self._gpu.items()):
             try:
                 gpu.release()
@@ -232,11 +244,12 @@ class RenderWorker:
                 log.warning("render worker did not stop within %.1f s", timeout)
 
     # --- submitting ------------------------------------------------------------------
-    def submit(self, fn: Job, timeout: float | None = None, label: str = "") -> Future:
+    def submit(self, fn: Job, timeout: float | None = None, label: str = "", pin: str | None = None) -> Future:
         """Queue `fn(state)` for the GL thread; returns its Future. Raises QueueFull
         when `queue_size` jobs are already waiting, WorkerUnavailable when the worker
         failed to start or is stopping. `timeout` (default job_timeout_s) sets the
-        deadline after which the job is skipped if it has not started."""
+        deadline after which the job is skipped if it has not started. `pin` (jobs that
+        must share a worker) changes nothing here: there is one thread."""
         if self.startup_error is not None:
             raise WorkerUnavailable(f"no GL context: {self.startup_error}")
         now = time.monotonic()
@@ -261,7 +274,7 @@ class RenderWorker:
         with self._evict_lock:
             self._evictions.add(key)
 
-    def run_before_next_job(self, fn: Callable[[GLState], Any]) -> None:
+    def run_before_next_job(self, fn: Callable[[GLState], Any], pin: str | None = None) -> None:
         """Run `fn(state)` on the worker thread before its next job, outside the queue
         (never refused, never behind a full queue): releasing a client's GL objects, e.g.
         a stream's ReflectionReuser. An idle worker runs it at once; chores still pending
@@ -384,16 +397,19 @@ class RenderWorker:
             fut.set_result(result)
         finally:
             self.busy = False
-        dt = time.perf_counter() - t0
         with self._stats_lock:
-            if ok:
-                self.jobs_done += 1
-            else:
-                self.jobs_failed += 1
-            self.job_seconds_sum += dt
-            self.job_seconds_count += 1
-            self.queue_wait_seconds_sum += waited
-            self.last_job_seconds = dt
+            count_job(self, "done" if ok else "failed", time.perf_counter() - t0, waited)
+
+
+def count_job(worker: Any, outcome: str, seconds: float, waited: float) -> None:
+    """Add a finished job to `worker`'s counters (jobs_<outcome>, job seconds, queue
+    wait); the caller holds the lock guarding them."""
+    name = f"jobs_{outcome}"
+    setattr(worker, name, getattr(worker, name) + 1)
+    worker.job_seconds_sum += seconds
+    worker.job_seconds_count += 1
+    worker.queue_wait_seconds_sum += waited
+    worker.last_job_seconds = seconds
 
 
 def encode_frame(gbuf: GBuffer, fmt: str) -> bytes:

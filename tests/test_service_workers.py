@@ -1,0 +1,132 @@
+"""Render worker processes (DEPTHVIEW_WORKERS ≥ 1, ``service.process_worker``): jobs
+run in child processes with their own GL context; a killed or stuck worker is replaced
+and the next request succeeds; a stream's reuser stays on one worker."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from service import image_io
+from service.config import Settings
+from service.process_worker import ProcessWorkerPool, default_workers
+from service.store import builtin_id
+from service.worker import JobExpired, WorkerDied
+from tests.helpers import frame_camera, service
+
+CORNELL = builtin_id("cornell")
+
+
+@dataclass(frozen=True)
+class Sleep:
+    """A picklable job that sleeps (in the worker process) and returns its pid."""
+
+    seconds: float
+
+    def __call__(self, state) -> int:
+        time.sleep(self.seconds)
+        return os.getpid()
+
+
+def frame(c, **extra):
+    return c.post(f"/scenes/{CORNELL}/frames",
+                  json={"camera": frame_camera(), "width": 32, "height": 24, **extra})
+
+
+def wait_until(cond, timeout: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not cond():
+        assert time.monotonic() < deadline, "condition not reached"
+        time.sleep(0.05)
+
+
+@pytest.fixture(scope="module")
+def client(tmp_path_factory):
+    with service(tmp_path_factory.mktemp("data"), workers=1, job_timeout_s=20.0) as c:
+        yield c
+
+
+def test_workers_setting():
+    assert Settings().workers == 0  # the in-process worker thread stays the default
+    assert Settings.from_env({"DEPTHVIEW_WORKERS": "3"}).workers == 3
+    assert Settings.from_env({"DEPTHVIEW_WORKERS": "auto"}).workers == default_workers() >= 1
+    for bad in ("-1", "many"):
+        with pytest.raises(ValueError):
+            Settings.from_env({"DEPTHVIEW_WORKERS": bad})
+
+
+def test_frames_render_in_a_worker_process(client, tmp_path):
+    pool = client.app.state.worker
+    assert isinstance(pool, ProcessWorkerPool) and pool.alive == 1
+    assert pool.pids[0] != os.getpid()
+    r = frame(client)
+    assert r.status_code == 200, r.text
+    with service(tmp_path) as thread_client:  # the same frame from the worker thread
+        ref = frame(thread_client)
+    np.testing.assert_array_equal(image_io.decode_png(r.content), image_io.decode_png(ref.content))
+    assert frame(client, effects={"reflections": "raytrace", "glossy_rays": 1}).status_code == 200
+    assert "depthview_workers_alive 1" in client.get("/metrics").text
+
+
+def test_a_killed_worker_fails_its_job_naming_it_and_is_replaced(client):
+    pool: ProcessWorkerPool = client.app.state.worker
+    replaced = pool.workers_replaced
+    pid = pool.pids[0]
+    fut = pool.submit(Sleep(30), label="sleepy job")
+    wait_until(lambda: pool.busy, 10)
+    os.kill(pid, signal.SIGKILL)
+    with pytest.raises(WorkerDied, match=f"process {pid} died .*sleepy job"):
+        fut.result(30)
+    r = frame(client)  # the next request succeeds on the replacement
+    assert r.status_code == 200, r.text
+    assert pool.pids[0] not in (None, pid) and pool.workers_replaced == replaced + 1
+    os.kill(pool.pids[0], signal.SIGKILL)  # killed while idle: replaced before the next job
+    wait_until(lambda: pool.alive == 0, 10)
+    assert "depthview_workers_alive 0" in client.get("/metrics").text
+    assert frame(client).status_code == 200
+    assert pool.alive == 1 and pool.workers_replaced == replaced + 2
+
+
+def test_a_worker_stuck_past_the_time_limit_is_killed_and_replaced(client):
+    pool: ProcessWorkerPool = client.app.state.worker
+    pid = pool.pids[0]
+    t0 = time.monotonic()
+    with pytest.raises(JobExpired, match=f"process {pid} was killed"):
+        pool.submit(Sleep(60), timeout=1.0, label="stuck").result(30)
+    assert time.monotonic() - t0 < 10
+    assert frame(client).status_code == 200 and pool.pids[0] != pid
+
+
+def test_an_unpicklable_job_is_refused_and_the_worker_lives_on(client):
+    pool: ProcessWorkerPool = client.app.state.worker
+    pid = pool.pids[0]
+    with pytest.raises(TypeError, match="cannot be sent to a worker process"):
+        pool.submit(lambda state: 1, label="closure").result(30)
+    assert pool.submit(Sleep(0)).result(30) == pid
+
+
+def test_a_stream_is_pinned_to_one_worker_and_reuses_there(client):
+    pool: ProcessWorkerPool = client.app.state.worker
+    body = {"camera": {"eye": [2.5, 1.6, 3.0], "target": [0.0, 0.9, -0.5]}, "width": 64, "height": 48,
+            "effects": {"reflections": "cluster"}}
+    moved = {**body, "camera": {"eye": [2.45, 1.6, 3.02], "target": [0.0, 0.9, -0.5]}}
+    with client.websocket_connect(f"/scenes/{builtin_id('mirror')}/stream") as ws:
+        ws.receive_json()
+        metas = []
+        for k, msg in enumerate((body, moved)):
+            ws.send_json({**msg, "id": k + 1})
+            while True:
+                m = ws.receive_json()
+                assert m.get("type") != "error", m
+                ws.receive_bytes()
+                if m.get("id") == k + 1 and not m.get("rest"):
+                    break
+            metas.append(m)
+        assert len(pool._pins) == 1
+    assert metas[0]["keyframe"] is True and metas[1]["keyframe"] is False and metas[1]["reused_ratio"] > 0.5
+    wait_until(lambda: not pool._pins, 10)  # the socket closed: the pin (and the reuser) is released
