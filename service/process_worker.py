@@ -399,11 +399,15 @@ class ProcessWorkerPool:
             count_job(self, {"ok": "done", "timeout": "expired"}.get(kind, "failed"), time.perf_counter() - t0, waited)
 
     def _wait(self, slot: _Slot, job: _Job) -> tuple:
-        """("ok", result) | ("err", exc) | ("timeout", None) | ("died", None)."""
+        """("ok", result) | ("err", exc) | ("timeout", None) | ("died", None); an error
+        too when the pool stops meanwhile."""
         while True:
             left = job.deadline - time.monotonic()
             if left <= 0:
                 return ("timeout", None)
+            if self._stopping:  # shutting down: do not wait for the job
+                self._kill(slot)
+                return ("err", WorkerUnavailable("render worker is shutting down"))
             try:
                 if slot.conn.poll(min(left, 0.2)):
                     kind, value = slot.conn.recv()

@@ -130,3 +130,22 @@ def test_a_stream_is_pinned_to_one_worker_and_reuses_there(client):
         assert len(pool._pins) == 1
     assert metas[0]["keyframe"] is True and metas[1]["keyframe"] is False and metas[1]["reused_ratio"] > 0.5
     wait_until(lambda: not pool._pins, 10)  # the socket closed: the pin (and the reuser) is released
+
+
+def test_queue_full_is_503_and_stop_ends_a_busy_worker_at_once(tmp_path):
+    with service(tmp_path, workers=1, queue_size=1, retry_after_s=4) as c:
+        pool: ProcessWorkerPool = c.app.state.worker
+        busy = pool.submit(Sleep(60), label="long")
+        wait_until(lambda: pool.busy, 10)
+        queued = pool.submit(Sleep(0))
+        r = frame(c)
+        assert r.status_code == 503 and r.headers["retry-after"] == "4" and "queue is full" in r.json()["detail"]
+        pid = pool.pids[0]
+        t0 = time.monotonic()
+    assert time.monotonic() - t0 < 10  # the lifespan's stop did not wait for the 60 s job
+    with pytest.raises(Exception, match="shutting down"):
+        busy.result(5)
+    with pytest.raises(Exception, match="shutting down"):
+        queued.result(5)
+    with pytest.raises(ProcessLookupError):
+        os.kill(pid, 0)
