@@ -24,10 +24,9 @@ gpu_cache_size         4                            scenes kept uploaded on the 
 gl_backend             unset (EGL, OSMesa fallback) ``egl`` or ``osmesa`` (``DEPTHVIEW_GL``, or
                                                     ``DEPTHVIEW_GL_BACKEND``)
 gl_device              unset                        EGL device index
-workers                0 (the worker thread)        render worker processes, each with its own GL
-                                                    context and Embree devices (``auto``: one per
-                                                    NVIDIA GPU, else one per two cores); 0 = one
-                                                    worker thread in the service process
+workers                ``auto``: one per NVIDIA     render worker processes, each with its own GL
+                       GPU, else one per two cores  context and Embree devices; 0 = one worker
+                       (at least 1)                 thread in the service process instead
 max_json_bytes         1 MiB (1048576)              largest request body of every endpoint but a
                                                     scene upload (Content-Length or counted) → 413
 max_job_bytes          4 GiB (4294967296)           memory budget of one render request, estimated
@@ -114,6 +113,16 @@ SHADOW_MAP_RESOLUTION = 1024
 SHADOW_MAPS_PER_DRAW = 16
 
 
+def default_workers() -> int:
+    """One render worker per NVIDIA GPU (``/dev/nvidia<N>``: cheap, no driver call), else
+    one per two usable cores, at least one."""
+    gpus = len(list(Path("/dev").glob("nvidia[0-9]*")))
+    if gpus:
+        return gpus
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, cores // 2)
+
+
 @dataclass(frozen=True)
 class Settings:
     """Service configuration. Build with ``Settings.from_env(**overrides)`` to read
@@ -153,8 +162,9 @@ class Settings:
     #: EGL device index; None = default device (DEPTHVIEW_GL_DEVICE).
     gl_device: int | None = None
     #: Render worker processes (``service.process_worker``); 0 = the in-process worker
-    #: thread; ``DEPTHVIEW_WORKERS=auto`` = one per NVIDIA GPU, else one per two cores.
-    workers: int = 0
+    #: thread. Default (and ``DEPTHVIEW_WORKERS=auto``): one per NVIDIA GPU, else one per
+    #: two cores, at least one.
+    workers: int = field(default_factory=lambda: default_workers())
     #: Largest request body of every endpoint except scene uploads (413 above it).
     max_json_bytes: int = MIB
     #: Memory budget of one render request in bytes, estimated up front (422 above it).
@@ -246,8 +256,6 @@ _FLOAT_FIELDS = {"job_timeout_s", "header_timeout_s", "body_timeout_s", "stream_
 
 def _convert(name: str, raw: str, var: str) -> Any:
     if name == "workers" and raw.strip().lower() == "auto":
-        from service.process_worker import default_workers
-
         return default_workers()
     try:
         if name in _INT_FIELDS:

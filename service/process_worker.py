@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import logging
 import multiprocessing as mp
-import os
 import threading
 import time
 from collections import deque
@@ -32,7 +31,6 @@ from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from multiprocessing.reduction import ForkingPickler
-from pathlib import Path
 from typing import Any
 
 from service.worker import GLState, Job, JobExpired, QueueFull, WorkerDied, WorkerUnavailable, _Job, count_job
@@ -41,15 +39,6 @@ log = logging.getLogger("depthview.worker")
 
 #: Seconds a new worker process may take to import, create its GL context and report.
 STARTUP_TIMEOUT_S = 120.0
-
-
-def default_workers() -> int:
-    """One worker per NVIDIA GPU (``/dev/nvidia<N>``), else one per two cores (at least 1)."""
-    gpus = len([p for p in Path("/dev").glob("nvidia[0-9]*")])
-    if gpus:
-        return gpus
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return max(1, cores // 2)
 
 
 @dataclass(frozen=True)

@@ -221,13 +221,16 @@ def wait_ready(client: Any, timeout: float = 20.0) -> dict:
 @contextlib.contextmanager
 def service(data_dir: Path, ready: bool = True, **overrides) -> Iterator[Any]:
     """A TestClient of a fresh app on `data_dir` (settings overridden), ready unless
-    ready=False."""
+    ready=False. Its render worker is the in-process thread (workers=0) unless
+    `workers` is given: the tests look inside it (its thread, jobs that are closures,
+    patched classes); tests/test_service_workers.py covers the worker processes, and
+    `live_server` runs the default."""
     from fastapi.testclient import TestClient
 
     from service.app import create_app
     from service.config import Settings
 
-    app = create_app(Settings(data_dir=data_dir, **overrides))
+    app = create_app(Settings(data_dir=data_dir, **{"workers": 0, **overrides}))
     with TestClient(app) as client:
         if ready:
             wait_ready(client)

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from service import image_io
-from service.config import Settings
-from service.process_worker import ProcessWorkerPool, default_workers
+from service.config import Settings, default_workers
+from service.process_worker import ProcessWorkerPool
 from service.store import builtin_id
 from service.worker import JobExpired, WorkerDied
 from tests.helpers import frame_camera, service
@@ -52,7 +52,8 @@ def client(tmp_path_factory):
 
 
 def test_workers_setting():
-    assert Settings().workers == 0  # the in-process worker thread stays the default
+    assert Settings().workers == default_workers() >= 1  # worker processes by default
+    assert Settings.from_env({"DEPTHVIEW_WORKERS": "0"}).workers == 0  # the in-process worker thread
     assert Settings.from_env({"DEPTHVIEW_WORKERS": "3"}).workers == 3
     assert Settings.from_env({"DEPTHVIEW_WORKERS": "auto"}).workers == default_workers() >= 1
     for bad in ("-1", "many"):
