@@ -13,7 +13,8 @@ jobs first, then the shared ones), skips it when its deadline passed or its futu
 cancelled (``JobExpired``), sends it and waits at most until the deadline. A worker
 still busy at the deadline is killed and replaced (the job gets ``JobExpired``, 504); a
 worker that dies gets ``WorkerDied`` for its job (503 naming the process; nothing is
-retried silently) and is replaced, so the next request succeeds.
+retried silently) and is replaced, so the next request succeeds; so is a worker whose
+GL context stops working (checked after a job fails: the job gets its own error).
 
 ``submit(..., pin=key)`` sends every job with that key to the same worker (a stream's
 stateful ReflectionReuser lives in one process); ``run_before_next_job(fn, pin=key)``
@@ -24,6 +25,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing as mp
+import os
 import threading
 import time
 from collections import deque
@@ -85,16 +87,31 @@ def _child_main(conn: Any, cfg: WorkerConfig) -> None:
                 except Exception:  # noqa: BLE001 - a failed chore must not end the worker
                     log.exception("worker chore failed")
             elif kind == "job":
+                lost = None
                 try:
-                    reply = ("ok", payload(state))
+                    reply: tuple = ("ok", payload(state), None)
                 except BaseException as exc:  # noqa: BLE001 - delivered to the future
-                    reply = ("err", exc)
+                    lost = _context_lost(state)
+                    reply = ("err", exc, lost)
                 try:
                     conn.send(reply)
                 except Exception as exc:  # noqa: BLE001 - an unpicklable result or exception
-                    conn.send(("err", RuntimeError(f"job result could not be sent: {type(exc).__name__}: {exc}")))
+                    conn.send(("err", RuntimeError(f"job result could not be sent: {type(exc).__name__}: {exc}"),
+                               lost))
+                if lost is not None:  # the parent replaces this worker; a broken context is not released
+                    log.error("render worker process %d: GL context failed (%s), exiting", os.getpid(), lost)
+                    os._exit(3)
     finally:
         state.release()
+
+
+def _context_lost(state: GLState) -> str | None:
+    """Why the GL context no longer works (after a job failed), or None when it does."""
+    try:
+        state.gl.ctx.finish()
+    except Exception as exc:  # noqa: BLE001 - any failure means the context is unusable
+        return f"{type(exc).__name__}: {exc}"
+    return None
 
 
 @dataclass
@@ -375,6 +392,9 @@ class ProcessWorkerPool:
             fut.set_result(value)
         elif kind == "err":
             fut.set_exception(value)
+        elif kind == "lost":  # the job failed and took the context along: replace the worker
+            fut.set_exception(value[0])
+            self._replace(slot, f"process {pid}: GL context failed ({value[1]})")
         elif kind == "timeout":
             fut.set_exception(JobExpired(f"{job.label or 'render job'} ran past its time limit; "
                                          f"render worker process {pid} was killed and is being replaced"))
@@ -388,8 +408,8 @@ class ProcessWorkerPool:
             count_job(self, {"ok": "done", "timeout": "expired"}.get(kind, "failed"), time.perf_counter() - t0, waited)
 
     def _wait(self, slot: _Slot, job: _Job) -> tuple:
-        """("ok", result) | ("err", exc) | ("timeout", None) | ("died", None); an error
-        too when the pool stops meanwhile."""
+        """("ok", result) | ("err", exc) | ("lost", (exc, why the context failed)) |
+        ("timeout", None) | ("died", None); an error too when the pool stops meanwhile."""
         while True:
             left = job.deadline - time.monotonic()
             if left <= 0:
@@ -399,8 +419,8 @@ class ProcessWorkerPool:
                 return ("err", WorkerUnavailable("render worker is shutting down"))
             try:
                 if slot.conn.poll(min(left, 0.2)):
-                    kind, value = slot.conn.recv()
-                    return (kind, value)
+                    kind, value, lost = slot.conn.recv()
+                    return (kind, value) if lost is None else ("lost", (value, lost))
             except (EOFError, OSError):
                 return ("died", None)
             except Exception as exc:  # noqa: BLE001 - a result that does not unpickle

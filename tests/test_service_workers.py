@@ -150,3 +150,47 @@ def test_queue_full_is_503_and_stop_ends_a_busy_worker_at_once(tmp_path):
         queued.result(5)
     with pytest.raises(ProcessLookupError):
         os.kill(pid, 0)
+
+
+@dataclass(frozen=True)
+class LoseContext:
+    """A picklable job that releases the worker's GL context under it and fails."""
+
+    def __call__(self, state) -> None:
+        state.gl.ctx.release()
+        raise RuntimeError("context released")
+
+
+def test_a_worker_whose_context_fails_is_replaced(client):
+    pool: ProcessWorkerPool = client.app.state.worker
+    pid, replaced = pool.pids[0], pool.workers_replaced
+    with pytest.raises(RuntimeError, match="context released"):
+        pool.submit(LoseContext()).result(30)
+    assert frame(client).status_code == 200  # on the replacement
+    assert pool.pids[0] != pid and pool.workers_replaced == replaced + 1
+
+
+def test_the_handler_answers_503_naming_the_dead_worker(client):
+    """Through the routes' Render.job: the in-flight request of a killed worker."""
+    import asyncio
+
+    from fastapi import HTTPException
+
+    from service.deps import get_render
+
+    pool: ProcessWorkerPool = client.app.state.worker
+    pid = pool.pids[0]
+    r = get_render(type("Req", (), {"app": client.app})())
+
+    async def run():
+        task = asyncio.ensure_future(r.job(Sleep(30), "sleepy frame"))
+        while not pool.busy:
+            await asyncio.sleep(0.02)
+        os.kill(pid, signal.SIGKILL)
+        return await task
+
+    with pytest.raises(HTTPException) as info:
+        asyncio.run(run())
+    assert info.value.status_code == 503 and info.value.headers["Retry-After"]
+    assert f"process {pid} died" in info.value.detail and "sleepy frame" in info.value.detail
+    assert frame(client).status_code == 200
