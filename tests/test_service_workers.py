@@ -194,3 +194,31 @@ def test_the_handler_answers_503_naming_the_dead_worker(client):
     assert info.value.status_code == 503 and info.value.headers["Retry-After"]
     assert f"process {pid} died" in info.value.detail and "sleepy frame" in info.value.detail
     assert frame(client).status_code == 200
+
+
+def test_uploaded_scenes_load_in_the_worker_by_id(client):
+    from tests.helpers import obj_text
+
+    r = client.post("/scenes", files={"file": ("quad.obj", obj_text(2), "text/plain")})
+    assert r.status_code in (200, 201), r.text
+    sid = r.json()["id"]
+    cam = {"eye": [0.5, 0.5, 3.0], "target": [0.5, 0.5, 0.0]}
+    r = client.post(f"/scenes/{sid}/frames", json={"camera": cam, "width": 16, "height": 16})
+    assert r.status_code == 200, r.text
+    assert client.delete(f"/scenes/{sid}").status_code in (200, 204)
+    r = client.post(f"/scenes/{sid}/frames", json={"camera": cam, "width": 16, "height": 16})
+    assert r.status_code == 404
+
+
+def test_two_workers_share_the_queue_and_pin_streams_apart(tmp_path):
+    with service(tmp_path, workers=2) as c:
+        pool: ProcessWorkerPool = c.app.state.worker
+        wait_until(lambda: all(s.ready for s in pool._slots), 60)
+        assert len(set(pool.pids)) == 2 and "depthview_workers_alive 2" in c.get("/metrics").text
+        futures = [pool.submit(Sleep(0.3)) for _ in range(4)]
+        assert {f.result(30) for f in futures} == set(pool.pids)  # both took jobs
+        a = [pool.submit(Sleep(0), pin="stream-a").result(30) for _ in range(3)]
+        b = [pool.submit(Sleep(0), pin="stream-b").result(30) for _ in range(3)]
+        assert len(set(a)) == 1 and len(set(b)) == 1 and a[0] != b[0]
+        pool.run_before_next_job(Sleep(0), pin="stream-a")
+        assert "stream-a" not in pool._pins and "stream-b" in pool._pins
