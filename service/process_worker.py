@@ -41,6 +41,8 @@ log = logging.getLogger("depthview.worker")
 
 #: Seconds a new worker process may take to import, create its GL context and report.
 STARTUP_TIMEOUT_S = 120.0
+#: How often an idle dispatcher checks that its worker process is still alive.
+IDLE_CHECK_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -329,7 +331,9 @@ class ProcessWorkerPool:
             while True:
                 with self._cv:
                     while not self._stopping and not slot.pinned and not self._shared and not slot.chores:
-                        self._cv.wait()
+                        self._cv.wait(IDLE_CHECK_S)
+                        if slot.ready and not slot.process.is_alive():
+                            break  # died while idle: replaced at once, not when the next job comes
                     if self._stopping:
                         return
                     chores, slot.chores = slot.chores, []
