@@ -111,26 +111,42 @@ def test_an_unpicklable_job_is_refused_and_the_worker_lives_on(client):
     assert pool.submit(Sleep(0)).result(30) == pid
 
 
+def stream_frame(ws, msg: dict, id_: int) -> dict:
+    ws.send_json({**msg, "id": id_})
+    while True:
+        m = ws.receive_json()
+        assert m.get("type") != "error", m
+        ws.receive_bytes()
+        if m.get("id") == id_ and not m.get("rest"):
+            return m
+
+
+MIRROR_VIEW = {"camera": {"eye": [2.5, 1.6, 3.0], "target": [0.0, 0.9, -0.5]}, "width": 64, "height": 48,
+               "effects": {"reflections": "cluster"}}
+MIRROR_MOVED = {**MIRROR_VIEW, "camera": {"eye": [2.45, 1.6, 3.02], "target": [0.0, 0.9, -0.5]}}
+
+
 def test_a_stream_is_pinned_to_one_worker_and_reuses_there(client):
     pool: ProcessWorkerPool = client.app.state.worker
-    body = {"camera": {"eye": [2.5, 1.6, 3.0], "target": [0.0, 0.9, -0.5]}, "width": 64, "height": 48,
-            "effects": {"reflections": "cluster"}}
-    moved = {**body, "camera": {"eye": [2.45, 1.6, 3.02], "target": [0.0, 0.9, -0.5]}}
     with client.websocket_connect(f"/scenes/{builtin_id('mirror')}/stream") as ws:
         ws.receive_json()
-        metas = []
-        for k, msg in enumerate((body, moved)):
-            ws.send_json({**msg, "id": k + 1})
-            while True:
-                m = ws.receive_json()
-                assert m.get("type") != "error", m
-                ws.receive_bytes()
-                if m.get("id") == k + 1 and not m.get("rest"):
-                    break
-            metas.append(m)
+        metas = [stream_frame(ws, MIRROR_VIEW, 1), stream_frame(ws, MIRROR_MOVED, 2)]
         assert len(pool._pins) == 1
     assert metas[0]["keyframe"] is True and metas[1]["keyframe"] is False and metas[1]["reused_ratio"] > 0.5
     wait_until(lambda: not pool._pins, 10)  # the socket closed: the pin (and the reuser) is released
+
+
+def test_a_stream_whose_worker_dies_starts_over_on_the_replacement(client):
+    pool: ProcessWorkerPool = client.app.state.worker
+    with client.websocket_connect(f"/scenes/{builtin_id('mirror')}/stream") as ws:
+        ws.receive_json()
+        assert stream_frame(ws, MIRROR_VIEW, 1)["keyframe"] is True
+        replaced, pid = pool.workers_replaced, pool.pids[0]
+        os.kill(pid, signal.SIGKILL)
+        wait_until(lambda: pool.workers_replaced == replaced + 1 and pool.ready, 30)
+        assert not pool._pins  # the reuser died with its worker
+        m = stream_frame(ws, MIRROR_MOVED, 2)  # the stream goes on: a new reuser, a keyframe
+        assert m["keyframe"] is True and pool.pids[0] != pid
 
 
 def test_queue_full_is_503_and_stop_ends_a_busy_worker_at_once(tmp_path):
