@@ -338,14 +338,19 @@ class ProcessWorkerPool:
                         return
                     chores, slot.chores = slot.chores, []
                     job = slot.pinned.popleft() if slot.pinned else (self._shared.popleft() if self._shared else None)
-                if not slot.ready:
-                    self._spawn(slot)
-                elif not slot.process.is_alive():  # died while idle: replace it before the next job
-                    self._replace(slot, f"process {slot.process.pid} died (exit code {slot.process.exitcode})")
-                for chore in chores:
-                    self._send(slot, chore)
-                if job is not None:
-                    self._execute(slot, job)
+                try:
+                    if not slot.ready:
+                        self._spawn(slot)
+                    elif not slot.process.is_alive():  # died while idle: replace it before the next job
+                        self._replace(slot, f"process {slot.process.pid} died (exit code {slot.process.exitcode})")
+                    for chore in chores:
+                        self._send(slot, chore)
+                    if job is not None:
+                        self._execute(slot, job)
+                except Exception as exc:  # noqa: BLE001 - the dispatcher must outlive any failure
+                    log.exception("render worker dispatcher %d failed", slot.index)
+                    if job is not None and not job.future.done():
+                        job.future.set_exception(exc)
         finally:
             if slot.conn is not None and slot.process is not None and slot.process.is_alive():
                 self._send(slot, ("stop", None))
@@ -357,6 +362,9 @@ class ProcessWorkerPool:
             slot.conn.send(message)
             return True
         except (OSError, ValueError, AttributeError):  # a dead worker: the next job replaces it
+            return False
+        except Exception:  # noqa: BLE001 - a chore that does not pickle
+            log.exception("could not send %s to render worker process %d", message[0], slot.index)
             return False
 
     def _execute(self, slot: _Slot, job: _Job) -> None:
