@@ -54,6 +54,7 @@ from service import errors
 from service.config import Settings
 from service.metrics import Metrics
 from service.middleware import RequestGuard
+from service.process_worker import ProcessWorkerPool, WorkerConfig
 from service.routes import client, renders, scenes, stream
 from service.routes import service as service_routes
 from service.schemas import BuiltinParams, BuiltinSceneRequest, ErrorResponse, ValidationErrorResponse
@@ -73,9 +74,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         app.state.store = await run_in_threadpool(
             SceneStore, settings.data_dir, settings.scene_cache_size, settings.max_triangles)
-        worker = RenderWorker(queue_size=settings.queue_size, job_timeout_s=settings.job_timeout_s,
-                              gpu_cache_size=settings.gpu_cache_size, backend=settings.gl_backend,
-                              device=settings.gl_device)
+        worker: Any
+        if settings.workers >= 1:
+            worker = ProcessWorkerPool(settings.workers, WorkerConfig(
+                str(settings.data_dir), settings.scene_cache_size, settings.max_triangles, settings.gpu_cache_size,
+                settings.gl_backend, settings.gl_device), queue_size=settings.queue_size,
+                job_timeout_s=settings.job_timeout_s)
+        else:
+            worker = RenderWorker(queue_size=settings.queue_size, job_timeout_s=settings.job_timeout_s,
+                                  gpu_cache_size=settings.gpu_cache_size, backend=settings.gl_backend,
+                                  device=settings.gl_device, scene_loader=app.state.store.get_scene)
         app.state.worker = worker.start()
         try:
             yield

@@ -24,6 +24,9 @@ gpu_cache_size         4                            scenes kept uploaded on the 
 gl_backend             unset (EGL, OSMesa fallback) ``egl`` or ``osmesa`` (``DEPTHVIEW_GL``, or
                                                     ``DEPTHVIEW_GL_BACKEND``)
 gl_device              unset                        EGL device index
+workers                ``auto``: one per NVIDIA     render worker processes, each with its own GL
+                       GPU, else one per two cores  context and Embree devices; 0 = one worker
+                       (at least 1)                 thread in the service process instead
 max_json_bytes         1 MiB (1048576)              largest request body of every endpoint but a
                                                     scene upload (Content-Length or counted) → 413
 max_job_bytes          4 GiB (4294967296)           memory budget of one render request, estimated
@@ -110,6 +113,16 @@ SHADOW_MAP_RESOLUTION = 1024
 SHADOW_MAPS_PER_DRAW = 16
 
 
+def default_workers() -> int:
+    """One render worker per NVIDIA GPU (``/dev/nvidia<N>``: cheap, no driver call), else
+    one per two usable cores, at least one."""
+    gpus = len(list(Path("/dev").glob("nvidia[0-9]*")))
+    if gpus:
+        return gpus
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, cores // 2)
+
+
 @dataclass(frozen=True)
 class Settings:
     """Service configuration. Build with ``Settings.from_env(**overrides)`` to read
@@ -148,6 +161,10 @@ class Settings:
     gl_backend: str | None = None
     #: EGL device index; None = default device (DEPTHVIEW_GL_DEVICE).
     gl_device: int | None = None
+    #: Render worker processes (``service.process_worker``); 0 = the in-process worker
+    #: thread. Default (and ``DEPTHVIEW_WORKERS=auto``): one per NVIDIA GPU, else one per
+    #: two cores, at least one.
+    workers: int = field(default_factory=lambda: default_workers())
     #: Largest request body of every endpoint except scene uploads (413 above it).
     max_json_bytes: int = MIB
     #: Memory budget of one render request in bytes, estimated up front (422 above it).
@@ -190,6 +207,8 @@ class Settings:
                 raise ValueError(f"setting {name} must be >= 1, got {getattr(self, name)!r}")
         if not 1 <= int(self.stream_jpeg_quality) <= 95:
             raise ValueError(f"setting stream_jpeg_quality must be within 1..95, got {self.stream_jpeg_quality!r}")
+        if int(self.workers) < 0:
+            raise ValueError(f"setting workers must be >= 0 (0 = the worker thread), got {self.workers!r}")
         for name in ("job_timeout_s", "header_timeout_s", "body_timeout_s", "stream_rest_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"setting {name} must be > 0, got {getattr(self, name)!r}")
@@ -231,11 +250,13 @@ def _origins(raw: str) -> tuple[str, ...]:
 _INT_FIELDS = {"port", "max_upload_bytes", "max_triangles", "max_width", "max_height", "max_pixels",
                "queue_size", "retry_after_s", "scene_cache_size", "gpu_cache_size", "gl_device", "max_json_bytes",
                "max_job_bytes", "stream_max_per_client", "stream_max_total", "stream_max_message_bytes",
-               "stream_max_pixels", "stream_jpeg_quality"}
+               "stream_max_pixels", "stream_jpeg_quality", "workers"}
 _FLOAT_FIELDS = {"job_timeout_s", "header_timeout_s", "body_timeout_s", "stream_rest_s"}
 
 
 def _convert(name: str, raw: str, var: str) -> Any:
+    if name == "workers" and raw.strip().lower() == "auto":
+        return default_workers()
     try:
         if name in _INT_FIELDS:
             return int(raw.replace("_", ""))

@@ -1,5 +1,6 @@
 """FastAPI dependencies of the routers: the settings, the scene store, the render
-worker and the metrics (all on ``app.state``, set by ``create_app`` and its
+worker (``RenderWorker`` thread or ``ProcessWorkerPool``: the same interface) and
+the metrics (all on ``app.state``, set by ``create_app`` and its
 lifespan), the bearer-token check, and the helpers routes share to load a scene and
 run a job.
 
@@ -27,11 +28,14 @@ from scenes.model import Scene
 from service.config import Settings
 from service.jobs import Job
 from service.metrics import Metrics
+from service.process_worker import ProcessWorkerPool
 from service.store import SceneStore
 from service.worker import JobExpired, QueueFull, RenderWorker, WorkerUnavailable
 
 log = logging.getLogger("depthview.service")
 T = TypeVar("T")
+#: The render worker: the in-process thread (workers=0) or the worker processes.
+Worker = RenderWorker | ProcessWorkerPool
 
 
 def get_settings(request: Request) -> Settings:
@@ -42,7 +46,7 @@ def get_store(request: Request) -> SceneStore:
     return request.app.state.store
 
 
-def get_worker(request: Request) -> RenderWorker:
+def get_worker(request: Request) -> Worker:
     return request.app.state.worker
 
 
@@ -52,7 +56,7 @@ def get_metrics(request: Request) -> Metrics:
 
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 StoreDep = Annotated[SceneStore, Depends(get_store)]
-WorkerDep = Annotated[RenderWorker, Depends(get_worker)]
+WorkerDep = Annotated[Worker, Depends(get_worker)]
 MetricsDep = Annotated[Metrics, Depends(get_metrics)]
 
 # --- authentication --------------------------------------------------------------------
@@ -109,7 +113,7 @@ class Render:
 
     settings: Settings
     store: SceneStore
-    worker: RenderWorker
+    worker: Worker
     metrics: Metrics
 
     async def scene(self, scene_id: str) -> Scene:
@@ -117,14 +121,15 @@ class Render:
         with self.metrics.step("scene_load"):
             return await run_in_threadpool(self.store.get_scene, scene_id)
 
-    async def job(self, job: Job[T], label: str) -> T:
-        """Submit a job to the GL worker and await its result: 503 (+ Retry-After)
-        when the queue is full or there is no context, 504 past the job timeout, 422
-        when the job rejects its parameters (ValueError), 500 when it raised anything
-        else."""
+    async def job(self, job: Job[T], label: str, pin: str | None = None) -> T:
+        """Submit a job (GL or Embree) to the worker and await its result: 503 (+ Retry-After)
+        when the queue is full, there is no context or the worker process died running
+        it, 504 past the job timeout, 422 when the job rejects its parameters
+        (ValueError), 500 when it raised anything else. Jobs with the same `pin` run on
+        the same worker (a stream's stateful reuser)."""
         settings = self.settings
         try:
-            fut = self.worker.submit(job, timeout=settings.job_timeout_s, label=label)
+            fut = self.worker.submit(job, timeout=settings.job_timeout_s, label=label, pin=pin)
         except (QueueFull, WorkerUnavailable) as exc:
             raise unavailable(str(exc), settings) from None
         try:
@@ -144,7 +149,8 @@ class Render:
             raise HTTPException(500, f"{label} failed: {type(exc).__name__}: {str(exc)[:300]}") from None
 
     async def cpu(self, fn: Callable[..., T], *args: Any) -> T:
-        """`fn(*args)` in the thread pool (Embree, shading, metrics), timed as cpu."""
+        """`fn(*args)` in the thread pool, timed as cpu: CPU work that is no render
+        (shading). Embree work is a job (``service.jobs``): queued and timed."""
         with self.metrics.step("cpu"):
             return await run_in_threadpool(fn, *args)
 

@@ -1,7 +1,7 @@
 """Depth-image sets for the service (thesis Ch. 2): the plan, the Embree-only
-paths, encoding and the §2.3.2 metrics. GL work runs only inside the job
-(`service.jobs.set_job`) on the worker thread; Embree work (visibility redundancy,
-metrics) runs off it."""
+paths, encoding and the §2.3.2 metrics. GL and Embree work (visibility redundancy,
+metrics) run inside the job (`service.jobs.SetJob`) on the worker thread, so they
+share its bounded queue and timeout; encoding runs in the thread pool."""
 
 from __future__ import annotations
 

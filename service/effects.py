@@ -1,11 +1,11 @@
 """Frame effects for the service: reflections by method (thesis Ch. 4).
 
-`cluster` and `envmap` run as GL jobs on the worker thread (`service.jobs.reflection_job`);
-`raytrace` is the Embree reference and runs in the thread pool, never on the GL
-thread. All return linear colour (H,W,3) plus the reflection buffers for EXR.
-Both keep what does not depend on the camera per scene (GPU upload and chunk
-records on the worker; the Embree BVH here), and both report their steps for the
-`Server-Timing` header (`server_timing`)."""
+`cluster` and `envmap` run as GL jobs on the worker (`service.jobs.ReflectionJob`);
+`raytrace` is the Embree reference: a job too (`RaytraceJob`), queued and timed like
+the others, that makes no GL call. All return linear colour (H,W,3) plus the
+reflection buffers for EXR. Both keep what does not depend on the camera per scene
+(GPU upload and chunk records on the worker; the Embree BVH per worker here), and
+both report their steps for the `Server-Timing` header (`server_timing`)."""
 
 from __future__ import annotations
 

@@ -1,8 +1,8 @@
 """One frame of a stored scene, as ``POST /scenes/{id}/frames`` and the stream render it.
 
 ``render(r, scene_id, req)`` loads the scene, runs the frame's jobs (G-buffer,
-reflections by method, soft shadows) on the worker and the CPU steps in the thread
-pool, and returns a ``Rendered``: the linear colour (what the stream encodes as JPEG or
+reflections by method, soft shadows; Embree's too) on the worker and the shading in the
+thread pool, and returns a ``Rendered``: the linear colour (what the stream encodes as JPEG or
 PNG) and ``encode(fmt)``, the frames endpoint's PNG/EXR encoder of every buffer. The
 caller checks the size limits and the memory budget first.
 """
@@ -18,13 +18,12 @@ from fastapi import HTTPException
 from scenes.camera import Camera
 from scenes.model import AreaLight, Scene
 from service.deps import Render
-from service.effects import encode_reflections, raytrace_cached
-from service.jobs import frame_job, reflection_job, soft_shadow_job
+from service.effects import encode_reflections
+from service.jobs import FrameJob, RaytraceJob, ReflectionJob, SoftShadowJob
 from service.schemas import FrameRequest
 from service.soft_shadows import (
     SoftShadowRequest,
     encode_shadowed,
-    raytrace_counts,
     reference_cameras,
     resolve_light,
     shade,
@@ -53,12 +52,12 @@ async def render(r: Render, scene_id: str, req: FrameRequest) -> Rendered:
     if req.effects.soft_shadows is not None:
         return await _soft_shadows(r, scene_id, scene, camera, req, label)
     if method == "none":
-        gbuf = await r.job(frame_job(scene_id, scene, camera, req.cull_back_faces), label)
+        gbuf = await r.job(FrameJob(scene_id, scene, camera, req.cull_back_faces), label)
         return Rendered(gbuf.color, lambda fmt: encode_frame(gbuf, fmt))
     if method == "raytrace":
-        result, steps, hits = await r.cpu(raytrace_cached, scene_id, scene, camera, rays)
+        result, steps, hits = await r.job(RaytraceJob(scene_id, scene, camera, rays), label)
     else:
-        result = await r.job(reflection_job(scene_id, scene, camera, method, rays), label)
+        result = await r.job(ReflectionJob(scene_id, scene, camera, method, rays), label)
         steps, hits = result.timings_ms, result.cache_hits
     return Rendered(np.asarray(result.color, np.float32), lambda fmt: encode_reflections(result, fmt),
                     dict(steps), dict(hits))
@@ -75,8 +74,6 @@ async def _soft_shadows(r: Render, scene_id: str, scene: Scene, camera: Camera, 
         reference_cameras(scene, light, "conventional", 16)
     except ValueError as exc:
         raise HTTPException(422, f"soft_shadows light: {exc}") from None
-    gbuf, counts = await r.job(soft_shadow_job(scene_id, scene, camera, ss), label)
-    if counts is None:
-        counts = await r.cpu(raytrace_counts, scene, gbuf, ss)
+    gbuf, counts = await r.job(SoftShadowJob(scene_id, scene, camera, ss), label)
     color = await r.cpu(shade, scene, gbuf, counts, ss)
     return Rendered(color, lambda fmt: encode_shadowed(color, gbuf, counts, fmt))

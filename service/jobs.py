@@ -1,19 +1,28 @@
 """Every render job of the service, typed, in one module.
 
 A job is a callable ``Job[T] = (GLState) -> T`` that the ``RenderWorker`` runs on its
-GL thread (DESIGN.md: request handlers never touch GL). Each builder below captures
-what the job needs (the scene's content address as the GPU-cache key, the scene, the
-fitted cameras) and returns a job whose result is plain numpy data, so encoding runs
-off the GL thread.
+GL thread (DESIGN.md: request handlers never touch GL). Each job below is a small
+frozen dataclass — a picklable spec: the scene's content address (also the GPU-cache
+key), the scene itself when the caller has it (never pickled: a worker in another
+process loads the scene by its address, ``GLState.scene``) and the request parameters
+(fitted cameras, methods) — whose result is plain numpy data, so encoding runs off the
+GL thread.
+
+Embree work (ray-traced reflections, the soft-shadow truth, visibility-redundancy
+sets, the sampling metrics) runs inside these jobs too, on the worker thread without
+touching GL: every render path shares the one bounded queue (503 + Retry-After when
+full) and the job timeout (504), and Embree never competes with the GL work for the
+cores behind the queue's back. Only shading and encoding stay in the thread pool.
 
 =====================  ==============================================================
-builder                result of the job
+job                    result
 =====================  ==============================================================
-``frame_job``          ``GBuffer`` of one camera
-``reflection_job``     ``ReflectionResult`` (cluster depth images or env map, Ch. 4)
-``soft_shadow_job``    (``GBuffer``, visible light samples per pixel or None for raytrace)
-``reconstruction_job`` per source image (positions, RGBA8 colours, triangles), Ch. 3
-``set_job``            (GL depth-image set or None, conventional images or None), Ch. 2
+``FrameJob``           ``GBuffer`` of one camera
+``ReflectionJob``      ``ReflectionResult`` (cluster depth images or env map, Ch. 4)
+``RaytraceJob``        (``ReflectionResult`` of the Embree reference, step ms, cache hits; off-GL)
+``SoftShadowJob``      (``GBuffer``, visible light samples per pixel; Embree for raytrace)
+``ReconstructionJob`` per source image (positions, RGBA8 colours, triangles), Ch. 3
+``SetJob``             (depth-image set by GL or Embree, §2.3.2 metrics or None), Ch. 2
 =====================  ==============================================================
 """
 
@@ -21,6 +30,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any, TypeVar
 
 import numpy as np
@@ -33,8 +43,9 @@ from gl_passes.shadows import ShadowSettings, SoftShadowPass
 from scenes.camera import Camera
 from scenes.depth_image import DepthImage
 from scenes.model import Scene
-from service.depth_sets import SetPlan
-from service.soft_shadows import PEEL_LAYERS, MeshArrays, SoftShadowRequest, reference_cameras
+from service.depth_sets import SetPlan, embree_set, needs_gl, set_metrics
+from service.effects import raytrace_cached
+from service.soft_shadows import PEEL_LAYERS, MeshArrays, SoftShadowRequest, raytrace_counts, reference_cameras
 from service.worker import GLState
 
 T = TypeVar("T")
@@ -45,15 +56,32 @@ Job = Callable[[GLState], T]
 GL_REFLECTION_METHODS = {"cluster": "clusters", "envmap": "envmap"}
 
 
-def frame_job(scene_key: str, scene: Scene, camera: Camera, cull_back_faces: bool = True) -> Job[GBuffer]:
-    """The G-buffer of `scene` (GPU upload cached under `scene_key`) seen by `camera`
-    (near/far already fitted)."""
+class SceneJob:
+    """Base of the job specs: `scene_key` (content address) and `scene` (or None).
+    Pickling drops the scene; the receiving worker loads it by its address."""
 
-    def run(state: GLState) -> GBuffer:
-        gpu = state.scene_gpu(scene_key, scene)
-        return state.gbuffer.render(gpu, camera, cull_back_faces=cull_back_faces)
+    scene_key: str
+    scene: Scene | None
 
-    return run
+    def __getstate__(self) -> dict[str, Any]:
+        return {**self.__dict__, "scene": None}
+
+    def load(self, state: GLState) -> Scene:
+        return self.scene if self.scene is not None else state.scene(self.scene_key)
+
+
+@dataclass(frozen=True)
+class FrameJob(SceneJob):
+    """The ``GBuffer`` of the scene seen by `camera` (near/far already fitted)."""
+
+    scene_key: str
+    scene: Scene | None
+    camera: Camera
+    cull_back_faces: bool = True
+
+    def __call__(self, state: GLState) -> GBuffer:
+        gpu = state.scene_gpu(self.scene_key, self.load(state))
+        return state.gbuffer.render(gpu, self.camera, cull_back_faces=self.cull_back_faces)
 
 
 def _reflection_renderer(gl: Any) -> ClusterReflections:
@@ -61,24 +89,45 @@ def _reflection_renderer(gl: Any) -> ClusterReflections:
     return ClusterReflections(gl, DEFAULT_SETTINGS)
 
 
-def reflection_job(scene_key: str, scene: Scene, camera: Camera, method: str, glossy_rays: int) -> Job[Any]:
-    """Reflections with the GL method `method` (cluster | envmap). The result's
-    timings_ms and cache_hits gain "upload" (the scene's GPU upload, ~0 when cached): a
-    later frame of the scene reuses the upload and the renderer's per-scene records
-    (cache_hits["scene_setup"])."""
+@dataclass(frozen=True)
+class ReflectionJob(SceneJob):
+    """Reflections with the GL method `method` (cluster | envmap)."""
 
-    def run(state: GLState) -> Any:
+    scene_key: str
+    scene: Scene | None
+    camera: Camera
+    method: str
+    glossy_rays: int
+
+    def __call__(self, state: GLState) -> Any:
+        """The result's timings_ms and cache_hits gain "upload" (the scene's GPU upload,
+        ~0 when cached): a later frame of the scene reuses the upload and the renderer's
+        per-scene records (cache_hits["scene_setup"])."""
         t0 = time.perf_counter()
-        hit = state.has_scene(scene_key)
-        gpu = state.scene_gpu(scene_key, scene)
+        hit = state.has_scene(self.scene_key)
+        gpu = state.scene_gpu(self.scene_key, self.load(state))
         upload_ms = (time.perf_counter() - t0) * 1e3
         renderer = state.resource("reflections", _reflection_renderer)
-        result = renderer.render(gpu, camera, glossy_rays=glossy_rays, method=GL_REFLECTION_METHODS[method])
+        result = renderer.render(gpu, self.camera, glossy_rays=self.glossy_rays,
+                                 method=GL_REFLECTION_METHODS[self.method])
         result.timings_ms["upload"] = upload_ms
         result.cache_hits["upload"] = hit
         return result
 
-    return run
+
+@dataclass(frozen=True)
+class RaytraceJob(SceneJob):
+    """Reflections by the Embree reference with the scene's BVH cached per worker
+    (``service.effects.raytrace_cached``): no GL, but queued and timed like every
+    render. Returns (result, timings ms, cache hits)."""
+
+    scene_key: str
+    scene: Scene | None
+    camera: Camera
+    glossy_rays: int
+
+    def __call__(self, state: GLState) -> Any:
+        return raytrace_cached(self.scene_key, self.load(state), self.camera, self.glossy_rays)
 
 
 def _shadow_pass(state: GLState, samples: int) -> SoftShadowPass:
@@ -92,21 +141,27 @@ def _reconstruct(state: GLState, scene_key: str, scene: Scene, cameras: Sequence
     return reconstruct_set(state.gl, sampled, ReconstructionSettings(kind=kind))
 
 
-def soft_shadow_job(scene_key: str, scene: Scene, camera: Camera, req: SoftShadowRequest
-                    ) -> Job[tuple[GBuffer, np.ndarray | None]]:
-    """(G-buffer of `camera`, per-pixel visible light samples (H,W) uint16, or None for
-    `raytrace`, whose visibility is computed off the GL thread)."""
+@dataclass(frozen=True)
+class SoftShadowJob(SceneJob):
+    """(G-buffer of `camera`, per-pixel visible light samples (H,W) uint16): by shadow
+    maps, or for `raytrace` by Embree (after the G-buffer, no GL)."""
 
-    def run(state: GLState) -> tuple[GBuffer, np.ndarray | None]:
-        gpu = state.scene_gpu(scene_key, scene)
-        gbuf = state.gbuffer.render(gpu, camera)
+    scene_key: str
+    scene: Scene | None
+    camera: Camera
+    req: SoftShadowRequest
+
+    def __call__(self, state: GLState) -> tuple[GBuffer, np.ndarray]:
+        scene, req = self.load(state), self.req
+        gpu = state.scene_gpu(self.scene_key, scene)
+        gbuf = state.gbuffer.render(gpu, self.camera)
         if req.method == "raytrace":
-            return gbuf, None
+            return gbuf, raytrace_counts(scene, gbuf, req)
         if req.method == "geometry":
             occluders, owned = [gpu], []
         else:
             cams = reference_cameras(scene, req.light, req.method, req.resolution)
-            owned = _reconstruct(state, scene_key, scene, cams, req.method, req.reconstruction)
+            owned = _reconstruct(state, self.scene_key, scene, cams, req.method, req.reconstruction)
             occluders = owned
         try:
             res = _shadow_pass(state, req.samples).visibility(
@@ -116,44 +171,67 @@ def soft_shadow_job(scene_key: str, scene: Scene, camera: Camera, req: SoftShado
                 m.release()
         return gbuf, res.counts
 
-    return run
 
-
-def reconstruction_job(scene_key: str, scene: Scene, cameras: Sequence[Camera], method: str,
-                       kind: str, layers: int = PEEL_LAYERS) -> Job[list[MeshArrays]]:
+@dataclass(frozen=True)
+class ReconstructionJob(SceneJob):
     """Per source image (positions, RGBA8 colours, triangles) of the reconstruction;
     `gl_passes.reconstruction.glb_bytes` encodes them off the GL thread."""
 
-    def run(state: GLState) -> list[MeshArrays]:
-        meshes = _reconstruct(state, scene_key, scene, cameras, method, kind, layers)
+    scene_key: str
+    scene: Scene | None
+    cameras: Sequence[Camera]
+    method: str
+    kind: str
+    layers: int = PEEL_LAYERS
+
+    def __call__(self, state: GLState) -> list[MeshArrays]:
+        meshes = _reconstruct(state, self.scene_key, self.load(state), self.cameras, self.method, self.kind,
+                              self.layers)
         try:
             return [m.read() for m in meshes]
         finally:
             for m in meshes:
                 m.release()
 
-    return run
+
+@dataclass(frozen=True)
+class SetJob(SceneJob):
+    """(the set — by GL, or by Embree for visibility redundancy —, its §2.3.2 metrics
+    over `metrics_views` intermediate views (Embree; the conventional images of the
+    reference cameras rendered beside the set) or None when `metrics_views` is None)."""
+
+    scene_key: str
+    scene: Scene | None
+    plan: SetPlan
+    metrics_views: int | None = None
+    seed: int = 0
+
+    def __call__(self, state: GLState) -> tuple[list[DepthImage], dict | None]:
+        scene, plan, want_metrics = self.load(state), self.plan, self.metrics_views is not None
+        images, conv = _gl_set(state, self.scene_key, scene, plan, want_metrics) \
+            if needs_gl(plan, want_metrics) else (None, None)
+        if images is None:
+            images = embree_set(scene, plan)
+        if not want_metrics:
+            return images, None
+        return images, set_metrics(scene, plan, images, conv, self.metrics_views, self.seed)
 
 
-def set_job(scene_key: str, scene: Scene, plan: SetPlan, want_conventional: bool
-            ) -> Job[tuple[list[DepthImage] | None, list[DepthImage] | None]]:
+def _gl_set(state: GLState, scene_key: str, scene: Scene, plan: SetPlan, want_conventional: bool
+            ) -> tuple[list[DepthImage] | None, list[DepthImage] | None]:
     """(the set rendered by GL — None when it is Embree-only —, the conventional
     images of the reference cameras when wanted)."""
-
-    def run(state: GLState) -> tuple[list[DepthImage] | None, list[DepthImage] | None]:
-        gpu = state.scene_gpu(scene_key, scene)
-        renderer = state.resource("depth_images", DepthImageRenderer)
-        gl = state.gl
-        images = None
-        if plan.method == "conventional":
-            images = conventional(gl, gpu, plan.cameras, renderer=renderer)
-        elif plan.method == "peeling":
-            images = depth_peeling(gl, gpu, plan.peel_camera, plan.layers, renderer=renderer)
-        elif plan.redundancy == "pixel":
-            images = non_redundant(gl, gpu, plan.cameras, renderer=renderer)
-        conv = None
-        if want_conventional:
-            conv = images if plan.method == "conventional" else conventional(gl, gpu, plan.cameras, renderer=renderer)
-        return images, conv
-
-    return run
+    gpu = state.scene_gpu(scene_key, scene)
+    renderer = state.resource("depth_images", DepthImageRenderer)
+    gl = state.gl
+    images = None
+    if plan.method == "conventional":
+        images = conventional(gl, gpu, plan.cameras, renderer=renderer)
+    elif plan.method == "peeling":
+        images = depth_peeling(gl, gpu, plan.peel_camera, plan.layers, renderer=renderer)
+    elif plan.redundancy == "pixel":
+        images = non_redundant(gl, gpu, plan.cameras, renderer=renderer)
+    conv = None
+    if want_conventional:
+        conv = images if plan.method == "conventional" else conventional(gl, gpu, plan.cameras, renderer=renderer)
+    return images, conv

@@ -123,10 +123,11 @@ class Metrics:
         metric("depthview_http_errors_total", "counter", "Error responses by class.",
                [(f'{{class="{k}"}}', v) for k, v in sorted(by_class.items())])
         metric("depthview_step_seconds", "histogram", "Time per step of render requests: scene_load (parse or "
-               "cache), job (queue wait + GL), cpu (Embree and shading), encode.",
+               "cache), job (queue wait + GL and Embree on the worker), cpu (shading), encode.",
                [s for samples in steps.values() for s in samples])
         metric("depthview_ready", "gauge", "1 when the render worker's GL context is alive.", [("", int(w["ready"]))])
-        metric("depthview_workers_alive", "gauge", "Render worker threads alive.", [("", int(w["alive"]))])
+        metric("depthview_workers_alive", "gauge", "Render workers alive (the thread, or processes "
+               "with DEPTHVIEW_WORKERS).", [("", int(w["alive"]))])
         metric("depthview_jobs_total", "counter", "Render jobs by outcome.", [
             ('{outcome="done"}', w["jobs_done"]), ('{outcome="failed"}', w["jobs_failed"]),
             ('{outcome="expired"}', w["jobs_expired"]), ('{outcome="rejected"}', w["jobs_rejected"])])

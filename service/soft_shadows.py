@@ -1,8 +1,9 @@
 """Soft shadows and reconstructions for the service (thesis Ch. 3, Alg. 4–5).
 
 GL work (G-buffer, reference images, reconstruction, shadow maps) runs only in
-the worker jobs (`service.jobs.soft_shadow_job`, `reconstruction_job`), on the
-worker thread; the Embree truth (`raytrace`) and the shading here run off it.
+the worker jobs (`service.jobs.SoftShadowJob`, `ReconstructionJob`), on the
+worker thread; the Embree truth (`raytrace`) runs in the same job without GL (queued
+and timed like the rest), the shading here in the thread pool.
 The settings are the benchmark's (`bench/soft_shadows.py`):
 `ShadowSettings` with its default shadow-map resolution, reference images of
 `resolution`² from the light's 4 corners (peeling: 4 layers from its centre),
@@ -56,7 +57,7 @@ def reference_cameras(scene: Scene, light: AreaLight, method: str, resolution: i
 
 
 def raytrace_counts(scene: Scene, gbuf: Any, req: SoftShadowRequest) -> np.ndarray:
-    """The exact Embree truth (CPU; call off the GL thread)."""
+    """The exact Embree truth (CPU, no GL; `SoftShadowJob` runs it)."""
     bits = light_visibility(RayCaster(scene), gbuf.position, gbuf.normal, gbuf.mask, req.light, req.samples)
     return visible_counts(bits)
 

@@ -240,7 +240,7 @@ class SceneStore:
     Thread-safe: handlers call it from a thread pool. It never touches GL."""
 
     def __init__(self, data_dir: str | os.PathLike[str], cache_size: int = 8,
-                 max_triangles: int | None = None) -> None:
+                 max_triangles: int | None = None, cleanup: bool = True) -> None:
         self.root = Path(data_dir) / "scenes"
         self.root.mkdir(parents=True, exist_ok=True)
         self.cache_size = max(1, int(cache_size))
@@ -250,7 +250,8 @@ class SceneStore:
         self._load_locks: dict[str, threading.Lock] = {}
         self._defaults: dict[str, SceneMeta] = {}
         self.loads = 0  # number of Scene parses/builds (for tests and metrics)
-        self._cleanup_temp()
+        if cleanup:  # not in a reader (a worker process) beside the store that writes
+            self._cleanup_temp()
         self._register_builtins()
 
     # --- start-up ----------------------------------------------------------------

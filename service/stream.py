@@ -42,6 +42,7 @@ import json
 import logging
 import threading
 import time
+import uuid
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any, Protocol, TypeVar
@@ -55,14 +56,14 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from gl_passes.cluster_tracer import ClusterTracer
 from gl_passes.reprojection import ReflectionReuser, ReuseSettings
-from scenes.camera import look_at_scene
+from scenes.camera import Camera, look_at_scene
 from scenes.model import Scene
 from service import errors, image_io
 from service.budget import check_budget, frame_bytes
 from service.config import Settings
 from service.deps import Render, check_size
 from service.frames import render
-from service.jobs import Job
+from service.jobs import Job, SceneJob
 from service.schemas import StreamRequest
 from service.worker import GLState
 
@@ -94,23 +95,30 @@ class FrameSource(Protocol):
     def close(self) -> None: ...
 
 
+@dataclass(frozen=True)
+class _Started:
+    """A job that also returns when it started (time.monotonic: one clock for every
+    process on the machine); picklable when the job is."""
+
+    job: Any
+
+    def __call__(self, state: Any) -> tuple[float, Any]:
+        return time.monotonic(), self.job(state)
+
+
 @dataclass
 class _TimedRender(Render):
     """A Render that adds up how long its jobs waited in the worker's queue."""
 
     queue_wait_s: float = 0.0
 
-    async def job(self, job: Job[T], label: str) -> T:
-        submitted, started = time.monotonic(), []
-
-        def timed(state: Any) -> T:
-            started.append(time.monotonic())
-            return job(state)
-
+    async def job(self, job: Job[T], label: str, pin: str | None = None) -> T:
+        submitted, started = time.monotonic(), None
         try:
-            return await super().job(timed, label)
+            started, result = await super().job(_Started(job), label, pin)
+            return result
         finally:
-            self.queue_wait_s += (started[0] if started else time.monotonic()) - submitted
+            self.queue_wait_s += (started if started is not None else time.monotonic()) - submitted
 
 
 class JobFrameSource:
@@ -131,7 +139,8 @@ class JobFrameSource:
 
 
 class _Reuse:
-    """A stream's ReflectionReuser and its ClusterTracer; touched only on the worker thread."""
+    """A stream's ReflectionReuser and its ClusterTracer; touched only on the worker thread
+    (in ``GLState.clients`` under the stream's key, on the worker the stream is pinned to)."""
 
     def __init__(self) -> None:
         self.reuser: ReflectionReuser | None = None
@@ -155,17 +164,47 @@ class _Reuse:
         self.reuser = self.tracer = self.key = None
 
 
+@dataclass(frozen=True)
+class StreamReflectionJob(SceneJob):
+    """The next cluster-reflection frame of stream `stream` through its ReflectionReuser
+    (created on first use in the worker's ``GLState.clients``)."""
+
+    scene_key: str
+    scene: Scene | None
+    camera: Camera
+    glossy_rays: int
+    stream: str
+
+    def __call__(self, state: GLState) -> Any:
+        reuse = state.clients.setdefault(self.stream, _Reuse())
+        return reuse.get(state, self.scene_key, self.load(state), self.glossy_rays).next_frame(self.camera)
+
+
+@dataclass(frozen=True)
+class ReleaseStream:
+    """Chore: release stream `stream`'s ReflectionReuser on its worker."""
+
+    stream: str
+
+    def __call__(self, state: GLState) -> None:
+        reuse = state.clients.pop(self.stream, None)
+        if reuse is not None:
+            reuse.release(state)
+
+
 class ReuseFrameSource(JobFrameSource):
     """The stream's frame source: frames with ``reflections: "cluster"`` go through one
     ``ReflectionReuser`` per stream (thesis Ch. 5, Alg. 8), whose tracer for the
     recomputed pixels is the cluster method (Ch. 4, one sample per pixel; the frames
     endpoint supersamples 2×2); its stats give the reused-pixel ratio (reused / reflective
     pixels, 0 on keyframes) and the keyframe flag. Every other frame renders as
-    ``JobFrameSource`` renders it. ``close()`` frees the reuser on the worker thread."""
+    ``JobFrameSource`` renders it. The reuser lives on one worker (its jobs are pinned to
+    it: the stream's key) and ``close()`` frees it there; a worker process that dies
+    takes it along (the next frame is a keyframe on its replacement)."""
 
     def __init__(self, r: Render, scene_id: str) -> None:
         super().__init__(r, scene_id)
-        self._reuse = _Reuse()
+        self._key = f"stream-{uuid.uuid4().hex}"
         self._used = False
 
     async def render(self, req: StreamRequest) -> SourceFrame:
@@ -175,10 +214,9 @@ class ReuseFrameSource(JobFrameSource):
         t0 = time.perf_counter()
         scene = await timed.scene(self.scene_id)
         camera = req.to_camera().fit_clip(scene.bounds)
-        reuse, scene_id, rays = self._reuse, self.scene_id, req.effects.glossy_rays
         self._used = True
-        frame = await timed.job(lambda state: reuse.get(state, scene_id, scene, rays).next_frame(camera),
-                                f"stream frame {scene_id[:12]}")
+        job = StreamReflectionJob(self.scene_id, scene, camera, req.effects.glossy_rays, self._key)
+        frame = await timed.job(job, f"stream frame {self.scene_id[:12]}", pin=self._key)
         st = frame.stats
         ratio = 0.0 if st.keyframe or not st.reflective else 1.0 - st.recomputed_fraction
         return SourceFrame(np.asarray(frame.color, np.float32), time.perf_counter() - t0, timed.queue_wait_s,
@@ -186,7 +224,7 @@ class ReuseFrameSource(JobFrameSource):
 
     def close(self) -> None:
         if self._used:
-            self.r.worker.run_before_next_job(self._reuse.release)
+            self.r.worker.run_before_next_job(ReleaseStream(self._key), pin=self._key)
 
 
 SourceFactory = Callable[[Render, str], FrameSource]

@@ -36,7 +36,7 @@ from scenes.camera import Camera
 from scenes.loaders import load_scene
 from scenes.model import Scene
 from service.effects import raytrace
-from service.jobs import frame_job, reflection_job
+from service.jobs import FrameJob, ReflectionJob
 from service.schemas import Effects
 from service.worker import GLState, RenderWorker
 
@@ -141,10 +141,10 @@ def render_frame(gl: GLThread, scene: SceneArg, camera: CameraArg, effects: Mapp
     cam = as_camera(camera, sc)
     fx = _effects(effects)
     if fx.reflections == "none":
-        return gl.run(frame_job(scene_key(sc), sc, cam))
+        return gl.run(FrameJob(scene_key(sc), sc, cam))
     if fx.reflections == "raytrace":
         return raytrace(sc, cam, fx.glossy_rays)
-    return gl.run(reflection_job(scene_key(sc), sc, cam, fx.reflections, fx.glossy_rays))
+    return gl.run(ReflectionJob(scene_key(sc), sc, cam, fx.reflections, fx.glossy_rays))
 
 
 def reference_frame(scene: SceneArg, camera: CameraArg, effects: Mapping[str, Any] | None = None) -> Frame:

@@ -51,6 +51,10 @@ class WorkerUnavailable(WorkerError):
     """The worker has no GL context (start-up failed) or is shutting down (HTTP 503)."""
 
 
+class WorkerDied(WorkerUnavailable):
+    """A worker process died while running the job; it is replaced (HTTP 503)."""
+
+
 class JobExpired(WorkerError, TimeoutError):
     """The job's deadline passed before the worker got to it (HTTP 504)."""
 
@@ -78,8 +82,12 @@ class GLState:
     gl: GLContext
     gbuffer: GBufferPass
     gpu_cache_size: int = 4
+    #: Loads a stored scene by its content address (jobs that arrive without their scene).
+    scene_loader: Callable[[str], Scene] | None = None
     _gpu: OrderedDict[str, SceneGPU] = field(default_factory=OrderedDict)
     _resources: dict[str, Any] = field(default_factory=dict)
+    #: Per-client state on this worker (a stream's ReflectionReuser), by client key.
+    clients: dict[str, Any] = field(default_factory=dict)
 
     def scene_gpu(self, key: str, scene: Scene) -> SceneGPU:
         """The GPU upload of `scene`, cached under `key` (a content address: the same
@@ -99,6 +107,11 @@ class GLState:
     def has_scene(self, key: str) -> bool:
         """Whether the GPU upload of the scene under `key` is cached."""
         return key in self._gpu
+    def scene(self, key: str) -> Scene:
+        """The scene stored under the content address `key` (from the scene loader)."""
+        if self.scene_loader is None:
+            raise LookupError(f"no scene loader to load scene {key}")
+        return self.scene_loader(key)
 
     def forget(self, key: str) -> None:
         """Release the GPU upload cached under `key`, if any."""
@@ -122,6 +135,12 @@ class GLState:
     def release(self) -> None:
         """Release every GL object, then the context (worker thread only)."""
         self.gl.check_thread()
+        for key, client in list(self.clients.items()):
+            try:
+                client.release(self)
+            except Exception:  # noqa: BLE001 - release the rest anyway
+                log.exception("releasing client state %s failed", key)
+        self.clients.clear()
         for key, gpu in list(self._gpu.items()):
             try:
                 gpu.release()
@@ -147,10 +166,12 @@ class RenderWorker:
     def __init__(self, queue_size: int = 32, job_timeout_s: float = 120.0, gpu_cache_size: int = 4,
                  backend: str | None = None, device: int | None = None,
                  context_factory: Callable[[], GLContext] | None = None,
-                 gbuffer_factory: Callable[[GLContext], GBufferPass] | None = None, name: str = "depthview-gl") -> None:
+                 gbuffer_factory: Callable[[GLContext], GBufferPass] | None = None, name: str = "depthview-gl",
+                 scene_loader: Callable[[str], Scene] | None = None) -> None:
         self.queue_size = int(queue_size)
         self.job_timeout_s = float(job_timeout_s)
         self.gpu_cache_size = int(gpu_cache_size)
+        self._scene_loader = scene_loader
         self._context_factory = context_factory or (lambda: create_gl_context(backend, device))
         self._gbuffer_factory = gbuffer_factory or GBufferPass
         self._q: queue.Queue[Any] = queue.Queue(maxsize=self.queue_size)
@@ -226,11 +247,12 @@ class RenderWorker:
                 log.warning("render worker did not stop within %.1f s", timeout)
 
     # --- submitting ------------------------------------------------------------------
-    def submit(self, fn: Job, timeout: float | None = None, label: str = "") -> Future:
+    def submit(self, fn: Job, timeout: float | None = None, label: str = "", pin: str | None = None) -> Future:
         """Queue `fn(state)` for the GL thread; returns its Future. Raises QueueFull
         when `queue_size` jobs are already waiting, WorkerUnavailable when the worker
         failed to start or is stopping. `timeout` (default job_timeout_s) sets the
-        deadline after which the job is skipped if it has not started."""
+        deadline after which the job is skipped if it has not started. `pin` (jobs that
+        must share a worker) changes nothing here: there is one thread."""
         if self.startup_error is not None:
             raise WorkerUnavailable(f"no GL context: {self.startup_error}")
         now = time.monotonic()
@@ -255,7 +277,7 @@ class RenderWorker:
         with self._evict_lock:
             self._evictions.add(key)
 
-    def run_before_next_job(self, fn: Callable[[GLState], Any]) -> None:
+    def run_before_next_job(self, fn: Callable[[GLState], Any], pin: str | None = None) -> None:
         """Run `fn(state)` on the worker thread before its next job, outside the queue
         (never refused, never behind a full queue): releasing a client's GL objects, e.g.
         a stream's ReflectionReuser. An idle worker runs it at once; chores still pending
@@ -301,7 +323,8 @@ class RenderWorker:
         except BaseException:
             gl.release()
             raise
-        self._state = GLState(gl=gl, gbuffer=gbuffer, gpu_cache_size=self.gpu_cache_size)
+        self._state = GLState(gl=gl, gbuffer=gbuffer, gpu_cache_size=self.gpu_cache_size,
+                              scene_loader=self._scene_loader)
         self.renderer, self.backend = gl.renderer, gl.backend
         self.gl_version = getattr(gl, "version", None)
         self.is_software = bool(gl.is_software)
@@ -377,16 +400,19 @@ class RenderWorker:
             fut.set_result(result)
         finally:
             self.busy = False
-        dt = time.perf_counter() - t0
         with self._stats_lock:
-            if ok:
-                self.jobs_done += 1
-            else:
-                self.jobs_failed += 1
-            self.job_seconds_sum += dt
-            self.job_seconds_count += 1
-            self.queue_wait_seconds_sum += waited
-            self.last_job_seconds = dt
+            count_job(self, "done" if ok else "failed", time.perf_counter() - t0, waited)
+
+
+def count_job(worker: Any, outcome: str, seconds: float, waited: float) -> None:
+    """Add a finished job to `worker`'s counters (jobs_<outcome>, job seconds, queue
+    wait); the caller holds the lock guarding them."""
+    name = f"jobs_{outcome}"
+    setattr(worker, name, getattr(worker, name) + 1)
+    worker.job_seconds_sum += seconds
+    worker.job_seconds_count += 1
+    worker.queue_wait_seconds_sum += waited
+    worker.last_job_seconds = seconds
 
 
 def encode_frame(gbuf: GBuffer, fmt: str) -> bytes:

@@ -263,13 +263,16 @@ def wait_ready(client: Any, timeout: float = 20.0) -> dict:
 @contextlib.contextmanager
 def service(data_dir: Path, ready: bool = True, **overrides) -> Iterator[Any]:
     """A TestClient of a fresh app on `data_dir` (settings overridden), ready unless
-    ready=False."""
+    ready=False. Its render worker is the in-process thread (workers=0) unless
+    `workers` is given: the tests look inside it (its thread, jobs that are closures,
+    patched classes); tests/test_service_workers.py covers the worker processes, and
+    `live_server` runs the default."""
     from fastapi.testclient import TestClient
 
     from service.app import create_app
     from service.config import Settings
 
-    app = create_app(Settings(data_dir=data_dir, **overrides))
+    app = create_app(Settings(data_dir=data_dir, **{"workers": 0, **overrides}))
     with TestClient(app) as client:
         if ready:
             wait_ready(client)
@@ -362,17 +365,17 @@ def worker_context_loss() -> dict:
     two frames: {"first": coverage of the frame before, "error": what the frame
     after raised (None if it did not), "alive": worker thread alive after,
     "stopped": stop() finished}."""
-    from service.jobs import frame_job
+    from service.jobs import FrameJob
     from service.worker import RenderWorker
 
     sc = make_builtin("cornell")
     cam = look_at_scene(sc.bounds, width=32, height=24).fit_clip(sc.bounds)
     w = RenderWorker(queue_size=4).start()
     assert w.wait_ready(60), w.startup_error
-    first = w.submit(frame_job("a", sc, cam)).result(60)
+    first = w.submit(FrameJob("a", sc, cam)).result(60)
     w.submit(lambda state: state.gl.ctx.release()).result(60)  # the context is gone
     try:
-        w.submit(frame_job("b", sc, cam)).result(60)
+        w.submit(FrameJob("b", sc, cam)).result(60)
         error = None
     except Exception as exc:  # noqa: BLE001 - reported to the test
         error = f"{type(exc).__name__}: {exc}"

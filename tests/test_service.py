@@ -21,7 +21,7 @@ from fastapi.testclient import TestClient
 from gl_passes.upload import SceneGPU
 from scenes.builtin import BUILTIN_NAMES, make_builtin
 from scenes.camera import Camera
-from service import image_io
+from service import image_io, jobs
 from service.config import Settings
 from service.store import builtin_id
 from service.worker import JobExpired, RenderWorker, WorkerUnavailable
@@ -394,6 +394,88 @@ def test_queue_full_is_503_and_timeout_is_504(tmp_path, cornell_id):
         assert 'depthview_jobs_total{outcome="expired"} 1' in text
         assert 'depthview_frame_errors_total{status="503"} 1' in text
         assert 'depthview_frame_errors_total{status="504"} 1' in text
+
+
+#: The Embree render paths (no GL, or not only GL): url suffix and body.
+EMBREE_PATHS = {
+    "raytraced reflections": ("frames", {"camera": frame_camera(FRAME_SCENE), "width": W, "height": H,
+                                         "effects": {"reflections": "raytrace", "glossy_rays": 1}}),
+    "raytraced soft shadows": ("frames", {"camera": frame_camera(FRAME_SCENE), "width": W, "height": H,
+                                          "effects": {"soft_shadows": {"samples": 2, "method": "raytrace"}}}),
+    "visibility NR set": ("depth-images", {"width": 24, "height": 24, "method": "non_redundant",
+                                           "redundancy": "visibility"}),
+    "sampling metrics": ("depth-images", {"width": 24, "height": 24, "method": "non_redundant",
+                                          "redundancy": "visibility", "metrics": True, "intermediate_views": 2}),
+}
+
+
+def test_embree_paths_are_queued_and_timed_like_gl_jobs(tmp_path, cornell_id, monkeypatch):
+    """Every Embree path is one job on the worker thread: behind a busy worker it gets 504
+    at the time limit, with the queue full 503 + Retry-After, and on a free worker 200."""
+    with service(tmp_path, queue_size=1, job_timeout_s=1.0, retry_after_s=3) as c:
+        worker: RenderWorker = c.app.state.worker
+        for name, (suffix, body) in EMBREE_PATHS.items():
+            started, release = threading.Event(), threading.Event()
+
+            def blocking(state, started=started, release=release):
+                started.set()
+                assert release.wait(20)
+
+            blocker = worker.submit(blocking, timeout=30)
+            assert started.wait(10)
+            try:
+                r = c.post(f"/scenes/{cornell_id}/{suffix}", json=body)  # queued behind the blocker
+                assert r.status_code == 504 and "1 s" in r.json()["detail"], (name, r.text)
+                r = c.post(f"/scenes/{cornell_id}/{suffix}", json=body)  # the abandoned job holds the slot
+                assert r.status_code == 503 and r.headers["retry-after"] == "3", (name, r.text)
+            finally:
+                release.set()
+            blocker.result(10)
+            t0 = time.monotonic()
+            while (worker.queue_depth or worker.busy) and time.monotonic() - t0 < 10:
+                time.sleep(0.01)
+            done = worker.jobs_done
+            r = c.post(f"/scenes/{cornell_id}/{suffix}", json=body)
+            assert r.status_code == 200, (name, r.text)
+            assert worker.jobs_done == done + 1, name  # the whole render was one job
+        assert worker.job_thread_ids == {worker.thread_id}
+        text = c.get("/metrics").text
+        assert f'depthview_jobs_total{{outcome="rejected"}} {len(EMBREE_PATHS)}' in text
+        assert f'depthview_jobs_total{{outcome="expired"}} {len(EMBREE_PATHS)}' in text
+
+        # An Embree job that runs past the limit is 504 too (it was in the thread pool,
+        # out of the timeout's reach, before).
+        def slow_raytrace(*args):
+            time.sleep(1.5)
+            raise AssertionError("unused")
+
+        monkeypatch.setattr(jobs, "raytrace_cached", slow_raytrace)
+        suffix, body = EMBREE_PATHS["raytraced reflections"]
+        t0 = time.monotonic()
+        r = c.post(f"/scenes/{cornell_id}/{suffix}", json=body)
+        assert r.status_code == 504 and time.monotonic() - t0 < 1.4, r.text
+
+
+def test_jobs_are_picklable_specs_that_load_their_scene_by_address(client, cornell_id):
+    """A job pickles without its scene (only the content address travels) and, on a
+    worker, loads the scene from the store by that address."""
+    import pickle
+
+    from service.jobs import FrameJob
+
+    scene = client.app.state.store.get_scene(cornell_id)
+    cam = Camera(**frame_camera(FRAME_SCENE), width=W, height=H).fit_clip(scene.bounds)
+    job = FrameJob(cornell_id, scene, cam)
+    data = pickle.dumps(job)
+    assert len(data) < 4096  # the camera and the address, not the geometry
+    spec = pickle.loads(data)
+    assert spec.scene is None and spec.scene_key == cornell_id and spec.camera == cam
+    worker: RenderWorker = client.app.state.worker
+    loaded, direct = worker.submit(spec).result(30), worker.submit(job).result(30)
+    np.testing.assert_array_equal(loaded.color, direct.color)
+    missing = FrameJob("0" * 64, None, cam)
+    with pytest.raises(LookupError):
+        worker.submit(missing).result(30)
 
 
 def test_concurrent_frames_all_run_on_the_gl_thread(client, cornell_id):

@@ -1,7 +1,7 @@
 """The render resources of a scene: frames (G-buffer, reflections, soft shadows),
 reconstructions (GLB) and depth-image sets. Each request is checked against the
-size limits and the memory budget before its scene is loaded; GL work runs as jobs
-(``service.jobs``) on the worker, CPU work and encoding in the thread pool."""
+size limits and the memory budget before its scene is loaded; GL and Embree work runs
+as jobs (``service.jobs``) on the worker, encoding in the thread pool."""
 
 from __future__ import annotations
 
@@ -15,11 +15,11 @@ from gl_passes.reconstruction import glb_bytes
 from scenes.model import AreaLight
 from service.budget import check_budget, frame_bytes, reconstruction_bytes, set_bytes
 from service.deps import RenderDep, check_size, require_token
-from service.depth_sets import embree_set, encode_set, needs_gl, plan_set, set_metrics
+from service.depth_sets import encode_set, plan_set
 from service.effects import server_timing
 from service.errors import json_safe, responses
 from service.frames import render
-from service.jobs import reconstruction_job, set_job
+from service.jobs import ReconstructionJob, SetJob
 from service.schemas import DepthImagesRequest, FrameRequest, ReconstructionRequest
 from service.soft_shadows import reference_cameras, resolve_light
 
@@ -85,7 +85,7 @@ async def reconstruct(scene_id: str, req: ReconstructionRequest, r: RenderDep) -
         raise HTTPException(422, f"reconstruction viewpoints: {exc}") from None
     if req.method == "peeling":
         cams = cams[:1]
-    job = reconstruction_job(scene_id, scene, cams, req.method, req.reconstruction, req.layers)
+    job = ReconstructionJob(scene_id, scene, cams, req.method, req.reconstruction, req.layers)
     parts = await r.job(job, f"reconstruction {scene_id[:12]}")
     names = [f"{req.method}_{k}" for k in range(len(parts))]
     body = await r.encode(glb_bytes, parts, names)
@@ -105,15 +105,11 @@ async def render_depth_images(scene_id: str, req: DepthImagesRequest, r: RenderD
     check_budget(r.settings, set_bytes(req))
     scene = await r.scene(scene_id)
     plan = plan_set(scene, req.method, req.redundancy, req.to_cameras(), req.width, req.height, req.layers)
-    images, conv = None, None
-    if needs_gl(plan, req.metrics):
-        images, conv = await r.job(set_job(scene_id, scene, plan, req.metrics), f"depth images {scene_id[:12]}")
-    if images is None:
-        images = await r.cpu(embree_set, scene, plan)
+    job = SetJob(scene_id, scene, plan, req.intermediate_views if req.metrics else None, req.seed)
+    images, metrics = await r.job(job, f"depth images {scene_id[:12]}")
     body = await r.encode(encode_set, images, req.format)
     media = SET_MEDIA_TYPES[req.format]
-    if not req.metrics:
+    if metrics is None:
         return Response(body, media_type=media)
-    metrics = await r.cpu(set_metrics, scene, plan, images, conv, req.intermediate_views, req.seed)
     return JSONResponse({"metrics": json_safe(metrics), "media_type": media,
                          "images_b64": base64.b64encode(body).decode("ascii")})

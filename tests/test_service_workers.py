@@ -1,0 +1,240 @@
+"""Render worker processes (DEPTHVIEW_WORKERS ≥ 1, ``service.process_worker``): jobs
+run in child processes with their own GL context; a killed or stuck worker is replaced
+and the next request succeeds; a stream's reuser stays on one worker."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from service import image_io
+from service.config import Settings, default_workers
+from service.process_worker import ProcessWorkerPool
+from service.store import builtin_id
+from service.worker import JobExpired, WorkerDied
+from tests.helpers import frame_camera, service
+
+CORNELL = builtin_id("cornell")
+
+
+@dataclass(frozen=True)
+class Sleep:
+    """A picklable job that sleeps (in the worker process) and returns its pid."""
+
+    seconds: float
+
+    def __call__(self, state) -> int:
+        time.sleep(self.seconds)
+        return os.getpid()
+
+
+def frame(c, **extra):
+    return c.post(f"/scenes/{CORNELL}/frames",
+                  json={"camera": frame_camera(), "width": 32, "height": 24, **extra})
+
+
+def wait_until(cond, timeout: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not cond():
+        assert time.monotonic() < deadline, "condition not reached"
+        time.sleep(0.05)
+
+
+@pytest.fixture(scope="module")
+def client(tmp_path_factory):
+    with service(tmp_path_factory.mktemp("data"), workers=1, job_timeout_s=20.0) as c:
+        yield c
+
+
+def test_workers_setting():
+    assert Settings().workers == default_workers() >= 1  # worker processes by default
+    assert Settings.from_env({"DEPTHVIEW_WORKERS": "0"}).workers == 0  # the in-process worker thread
+    assert Settings.from_env({"DEPTHVIEW_WORKERS": "3"}).workers == 3
+    assert Settings.from_env({"DEPTHVIEW_WORKERS": "auto"}).workers == default_workers() >= 1
+    for bad in ("-1", "many"):
+        with pytest.raises(ValueError):
+            Settings.from_env({"DEPTHVIEW_WORKERS": bad})
+
+
+def test_frames_render_in_a_worker_process(client, tmp_path):
+    pool = client.app.state.worker
+    assert isinstance(pool, ProcessWorkerPool) and pool.alive == 1
+    assert pool.pids[0] != os.getpid()
+    r = frame(client)
+    assert r.status_code == 200, r.text
+    with service(tmp_path) as thread_client:  # the same frame from the worker thread
+        ref = frame(thread_client)
+    np.testing.assert_array_equal(image_io.decode_png(r.content), image_io.decode_png(ref.content))
+    assert frame(client, effects={"reflections": "raytrace", "glossy_rays": 1}).status_code == 200
+    assert "depthview_workers_alive 1" in client.get("/metrics").text
+
+
+def test_a_killed_worker_fails_its_job_naming_it_and_is_replaced(client):
+    pool: ProcessWorkerPool = client.app.state.worker
+    replaced = pool.workers_replaced
+    pid = pool.pids[0]
+    fut = pool.submit(Sleep(30), label="sleepy job")
+    wait_until(lambda: pool.busy, 10)
+    os.kill(pid, signal.SIGKILL)
+    with pytest.raises(WorkerDied, match=f"process {pid} died .*sleepy job"):
+        fut.result(30)
+    r = frame(client)  # the next request succeeds on the replacement
+    assert r.status_code == 200, r.text
+    assert pool.pids[0] not in (None, pid) and pool.workers_replaced == replaced + 1
+    idle = pool.pids[0]
+    os.kill(idle, signal.SIGKILL)  # killed while idle: replaced without waiting for a request
+    wait_until(lambda: pool.workers_replaced == replaced + 2 and pool.ready, 30)
+    assert pool.pids[0] != idle and "depthview_workers_alive 1" in client.get("/metrics").text
+    assert frame(client).status_code == 200
+
+
+def test_a_worker_stuck_past_the_time_limit_is_killed_and_replaced(client):
+    pool: ProcessWorkerPool = client.app.state.worker
+    pid = pool.pids[0]
+    t0 = time.monotonic()
+    with pytest.raises(JobExpired, match=f"process {pid} was killed"):
+        pool.submit(Sleep(60), timeout=1.0, label="stuck").result(30)
+    assert time.monotonic() - t0 < 10
+    assert frame(client).status_code == 200 and pool.pids[0] != pid
+
+
+def test_an_unpicklable_job_is_refused_and_the_worker_lives_on(client):
+    pool: ProcessWorkerPool = client.app.state.worker
+    pid = pool.pids[0]
+    with pytest.raises(TypeError, match="cannot be sent to a worker process"):
+        pool.submit(lambda state: 1, label="closure").result(30)
+    assert pool.submit(Sleep(0)).result(30) == pid
+
+
+def stream_frame(ws, msg: dict, id_: int) -> dict:
+    ws.send_json({**msg, "id": id_})
+    while True:
+        m = ws.receive_json()
+        assert m.get("type") != "error", m
+        ws.receive_bytes()
+        if m.get("id") == id_ and not m.get("rest"):
+            return m
+
+
+MIRROR_VIEW = {"camera": {"eye": [2.5, 1.6, 3.0], "target": [0.0, 0.9, -0.5]}, "width": 64, "height": 48,
+               "effects": {"reflections": "cluster"}}
+MIRROR_MOVED = {**MIRROR_VIEW, "camera": {"eye": [2.45, 1.6, 3.02], "target": [0.0, 0.9, -0.5]}}
+
+
+def test_a_stream_is_pinned_to_one_worker_and_reuses_there(client):
+    pool: ProcessWorkerPool = client.app.state.worker
+    with client.websocket_connect(f"/scenes/{builtin_id('mirror')}/stream") as ws:
+        ws.receive_json()
+        metas = [stream_frame(ws, MIRROR_VIEW, 1), stream_frame(ws, MIRROR_MOVED, 2)]
+        assert len(pool._pins) == 1
+    assert metas[0]["keyframe"] is True and metas[1]["keyframe"] is False and metas[1]["reused_ratio"] > 0.5
+    wait_until(lambda: not pool._pins, 10)  # the socket closed: the pin (and the reuser) is released
+
+
+def test_a_stream_whose_worker_dies_starts_over_on_the_replacement(client):
+    pool: ProcessWorkerPool = client.app.state.worker
+    with client.websocket_connect(f"/scenes/{builtin_id('mirror')}/stream") as ws:
+        ws.receive_json()
+        assert stream_frame(ws, MIRROR_VIEW, 1)["keyframe"] is True
+        replaced, pid = pool.workers_replaced, pool.pids[0]
+        os.kill(pid, signal.SIGKILL)
+        wait_until(lambda: pool.workers_replaced == replaced + 1 and pool.ready, 30)
+        assert not pool._pins  # the reuser died with its worker
+        m = stream_frame(ws, MIRROR_MOVED, 2)  # the stream goes on: a new reuser, a keyframe
+        assert m["keyframe"] is True and pool.pids[0] != pid
+
+
+def test_queue_full_is_503_and_stop_ends_a_busy_worker_at_once(tmp_path):
+    with service(tmp_path, workers=1, queue_size=1, retry_after_s=4) as c:
+        pool: ProcessWorkerPool = c.app.state.worker
+        busy = pool.submit(Sleep(60), label="long")
+        wait_until(lambda: pool.busy, 10)
+        queued = pool.submit(Sleep(0))
+        r = frame(c)
+        assert r.status_code == 503 and r.headers["retry-after"] == "4" and "queue is full" in r.json()["detail"]
+        pid = pool.pids[0]
+        t0 = time.monotonic()
+    assert time.monotonic() - t0 < 10  # the lifespan's stop did not wait for the 60 s job
+    with pytest.raises(Exception, match="shutting down"):
+        busy.result(5)
+    with pytest.raises(Exception, match="shutting down"):
+        queued.result(5)
+    with pytest.raises(ProcessLookupError):
+        os.kill(pid, 0)
+
+
+@dataclass(frozen=True)
+class LoseContext:
+    """A picklable job that releases the worker's GL context under it and fails."""
+
+    def __call__(self, state) -> None:
+        state.gl.ctx.release()
+        raise RuntimeError("context released")
+
+
+def test_a_worker_whose_context_fails_is_replaced(client):
+    pool: ProcessWorkerPool = client.app.state.worker
+    pid, replaced = pool.pids[0], pool.workers_replaced
+    with pytest.raises(RuntimeError, match="context released"):
+        pool.submit(LoseContext()).result(30)
+    assert frame(client).status_code == 200  # on the replacement
+    assert pool.pids[0] != pid and pool.workers_replaced == replaced + 1
+
+
+def test_the_handler_answers_503_naming_the_dead_worker(client):
+    """Through the routes' Render.job: the in-flight request of a killed worker."""
+    import asyncio
+
+    from fastapi import HTTPException
+
+    from service.deps import get_render
+
+    pool: ProcessWorkerPool = client.app.state.worker
+    pid = pool.pids[0]
+    r = get_render(type("Req", (), {"app": client.app})())
+
+    async def run():
+        task = asyncio.ensure_future(r.job(Sleep(30), "sleepy frame"))
+        while not pool.busy:
+            await asyncio.sleep(0.02)
+        os.kill(pid, signal.SIGKILL)
+        return await task
+
+    with pytest.raises(HTTPException) as info:
+        asyncio.run(run())
+    assert info.value.status_code == 503 and info.value.headers["Retry-After"]
+    assert f"process {pid} died" in info.value.detail and "sleepy frame" in info.value.detail
+    assert frame(client).status_code == 200
+
+
+def test_uploaded_scenes_load_in_the_worker_by_id(client):
+    from tests.helpers import obj_text
+
+    r = client.post("/scenes", files={"file": ("quad.obj", obj_text(2), "text/plain")})
+    assert r.status_code in (200, 201), r.text
+    sid = r.json()["id"]
+    cam = {"eye": [0.5, 0.5, 3.0], "target": [0.5, 0.5, 0.0]}
+    r = client.post(f"/scenes/{sid}/frames", json={"camera": cam, "width": 16, "height": 16})
+    assert r.status_code == 200, r.text
+    assert client.delete(f"/scenes/{sid}").status_code in (200, 204)
+    r = client.post(f"/scenes/{sid}/frames", json={"camera": cam, "width": 16, "height": 16})
+    assert r.status_code == 404
+
+
+def test_two_workers_share_the_queue_and_pin_streams_apart(tmp_path):
+    with service(tmp_path, workers=2) as c:
+        pool: ProcessWorkerPool = c.app.state.worker
+        wait_until(lambda: all(s.ready for s in pool._slots), 60)
+        assert len(set(pool.pids)) == 2 and "depthview_workers_alive 2" in c.get("/metrics").text
+        futures = [pool.submit(Sleep(0.3)) for _ in range(4)]
+        assert {f.result(30) for f in futures} == set(pool.pids)  # both took jobs
+        a = [pool.submit(Sleep(0), pin="stream-a").result(30) for _ in range(3)]
+        b = [pool.submit(Sleep(0), pin="stream-b").result(30) for _ in range(3)]
+        assert len(set(a)) == 1 and len(set(b)) == 1 and a[0] != b[0]
+        pool.run_before_next_job(Sleep(0), pin="stream-a")
+        assert "stream-a" not in pool._pins and "stream-b" in pool._pins
