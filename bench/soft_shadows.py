@@ -54,7 +54,7 @@ from gl_passes.upload import SceneGPU
 from reference.raycast import RayCaster
 from reference.shadows import error_maps, error_picture, light_visibility, shadow_errors, visible_counts
 from scenes.camera import Camera, look_at_scene
-from scenes.lights import default_area_light, light_camera
+from scenes.lights import PEEL_LAYERS, default_area_light, reference_cameras
 from scenes.model import AreaLight, Scene
 from scenes.shading import area_light_shade
 
@@ -76,7 +76,6 @@ THESIS_TABLE9_1024 = {
     "tree": {"non_redundant": (9.21, 17.5), "conventional": (13.7, 21.1), "peeling": (10.9, 18.7)},
 }
 OUTPUT_RES = 512
-PEEL_LAYERS = 4
 
 
 @dataclass
@@ -104,13 +103,6 @@ def stage_scene(gl: GLContext, scene: Scene) -> Stage:
         gb.release()
     albedo = scene.materials[buf.obj_id, :3]
     return Stage(scene, gpu, RayCaster(scene), view, buf.position, buf.normal, buf.mask, albedo)
-
-
-def reference_cameras(light: AreaLight, bounds: tuple[np.ndarray, np.ndarray], method: str, res: int) -> list[Camera]:
-    """§3.4.2: NR and conventional images from the light's 4 corners; peeling from its centre."""
-    if method == "peeling":
-        return [light_camera(light, np.asarray(light.center), bounds, res)]
-    return [light_camera(light, c, bounds, res) for c in light.corners()]
 
 
 def approximate(gl: GLContext, st: Stage, sp: SoftShadowPass, light: AreaLight, method: str,

@@ -60,3 +60,16 @@ def light_camera(light: AreaLight, eye: np.ndarray, bounds: tuple[np.ndarray, np
     fov = float(np.degrees(2 * np.arctan(t)))
     cam = Camera(tuple(e), tuple(e + fwd), tuple(up), fov, resolution, resolution)
     return cam.fit_clip((lo, hi))
+
+
+#: Depth-peeling layers rendered from the light's centre (§3.4.2).
+PEEL_LAYERS = 4
+
+
+def reference_cameras(light: AreaLight, bounds: tuple[np.ndarray, np.ndarray], method: str,
+                      resolution: int) -> list[Camera]:
+    """The reference viewpoints of Alg. 5 (§3.4.2): the light's 4 corners for
+    non-redundant and conventional images, its centre for depth peeling; each a
+    `light_camera` of resolution² seeing the whole box `bounds`."""
+    eyes = [np.asarray(light.center)] if method == "peeling" else list(light.corners())
+    return [light_camera(light, e, bounds, resolution) for e in eyes]

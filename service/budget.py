@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from fastapi import HTTPException
 
+from scenes.lights import PEEL_LAYERS
 from service.config import (
     FRAME_BYTES_PER_PIXEL,
     RECONSTRUCTION_BYTES_PER_SAMPLE,
@@ -18,7 +19,6 @@ from service.config import (
     Settings,
 )
 from service.schemas import DepthImagesRequest, FrameRequest, ReconstructionRequest
-from service.soft_shadows import PEEL_LAYERS
 
 #: Images of the Fig. 8 rig (scenes.rig.fig8_rig) and of a light's corners.
 RIG_IMAGES = 3

@@ -16,6 +16,7 @@ import numpy as np
 from fastapi import HTTPException
 
 from scenes.camera import Camera
+from scenes.lights import reference_cameras
 from scenes.model import AreaLight, Scene
 from service.deps import Render
 from service.effects import encode_reflections
@@ -24,7 +25,6 @@ from service.schemas import FrameRequest
 from service.soft_shadows import (
     SoftShadowRequest,
     encode_shadowed,
-    reference_cameras,
     resolve_light,
     shade,
 )
@@ -71,7 +71,7 @@ async def _soft_shadows(r: Render, scene_id: str, scene: Scene, camera: Camera, 
                           AreaLight(spec.light.center, spec.light.u, spec.light.v))
     ss = SoftShadowRequest(light, spec.samples, spec.method, spec.reconstruction, spec.resolution)
     try:  # the light must see the whole scene from its corners (422 otherwise)
-        reference_cameras(scene, light, "conventional", 16)
+        reference_cameras(light, scene.bounds, "conventional", 16)
     except ValueError as exc:
         raise HTTPException(422, f"soft_shadows light: {exc}") from None
     gbuf, counts = await r.job(SoftShadowJob(scene_id, scene, camera, ss), label)

@@ -42,10 +42,11 @@ from gl_passes.reflections import DEFAULT_SETTINGS, ClusterReflections
 from gl_passes.shadows import ShadowSettings, SoftShadowPass
 from scenes.camera import Camera
 from scenes.depth_image import DepthImage
+from scenes.lights import PEEL_LAYERS, reference_cameras
 from scenes.model import Scene
 from service.depth_sets import SetPlan, embree_set, needs_gl, set_metrics
 from service.effects import raytrace_cached
-from service.soft_shadows import PEEL_LAYERS, MeshArrays, SoftShadowRequest, raytrace_counts, reference_cameras
+from service.soft_shadows import MeshArrays, SoftShadowRequest, raytrace_counts
 from service.worker import GLState
 
 T = TypeVar("T")
@@ -156,11 +157,11 @@ class SoftShadowJob(SceneJob):
         gpu = state.scene_gpu(self.scene_key, scene)
         gbuf = state.gbuffer.render(gpu, self.camera)
         if req.method == "raytrace":
-            return gbuf, raytrace_counts(scene, gbuf, req)
+            return gbuf, raytrace_counts(self.scene_key, scene, gbuf, req)
         if req.method == "geometry":
             occluders, owned = [gpu], []
         else:
-            cams = reference_cameras(scene, req.light, req.method, req.resolution)
+            cams = reference_cameras(req.light, scene.bounds, req.method, req.resolution)
             owned = _reconstruct(state, self.scene_key, scene, cams, req.method, req.reconstruction)
             occluders = owned
         try:

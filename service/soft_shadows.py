@@ -17,21 +17,15 @@ from typing import Any
 
 import numpy as np
 
-from reference.raycast import RayCaster
 from reference.shadows import light_visibility, visible_counts
-from scenes.camera import Camera
-from scenes.lights import default_area_light, light_camera
+from scenes.lights import default_area_light
 from scenes.model import AreaLight, Scene
 from scenes.shading import area_light_shade
 from service import image_io
+from service.effects import CASTERS
 
-#: Occluders of the shadow maps: the original scene, or a reconstruction of images
-#: by method; "raytrace" is the exact Embree truth (no shadow maps).
-SHADOW_METHODS = ("geometry", "non_redundant", "conventional", "peeling", "raytrace")
 #: A mesh read back: positions (N,3), RGBA8 colours (N,4), triangles (M,3).
 MeshArrays = tuple[np.ndarray, np.ndarray, np.ndarray]
-#: Depth-peeling layers from the light's centre (§3.4.2).
-PEEL_LAYERS = 4
 
 
 @dataclass(frozen=True)
@@ -50,15 +44,12 @@ def resolve_light(scene: Scene, light: AreaLight | None) -> AreaLight:
     return light if light is not None else default_area_light(scene.bounds, scene.sun_direction)
 
 
-def reference_cameras(scene: Scene, light: AreaLight, method: str, resolution: int) -> list[Camera]:
-    """The light's 4 corners (NR, conventional) or its centre (peeling), looking at the scene."""
-    eyes = [np.asarray(light.center)] if method == "peeling" else list(light.corners())
-    return [light_camera(light, e, scene.bounds, resolution) for e in eyes]
-
-
-def raytrace_counts(scene: Scene, gbuf: Any, req: SoftShadowRequest) -> np.ndarray:
-    """The exact Embree truth (CPU, no GL; `SoftShadowJob` runs it)."""
-    bits = light_visibility(RayCaster(scene), gbuf.position, gbuf.normal, gbuf.mask, req.light, req.samples)
+def raytrace_counts(scene_key: str, scene: Scene, gbuf: Any, req: SoftShadowRequest) -> np.ndarray:
+    """The exact Embree truth (CPU, no GL; `SoftShadowJob` runs it), with the scene's
+    BVH from the worker's cache (`service.effects.CASTERS`, shared with raytraced reflections)."""
+    caster, lock, _, _ = CASTERS.get(scene_key, scene)
+    with lock:
+        bits = light_visibility(caster, gbuf.position, gbuf.normal, gbuf.mask, req.light, req.samples)
     return visible_counts(bits)
 
 

@@ -12,6 +12,7 @@ from fastapi import APIRouter, Depends, HTTPException, Response
 from fastapi.responses import JSONResponse
 
 from gl_passes.reconstruction import glb_bytes
+from scenes.lights import reference_cameras
 from scenes.model import AreaLight
 from service.budget import check_budget, frame_bytes, reconstruction_bytes, set_bytes
 from service.deps import RenderDep, check_size, require_token
@@ -21,7 +22,7 @@ from service.errors import json_safe, responses
 from service.frames import render
 from service.jobs import ReconstructionJob, SetJob
 from service.schemas import DepthImagesRequest, FrameRequest, ReconstructionRequest
-from service.soft_shadows import reference_cameras, resolve_light
+from service.soft_shadows import resolve_light
 
 MEDIA_TYPES = {"png": "image/png", "exr": "image/x-exr"}
 SET_MEDIA_TYPES = {"exr": "image/x-exr", "npz": "application/x-npz"}
@@ -78,7 +79,7 @@ async def reconstruct(scene_id: str, req: ReconstructionRequest, r: RenderDep) -
         if cams is None:
             spec = req.light
             light = resolve_light(scene, None if spec is None else AreaLight(spec.center, spec.u, spec.v))
-            cams = reference_cameras(scene, light, req.method, req.resolution)
+            cams = reference_cameras(light, scene.bounds, req.method, req.resolution)
         else:
             cams = [c.fit_clip(scene.bounds) for c in cams]
     except ValueError as exc:
