@@ -203,8 +203,7 @@ class DepthImageRenderer(Releasable):
         """Alg. 1 + Alg. 3 as `non_redundant`, plus per image I_i the image of
         offset_cameras[i] rendered with the same previous images I_0..I_{i−1}
         bound (the offset image H of Alg. 4; its size may differ from I_i's)."""
-        images, offsets = self._non_redundant(scene_gpu, cameras, True, offset_cameras)
-        return images, offsets
+        return self._non_redundant(scene_gpu, cameras, True, offset_cameras)
 
     def _non_redundant(self, scene_gpu: SceneGPU, cameras: Sequence[Camera], read: bool,
                        offset_cameras: Sequence[Camera] | None = None) -> tuple[list[DepthImage], list[DepthImage]]:

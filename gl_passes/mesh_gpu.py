@@ -16,6 +16,13 @@ from gl_passes.indexed import IndexedBuffers
 VERTEX_BYTES = 16
 
 
+def pack_colors(color: np.ndarray) -> np.ndarray:
+    """(…,3) linear colours in [0,1] → (…,) uint32 RGBA8 (alpha 255): the colour word
+    of a vertex record, and of a depth image as the reconstruction shaders read it."""
+    c = np.clip(np.rint(np.asarray(color, np.float64) * 255), 0, 255).astype(np.uint32)
+    return c[..., 0] | (c[..., 1] << 8) | (c[..., 2] << 16) | np.uint32(255 << 24)
+
+
 def pack_vertices(positions: np.ndarray, colors: np.ndarray | None = None) -> np.ndarray:
     """(N,3) positions and optional (N,3) linear colours in [0,1] → (N,4) float32
     records as the GPU holds them (colour quantised to 8 bits per channel)."""
@@ -23,8 +30,7 @@ def pack_vertices(positions: np.ndarray, colors: np.ndarray | None = None) -> np
     out = np.zeros((n, 4), np.float32)
     out[:, :3] = positions
     if colors is not None:
-        c = np.clip(np.rint(np.asarray(colors, np.float64) * 255), 0, 255).astype(np.uint32)
-        out[:, 3] = (c[:, 0] | (c[:, 1] << 8) | (c[:, 2] << 16) | (255 << 24)).view(np.float32)
+        out[:, 3] = pack_colors(colors).view(np.float32)
     return out
 
 

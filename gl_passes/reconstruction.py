@@ -32,7 +32,6 @@ camera. `export_glb` writes one node per source image.
 
 from __future__ import annotations
 
-import io
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Literal
@@ -44,7 +43,7 @@ import numpy as np
 from gl_passes.bindings import Units
 from gl_passes.context import GLContext
 from gl_passes.depth_images import DepthImageRenderer, prepare_cameras
-from gl_passes.mesh_gpu import VERTEX_BYTES, MeshGPU, pack_vertices
+from gl_passes.mesh_gpu import VERTEX_BYTES, MeshGPU, pack_colors
 from gl_passes.releasable import Releasable
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
@@ -95,12 +94,6 @@ def offset_camera(camera: Camera) -> Camera:
     w, h = camera.width, camera.height
     t = np.tan(np.radians(camera.fov) / 2) * (h + 1) / h
     return replace(camera, width=w + 1, height=h + 1, fov=float(np.degrees(2 * np.arctan(t))))
-
-
-def pack_colors(color: np.ndarray) -> np.ndarray:
-    """(…,3) linear colours in [0,1] → (…,) uint32 RGBA8 (alpha 255), as `pack_vertices`."""
-    c = np.clip(np.rint(np.asarray(color, np.float64) * 255), 0, 255).astype(np.uint32)
-    return c[..., 0] | (c[..., 1] << 8) | (c[..., 2] << 16) | np.uint32(255 << 24)
 
 
 def _image_words(img: DepthImage) -> tuple[np.ndarray, np.ndarray]:
@@ -347,9 +340,7 @@ def glb_bytes(parts: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], names:
         tm = trimesh.Trimesh(pos[used], remap.reshape(-1, 3), vertex_colors=rgba[used], process=False)
         name = names[k] if names else f"image_{k}"
         scene.add_geometry(tm, node_name=name, geom_name=name)
-    buf = io.BytesIO()
-    buf.write(scene.export(file_type="glb"))
-    return buf.getvalue()
+    return scene.export(file_type="glb")
 
 
 def mesh_arrays(mesh: MeshGPU) -> tuple[np.ndarray, np.ndarray]:
@@ -359,4 +350,4 @@ def mesh_arrays(mesh: MeshGPU) -> tuple[np.ndarray, np.ndarray]:
 
 
 __all__ = ["ReconstructionSettings", "Reconstructor", "SampledSet", "export_glb", "glb_bytes", "offset_camera",
-           "pack_vertices", "reconstruct_set", "render_set", "simplify"]
+           "reconstruct_set", "render_set", "simplify"]
