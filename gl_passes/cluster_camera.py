@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import moderngl
 import numpy as np
 
+from gl_passes.chunks import box_corners, boxes_in_frustum, facing_away
 from gl_passes.cluster_units import UNITS
 from gl_passes.clustering import ClusterStats
 from gl_passes.context import GLContext
@@ -314,56 +315,14 @@ def visible_boxes(cam: ClusterCamera, bounds: np.ndarray) -> np.ndarray:
     """(n,) bool: boxes (n, 2, 3) (min, max) that may intersect the cluster frustum
     (culled when all 8 corners are outside one clip-space plane or below the
     fitting-plane clip)."""
-    object_bounds = np.asarray(bounds, np.float64)
-    lo, hi = object_bounds[:, 0], object_bounds[:, 1]
-    sel = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], bool)
-    corners = np.where(sel[None], hi[:, None, :], lo[:, None, :])  # (n,8,3)
-    hom = np.concatenate([corners, np.ones((*corners.shape[:2], 1))], axis=2) @ cam.view_projection().T
-    x, y, z, w = (hom[..., k] for k in range(4))
-    out = (np.all(x < -w, 1) | np.all(x > w, 1) | np.all(y < -w, 1) | np.all(y > w, 1)
-           | np.all(z < -w, 1) | np.all(z > w, 1))
-    below = np.all(corners @ cam.plane_normal < cam.clip_offset, axis=1)
-    return ~(out | below)
-
-
-def chunk_cones(vertices: np.ndarray, faces: np.ndarray, first: np.ndarray) -> np.ndarray:
-    """(n, 8) per run of triangles starting at `first` (a run ends where the next
-    begins, the last at len(faces)): c (3), the centre of its AABB; a (3), the unit
-    mean of its triangles' geometric normals n_i (counter-clockwise winding, the GL
-    front face); ε = max |n_i − a|; m = min n_i·(v0_i − c) (scene units). A
-    zero-area triangle is never rasterised and bounds neither ε nor m."""
-    v = np.asarray(vertices, np.float64)
-    tri = v[np.asarray(faces, np.int64)]  # (F,3,3)
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    length = np.linalg.norm(n, axis=1)
-    live = length > 0
-    n = np.where(live[:, None], n / np.maximum(length, 1e-300)[:, None], 0.0)
-    first = np.asarray(first, np.int64)
-    if len(first) == 0:
-        return np.zeros((0, 8))
-    lo = np.minimum.reduceat(tri.min(axis=1), first, axis=0)
-    hi = np.maximum.reduceat(tri.max(axis=1), first, axis=0)
-    c = 0.5 * (lo + hi)
-    a = np.add.reduceat(n, first, axis=0)
-    a /= np.maximum(np.linalg.norm(a, axis=1), 1e-300)[:, None]
-    run = np.repeat(np.arange(len(first)), np.diff(np.append(first, len(tri))))
-    dev = np.where(live, np.linalg.norm(n - a[run], axis=1), 0.0)
-    off = np.where(live, np.einsum("ij,ij->i", n, tri[:, 0] - c[run]), np.inf)
-    eps = np.maximum.reduceat(dev, first)
-    m = np.minimum.reduceat(off, first)
-    return np.concatenate([c, a, eps[:, None], m[:, None]], axis=1)
+    below = np.all(box_corners(bounds) @ cam.plane_normal < cam.clip_offset, axis=1)
+    return boxes_in_frustum(cam.view_projection(), bounds) & ~below
 
 
 def backfacing_chunks(cam: ClusterCamera, cones: np.ndarray) -> np.ndarray:
-    """(n,) bool: runs of triangles (chunk_cones) all of whose triangles face away
-    from the cluster camera's centre e_c, so back-face culling (GL_BACK, ccw front)
-    would discard every one of them: n_i·(v0_i − e_c) = n_i·(v0_i − c) + n_i·(c − e_c)
-    ≥ m + a·(c − e_c) − ε·|c − e_c| > 0. Conservative (false only costs a draw)."""
-    if len(cones) == 0:
-        return np.zeros(0, bool)
-    d = cones[:, :3] - np.asarray(cam.center, np.float64)
-    bound = cones[:, 7] + np.einsum("ij,ij->i", cones[:, 3:6], d) - cones[:, 6] * np.linalg.norm(d, axis=1)
-    return bound > 1e-6 * np.maximum(np.linalg.norm(d, axis=1), 1e-12)
+    """(n,) bool: triangle chunks (chunks.chunk_cones) all of whose triangles face
+    away from the cluster camera's centre e_c (chunks.facing_away)."""
+    return facing_away(np.asarray(cam.center, np.float64), cones)
 
 
 def visible_objects(cam: ClusterCamera, object_bounds: np.ndarray) -> list[int]:

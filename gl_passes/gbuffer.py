@@ -56,6 +56,7 @@ class GBufferPass(Releasable):
         self.sky_prog = program(gl, "fullscreen.vert", "gbuffer_sky.frag")
         self.sky_vao = gl.ctx.vertex_array(self.sky_prog, [])
         self.target: RenderTarget | None = None
+        self.drawn = 0  # triangles the last draw() sent (culled chunks skipped)
 
     def draw(self, scene_gpu: SceneGPU, camera: Camera, cull_back_faces: bool = True,
              objects: list[int] | None = None) -> RenderTarget:
@@ -83,7 +84,8 @@ class GBufferPass(Releasable):
             ctx.front_face = "ccw"
             ctx.cull_face = "back"
         set_camera(self.prog, cam, sun)
-        scene_gpu.draw(self.prog, objects)
+        self.drawn = scene_gpu.draw(self.prog, objects, view_proj=cam.view_projection(),
+                                    eye=np.asarray(cam.eye, np.float64) if cull_back_faces else None)
         ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         return self.target
 

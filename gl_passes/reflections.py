@@ -17,8 +17,8 @@ shaders comes from gl_passes.cluster_units.UNITS.
    atlas texture, one viewport per cluster (over `atlas_budget` the non-planar
    images shrink; planar ones keep their texel = sample grid, on which their rays
    are exact: shrinking them caused ~1.2 points of the occlusion error), with
-   frustum culling of 512-triangle
-   chunks (finer than SceneGPU.object_bounds, so large floors and walls are mostly
+   frustum culling of triangle
+   chunks (gl_passes.chunks; finer than SceneGPU.object_bounds, so large floors and walls are mostly
    culled), back-face culling of whole chunks (cluster_camera.backfacing_chunks:
    exact, GL would cull every triangle of them), the other objects of non-planar
    clusters at a level of detail within `lod_texels` texels (ClusterSettings), and
@@ -95,6 +95,7 @@ import moderngl
 import numpy as np
 
 from gl_passes import cluster_camera as cc
+from gl_passes.chunks import ChunkTable, chunk_table, runs
 from gl_passes.cluster_camera import ClusterCamera, ClusterExtentPass
 from gl_passes.cluster_units import UNITS
 from gl_passes.clustering import ClusteringPass
@@ -111,7 +112,6 @@ from scenes.camera import Camera
 from scenes.glossy import FADE_FRACTION, lobe_offsets
 
 MAX_RAYS = 64
-CHUNK = 512  # triangles per culling chunk of the cluster depth images
 CHUNK_CACHE = 4  # scenes whose chunk records (bounds, normal cones) are kept
 BLOCK = 8    # atlas texels per side of a depth-bounds block (march skipping)
 TRACE_GROUP = (8, 8)  # intersection workgroup (x, y)
@@ -485,25 +485,6 @@ class ClusterReflections(Releasable):
         cached = self._chunk_cache.get(id(scene_gpu))
         return cached is not None and cached["scene"] is scene_gpu.scene and cached["vbo"] is scene_gpu.vbo
 
-    @staticmethod
-    def _chunk_table(scene, ranges: list[tuple[int, int]], faces: np.ndarray) -> dict[str, np.ndarray]:
-        """Per-object runs of at most CHUNK triangles of `faces` (object k owns rows
-        ranges[k] = (first, count)) with their AABBs (n, 2, 3) and normal cones
-        (cluster_camera.chunk_cones)."""
-        obj, first, count = [], [], []
-        for k, (f0, n) in enumerate(ranges):
-            for a in range(0, n, CHUNK):
-                obj.append(k)
-                first.append(f0 + a)
-                count.append(min(CHUNK, n - a))
-        tri = scene.vertices[faces.astype(np.int64)]  # (F,3,3)
-        lo = np.minimum.reduceat(tri.min(axis=1), first, axis=0) if first else np.zeros((0, 3))
-        hi = np.maximum.reduceat(tri.max(axis=1), first, axis=0) if first else np.zeros((0, 3))
-        first_a = np.asarray(first, np.int64)
-        return {"obj": np.asarray(obj, np.int64), "first": first_a, "count": np.asarray(count, np.int64),
-                "bounds": np.stack([lo, hi], axis=1).astype(np.float64),
-                "cones": cc.chunk_cones(scene.vertices, faces, first_a)}
-
     def _lod_table(self, scene_gpu: SceneGPU, error: float) -> dict:
         """The scene's objects simplified (meshoptimizer, absolute error ≤ `error`
         scene units, gl_passes.reconstruction.simplify) in one index buffer over the
@@ -517,12 +498,12 @@ class ClusterReflections(Releasable):
             ranges.append((f0, len(tri)))
             f0 += len(tri)
         faces = np.concatenate(parts) if parts else np.zeros((0, 3), np.uint32)
-        table = self._chunk_table(scene, ranges, faces)
+        table = chunk_table(scene.vertices, faces, ranges)
         ibo = self.gl.ctx.buffer(np.ascontiguousarray(faces, np.uint32).tobytes() or bytes(12))
         vaos = tuple(self.gl.ctx.vertex_array(prog, [(scene_gpu.vbo, *scene_gpu.vertex_format(prog))],
                                               index_buffer=ibo, index_element_size=4)
                      for prog in (self.depth_prog, self.peel_prog))
-        return {**table, "error": float(error), "ibo": ibo, "vaos": vaos, "triangles": len(faces)}
+        return {"table": table, "error": float(error), "ibo": ibo, "vaos": vaos, "triangles": len(faces)}
 
     @staticmethod
     def _release_entry(entry: dict) -> None:
@@ -534,8 +515,8 @@ class ClusterReflections(Releasable):
     def _chunks(self, scene_gpu: SceneGPU) -> dict:
         """The camera-independent records of a scene (cached per SceneGPU, CHUNK_CACHE
         scenes): the unit of frustum culling for the cluster images, per-object runs of
-        at most CHUNK triangles (finer than SceneGPU.object_bounds, so large objects,
-        floors and walls, are mostly culled) with AABBs and normal cones; under "lods"
+        at most chunks.CHUNK triangles (finer than SceneGPU.object_bounds, so large objects,
+        floors and walls, are mostly culled) with AABBs and normal cones (SceneGPU.chunks); under "lods"
         the same for each level of detail of settings.lod_errors (× scene diagonal)."""
         key = id(scene_gpu)
         if self._chunk_cache_hit(scene_gpu):
@@ -544,8 +525,7 @@ class ClusterReflections(Releasable):
         if old is not None:
             self._release_entry(old)
         scene = scene_gpu.scene
-        cached = {"scene": scene, "vbo": scene_gpu.vbo, **self._chunk_table(scene, scene_gpu.ranges, scene.faces),
-                  "lods": []}
+        cached = {"scene": scene, "vbo": scene_gpu.vbo, "table": scene_gpu.chunks, "lods": []}
         self._chunk_cache[key] = cached  # registered first: released with the cache whatever follows
         for rel in self.settings.lod_errors:
             cached["lods"].append(self._lod_table(scene_gpu, rel * scene.diagonal))
@@ -582,7 +562,7 @@ class ClusterReflections(Releasable):
         self-hit test's). Returns the number of chunks drawn."""
         ctx = self.gl.ctx
         ch = self._chunks(scene_gpu)
-        tables = [ch, *ch["lods"]]
+        tables = [ch["table"], *(lod["table"] for lod in ch["lods"])]
         errors = [lod["error"] for lod in ch["lods"]]
         vaos = [(scene_gpu.vao(self.depth_prog), scene_gpu.vao(self.peel_prog)), *(lod["vaos"] for lod in ch["lods"])]
         sun = np.asarray(scene_gpu.scene.sun_direction)
@@ -606,9 +586,9 @@ class ClusterReflections(Releasable):
             vis = {}
             for lv in np.unique(level):
                 t = tables[lv]
-                v = cc.visible_boxes(c, t["bounds"]) & (level[t["obj"]] == lv)
+                v = cc.visible_boxes(c, t.bounds) & (level[t.obj] == lv)
                 if self.settings.backface_chunks:
-                    v &= ~cc.backfacing_chunks(c, t["cones"])
+                    v &= ~cc.backfacing_chunks(c, t.cones)
                 vis[int(lv)] = v
             for prog in (self.depth_prog, self.peel_prog):
                 for name, value in (("u_view", c.view_matrix()), ("u_view_proj", c.view_projection()),
@@ -624,7 +604,7 @@ class ClusterReflections(Releasable):
                 fbo.viewport = c.atlas
                 for lv, v in vis.items():
                     t = tables[lv]
-                    sel = np.nonzero(v & ((t["obj"] == own) == (layer in (1, 2))))[0]
+                    sel = np.nonzero(v & ((t.obj == own) == (layer in (1, 2))))[0]
                     drawn += len(sel)
                     self._draw_runs(prog, vaos[lv][layer >= 2], t, sel, materials)
         ctx.disable_direct(GL_CLIP_DISTANCE0)
@@ -632,21 +612,13 @@ class ClusterReflections(Releasable):
         return drawn
 
     @staticmethod
-    def _draw_runs(prog, vao, t: dict, sel: np.ndarray, materials: np.ndarray) -> None:
-        """Draw the chunks `sel` of chunk table `t`, merging runs of consecutive
-        chunks of the same object into one draw."""
-        i = 0
-        while i < len(sel):
-            j = i
-            while j + 1 < len(sel) and sel[j + 1] == sel[j] + 1 and t["obj"][sel[j + 1]] == t["obj"][sel[i]]:
-                j += 1
-            k = int(t["obj"][sel[i]])
-            first = int(t["first"][sel[i]])
-            count = int(t["first"][sel[j]] + t["count"][sel[j]]) - first
+    def _draw_runs(prog, vao, t: ChunkTable, sel: np.ndarray, materials: np.ndarray) -> None:
+        """Draw the chunks `sel` of chunk table `t`, runs of consecutive chunks of
+        one object in one draw."""
+        for k, first, count in runs(t, sel):
             set_uniform(prog, "u_base", first)
             set_uniform(prog, "u_albedo", tuple(float(x) for x in materials[k + 1, :3]))
             vao.render(moderngl.TRIANGLES, vertices=3 * count, first=3 * first)
-            i = j + 1
 
     def release(self) -> None:
         self.gl.check_thread()

@@ -9,10 +9,12 @@ triangle index.
 from __future__ import annotations
 
 from collections.abc import Iterable
+from functools import cached_property
 
 import moderngl
 import numpy as np
 
+from gl_passes.chunks import ChunkTable, boxes_in_frustum, chunk_table, facing_away, runs
 from gl_passes.context import GLContext
 from gl_passes.indexed import IndexedBuffers
 from scenes.model import Scene
@@ -39,26 +41,50 @@ class SceneGPU(IndexedBuffers):
         attrs = [a for a in ("in_position", "in_normal") if a in prog]
         return ("3f 3f" if len(attrs) == 2 else "3f 12x", *attrs)
 
+    @cached_property
+    def chunks(self) -> ChunkTable:
+        """The scene's triangle chunks (gl_passes.chunks), built on first use."""
+        return chunk_table(self.scene.vertices, self.scene.faces, self.ranges)
+
     def draw(self, prog: moderngl.Program, objects: Iterable[int] | None = None, materials: bool = True,
-             instances: int = 1) -> None:
+             instances: int = 1, view_proj: np.ndarray | None = None, eye: np.ndarray | None = None) -> int:
         """Draw the given objects (0-based indices; all by default) with `prog`,
-        setting u_base (first global face), u_object (1-based id) and, when the
-        program has them, the material uniforms."""
+        setting u_base (first global face of each draw), u_object (1-based id) and,
+        when the program has them, the material uniforms. With `view_proj` (4×4) the
+        triangle chunks outside its frustum are skipped, with `eye` (world point;
+        only where GL culls back faces) those facing away from it: neither changes
+        a pixel (gl_passes.chunks). Returns the triangles drawn per instance."""
         self.gl.check_thread()
         vao = self.vao(prog)
-        for k in range(len(self.ranges)) if objects is None else objects:
-            first, count = self.ranges[k]
+        objs = range(len(self.ranges)) if objects is None else objects
+        if view_proj is None and eye is None:
+            pieces: Iterable[tuple[int, int, int]] = ((k, *self.ranges[k]) for k in objs)
+        else:
+            t = self.chunks
+            keep = np.zeros(len(self.ranges), bool)
+            keep[list(objs)] = True
+            v = keep[t.obj]
+            if view_proj is not None:
+                v &= boxes_in_frustum(view_proj, t.bounds)
+            if eye is not None:
+                v &= ~facing_away(eye, t.cones)
+            pieces = runs(t, np.nonzero(v)[0])
+        drawn, current = 0, -1
+        for k, first, count in pieces:
             if count == 0:
                 continue
             if "u_base" in prog:
                 prog["u_base"].value = first
-            if "u_object" in prog:
-                prog["u_object"].value = k + 1
-            if materials:
-                m = self.scene.objects[k].material
-                for name, value in (("u_albedo", m.albedo), ("u_specular", m.specular),
-                                    ("u_glossiness", m.glossiness)):
-                    if name in prog:
-                        prog[name].value = value
+            if k != current:
+                current = k
+                if "u_object" in prog:
+                    prog["u_object"].value = k + 1
+                if materials:
+                    m = self.scene.objects[k].material
+                    for name, value in (("u_albedo", m.albedo), ("u_specular", m.specular),
+                                        ("u_glossiness", m.glossiness)):
+                        if name in prog:
+                            prog[name].value = value
             vao.render(moderngl.TRIANGLES, vertices=3 * count, first=3 * first, instances=instances)
-
+            drawn += count
+        return drawn

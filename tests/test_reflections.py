@@ -320,13 +320,13 @@ def test_backfacing_chunks_are_all_back_faces_and_change_no_pixel(gl, refl):
         assert fast.drawn_chunks < slow.drawn_chunks
         assert_images_equal(fast.color, slow.color, "backface_color")
         assert_images_equal(fast.ray_length, slow.ray_length, "backface_ray_length")
-        ch = refl._chunks(sg)
+        ch = refl._chunks(sg)["table"]
     tri = scene.vertices[scene.faces.astype(np.int64)]
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     skipped = 0
     for c in fast.cameras:
-        for k in np.nonzero(backfacing_chunks(c, ch["cones"]))[0]:
-            sl = slice(int(ch["first"][k]), int(ch["first"][k] + ch["count"][k]))
+        for k in np.nonzero(backfacing_chunks(c, ch.cones))[0]:
+            sl = slice(int(ch.first[k]), int(ch.first[k] + ch.count[k]))
             facing = np.einsum("ij,ij->i", normal[sl], tri[sl, 0] - c.center)
             assert np.all(facing >= 0), "a skipped chunk holds a front-facing triangle"
             skipped += 1
