@@ -26,8 +26,9 @@ re-rendered).
 
 Each stream owns a ``FrameSource`` (made by ``app.state.frame_source(render,
 scene_id)``, closed with the socket). The service's is ``ReuseFrameSource``: frames with
-``reflections: "cluster"`` go through one ``ReflectionReuser`` per stream (thesis Ch. 5,
-issue 14; the cluster method of Ch. 4 traces the pixels it recomputes), whose stats give
+``reflections: "cluster"`` or ``"raytrace"`` go through one ``ReflectionReuser`` per stream
+(thesis Ch. 5, issue 14; the cluster method of Ch. 4, or Embree's sparse rays over the
+worker's cached BVH, traces the pixels it recomputes), whose stats give
 ``reused_ratio`` (reused / reflective pixels; 0 on keyframes) and ``keyframe``; every
 other frame renders from scratch with the frames endpoint's jobs (``JobFrameSource``,
 ``service.frames.render``: a keyframe, 0 reused). Either way frames are jobs in the
@@ -56,16 +57,21 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from gl_passes.cluster_tracer import ClusterTracer
 from gl_passes.reprojection import ReflectionReuser, ReuseSettings
+from reference.reflection_tracer import EmbreeTracer
 from scenes.camera import Camera, look_at_scene
 from scenes.model import Scene
 from service import errors, image_io
 from service.budget import check_budget, frame_bytes
 from service.config import Settings
 from service.deps import Render, check_size
+from service.effects import CASTERS
 from service.frames import render
 from service.jobs import Job, SceneJob
 from service.schemas import StreamRequest
 from service.worker import GLState
+
+#: Reflection methods whose stream frames go through the stream's ReflectionReuser.
+REUSED_METHODS = ("cluster", "raytrace")
 
 log = logging.getLogger("depthview.stream")
 T = TypeVar("T")
@@ -138,21 +144,36 @@ class JobFrameSource:
         pass
 
 
+class _CachedEmbreeTracer(EmbreeTracer):
+    """The Embree tracer over the worker's cached BVH of the scene (service.effects.CASTERS),
+    holding the caster's lock while it traces."""
+
+    def __init__(self, scene_key: str, scene: Scene, glossy_rays: int) -> None:
+        caster, self._lock, _, _ = CASTERS.get(scene_key, scene)
+        super().__init__(scene, glossy_rays, caster=caster)
+
+    def trace(self, camera: Camera, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        with self._lock:
+            return super().trace(camera, pixels)
+
+
 class _Reuse:
-    """A stream's ReflectionReuser and its ClusterTracer; touched only on the worker thread
+    """A stream's ReflectionReuser and its tracer (the cluster method for reflections
+    "cluster", Embree's sparse rays for "raytrace"); touched only on the worker thread
     (in ``GLState.clients`` under the stream's key, on the worker the stream is pinned to)."""
 
     def __init__(self) -> None:
         self.reuser: ReflectionReuser | None = None
-        self.tracer: ClusterTracer | None = None
+        self.tracer: ClusterTracer | _CachedEmbreeTracer | None = None
         self.key: tuple[Any, ...] | None = None
 
-    def get(self, state: GLState, scene_key: str, scene: Scene, glossy_rays: int) -> ReflectionReuser:
+    def get(self, state: GLState, scene_key: str, scene: Scene, method: str, glossy_rays: int) -> ReflectionReuser:
         gpu = state.scene_gpu(scene_key, scene)
-        key = (id(gpu), glossy_rays)  # a new upload (the GPU cache evicted the old one) or lobe: start over
+        key = (id(gpu), method, glossy_rays)  # a new upload (the GPU cache evicted the old one), method or lobe
         if self.reuser is None or key != self.key:
             self.release(state)
-            self.tracer = ClusterTracer(state.gl, gpu, glossy_rays=glossy_rays)  # the service's ClusterSettings
+            self.tracer = (ClusterTracer(state.gl, gpu, glossy_rays=glossy_rays)  # the service's ClusterSettings
+                           if method == "cluster" else _CachedEmbreeTracer(scene_key, scene, glossy_rays))
             self.reuser = ReflectionReuser(state.gl, gpu, self.tracer, ReuseSettings(sync_timings=False))
             self.key = key
         return self.reuser
@@ -166,18 +187,20 @@ class _Reuse:
 
 @dataclass(frozen=True)
 class StreamReflectionJob(SceneJob):
-    """The next cluster-reflection frame of stream `stream` through its ReflectionReuser
-    (created on first use in the worker's ``GLState.clients``)."""
+    """The next reflective frame (`method` "cluster" or "raytrace") of stream `stream`
+    through its ReflectionReuser (created on first use in the worker's ``GLState.clients``)."""
 
     scene_key: str
     scene: Scene | None
     camera: Camera
+    method: str
     glossy_rays: int
     stream: str
 
     def __call__(self, state: GLState) -> Any:
         reuse = state.clients.setdefault(self.stream, _Reuse())
-        return reuse.get(state, self.scene_key, self.load(state), self.glossy_rays).next_frame(self.camera)
+        reuser = reuse.get(state, self.scene_key, self.load(state), self.method, self.glossy_rays)
+        return reuser.next_frame(self.camera)
 
 
 @dataclass(frozen=True)
@@ -194,9 +217,10 @@ class ReleaseStream:
 
 class ReuseFrameSource(JobFrameSource):
     """The stream's frame source: frames with ``reflections: "cluster"`` go through one
-    ``ReflectionReuser`` per stream (thesis Ch. 5, Alg. 8), whose tracer for the
-    recomputed pixels is the cluster method (Ch. 4, one sample per pixel; the frames
-    endpoint supersamples 2×2); its stats give the reused-pixel ratio (reused / reflective
+    ``ReflectionReuser`` per stream (thesis Ch. 5, Alg. 8), and so do frames with
+    ``reflections: "raytrace"``; the tracer for the recomputed pixels is the cluster
+    method (Ch. 4) or Embree's sparse rays over the worker's cached BVH, at one sample
+    per pixel (the frames endpoint supersamples 2×2); its stats give the reused-pixel ratio (reused / reflective
     pixels, 0 on keyframes) and the keyframe flag. Every other frame renders as
     ``JobFrameSource`` renders it. The reuser lives on one worker (its jobs are pinned to
     it: the stream's key) and ``close()`` frees it there; a worker process that dies
@@ -208,14 +232,15 @@ class ReuseFrameSource(JobFrameSource):
         self._used = False
 
     async def render(self, req: StreamRequest) -> SourceFrame:
-        if req.effects.reflections != "cluster":
+        if req.effects.reflections not in REUSED_METHODS:
             return await super().render(req)
         timed = _TimedRender(self.r.settings, self.r.store, self.r.worker, self.r.metrics)
         t0 = time.perf_counter()
         scene = await timed.scene(self.scene_id)
         camera = req.to_camera().fit_clip(scene.bounds)
         self._used = True
-        job = StreamReflectionJob(self.scene_id, scene, camera, req.effects.glossy_rays, self._key)
+        job = StreamReflectionJob(self.scene_id, scene, camera, req.effects.reflections, req.effects.glossy_rays,
+                                  self._key)
         frame = await timed.job(job, f"stream frame {self.scene_id[:12]}", pin=self._key)
         st = frame.stats
         ratio = 0.0 if st.keyframe or not st.reflective else 1.0 - st.recomputed_fraction

@@ -80,11 +80,12 @@ def test_frames_are_jpeg_while_moving_then_png_at_rest(client):
         assert moved["id"] == 2 and not np.array_equal(decode(jpeg2), decode(jpeg))
 
 
-def test_reflective_frames_go_through_the_streams_reflection_reuser(client, monkeypatch):
-    """Cluster reflections (mirror scene): the first frame is a keyframe (0 % reused), a
-    small camera step reuses most reflective pixels (Ch. 5); the frames look like the
-    frames endpoint's (the reuser traces one sample per pixel, /frames 2×2); the reuser
-    is released on the worker thread when the socket closes."""
+@pytest.mark.parametrize("method", ["cluster", "raytrace"])
+def test_reflective_frames_go_through_the_streams_reflection_reuser(client, monkeypatch, method):
+    """Cluster and Embree reflections (mirror scene): the first frame is a keyframe (0 %
+    reused), a small camera step reuses most reflective pixels (Ch. 5); the frames look
+    like the frames endpoint's (the reuser traces one sample per pixel, /frames 2×2); the
+    reuser is released on the worker thread when the socket closes."""
     from gl_passes.reprojection import ReflectionReuser
 
     released = []
@@ -93,7 +94,7 @@ def test_reflective_frames_go_through_the_streams_reflection_reuser(client, monk
     mirror = builtin_id("mirror")
     size = {"width": 96, "height": 64}
     body = {"camera": {"eye": [2.5, 1.6, 3.0], "target": [0.0, 0.9, -0.5]}, **size,
-            "effects": {"reflections": "cluster"}}
+            "effects": {"reflections": method}}
     moved = {**body, "camera": {"eye": [2.45, 1.6, 3.02], "target": [0.0, 0.9, -0.5]}}
     with client.websocket_connect(f"/scenes/{mirror}/stream") as ws:
         ws.receive_json()
