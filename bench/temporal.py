@@ -223,9 +223,7 @@ def write_report(out: Path, args: argparse.Namespace, info: dict, rows: list[dic
     facts = [f"Scenes {', '.join(args.scenes)}; fly-through paths with seeds {args.seeds}; {args.frames} frames "
              f"a path at {args.res}² (thesis: 500 frames at 1024²); tracers {', '.join(args.tracers)}.",
              "Ours and direct reprojection are compared with full tracing by the same tracer, frame by frame."]
-    lines = report_head("Temporal reflection reuse (thesis Ch. 5)", "python -m bench.temporal " + " ".join(
-        f"--{k.replace('_', '-')} {' '.join(map(str, v)) if isinstance(v, list) else v}"
-        for k, v in vars(args).items() if k not in ("out", "report_only", "no_progress")), facts, seconds, info)
+    lines = report_head("Temporal reflection reuse (thesis Ch. 5)", "`; `".join(args.commands), facts, seconds, info)
     lines += ["## Table 22", "", md_table(
         ["scene", "path", "tracer", "reflective % max/avg", "full fps avg (min–max)", "ours fps avg (min–max)",
          "speedup", "bound 1/recomputed", "keyframe interval max/avg", RECOMPUTED_HEAD, "MAE ours/direct (0–255)"],
@@ -247,10 +245,17 @@ def write_report(out: Path, args: argparse.Namespace, info: dict, rows: list[dic
     write_text(out.with_suffix(".md"), "\n".join(lines))
 
 
+def command_line(args: argparse.Namespace) -> str:
+    """The invocation that measured these runs (its measuring arguments)."""
+    return "python -m bench.temporal " + " ".join(
+        f"--{k.replace('_', '-')} {' '.join(map(str, v)) if isinstance(v, list) else v}"
+        for k, v in vars(args).items() if k in ("scenes", "frames", "res", "tracers", "seeds", "setting") and v != [])
+
+
 def save(out: Path, args: argparse.Namespace, info: dict, rows: list[dict], seconds: float) -> None:
     """JSON, MAE plot and report of the runs so far (rewritten after every run, so
     a long run lands path by path)."""
-    saved = {k: v for k, v in vars(args).items() if k not in ("out", "report_only")}
+    saved = {k: v for k, v in vars(args).items() if k not in ("out", "report_only", "append", "no_progress")}
     write_json(out.with_suffix(".json"), {"args": saved, "machine": info, "seconds": seconds, "runs": rows})
     plot_mae(rows, out.parent / f"{out.name}_mae.png")
     write_report(out, args, info, rows, seconds)
@@ -268,11 +273,14 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", default=str(RESULTS_DIR / "temporal"))
     ap.add_argument("--no-progress", action="store_true")
     ap.add_argument("--report-only", action="store_true", help="rewrite the .md (and plot) from the existing .json")
+    ap.add_argument("--append", action="store_true",
+                    help="add these runs to the existing .json's (e.g. a scene or path measured later)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     if args.report_only:
         data = json.loads(out.with_suffix(".json").read_text())
-        saved = argparse.Namespace(**{**data["args"], "out": args.out})
+        saved = argparse.Namespace(**{"commands": [command_line(argparse.Namespace(**data["args"]))],
+                                      **data["args"], "out": args.out})
         plot_mae(data["runs"], out.parent / f"{out.name}_mae.png")
         write_report(out, saved, data["machine"], data["runs"], data["seconds"])
         print(f"rewrote {out.with_suffix('.md')}")
@@ -283,10 +291,19 @@ def main(argv: list[str] | None = None) -> None:
     gl = create_gl_context()
     info = machine_info(gl)
     rows: list[dict] = []
-    for name in args.scenes:
+    earlier = 0.0
+    todo_scenes, todo_seeds = args.scenes, args.seeds
+    args.commands = [command_line(args)]
+    if args.append and out.with_suffix(".json").exists():
+        data = json.loads(out.with_suffix(".json").read_text())
+        rows, earlier = data["runs"], data["seconds"]
+        args.commands = [*data["args"].get("commands", []), *args.commands]
+        args.scenes = list(dict.fromkeys([*data["args"]["scenes"], *args.scenes]))
+        args.seeds = sorted({*data["args"]["seeds"], *args.seeds})
+    for name in todo_scenes:
         scene = load_named_scene(name)
         with SceneGPU(gl, scene) as sg:
-            for seed in args.seeds:
+            for seed in todo_seeds:
                 cams = flythrough_path(scene.bounds, args.frames, seed=seed, width=args.res, height=args.res)
                 for tname in args.tracers:
                     def make_tracer(tname=tname, scene=scene, sg=sg):
@@ -296,7 +313,7 @@ def main(argv: list[str] | None = None) -> None:
                            **run_path(gl, sg, make_tracer, cams, stem, out.parent, overrides, not args.no_progress)}
                     rows.append(row)
                     print({k: v for k, v in row.items() if k != "per_frame"}, flush=True)
-                    save(out, args, info, rows, time.perf_counter() - t0)
+                    save(out, args, info, rows, earlier + time.perf_counter() - t0)
     gl.release()
     print(out.with_suffix(".md").read_text())
 
