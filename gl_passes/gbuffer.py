@@ -1,8 +1,8 @@
 """G-buffer pass (DESIGN.md §"Conventions"; thesis §4.2 step 1).
 
 One pass writes local-shaded colour, linear depth, world normal, world position,
-triangle id (geometry shader), object id and material (s, g); the background
-gets the sky colour and ids 0.
+triangle id (gl_PrimitiveID in the fragment shader), object id and material (s, g);
+the background gets the sky colour and ids 0.
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ class GBufferPass(Releasable):
     def __init__(self, gl: GLContext) -> None:
         gl.check_thread()
         self.gl = gl
-        self.prog = program(gl, "scene.vert", "gbuffer.frag", "triangle_id.geom")
+        self.prog = program(gl, "scene.vert", "gbuffer.frag")
         self.sky_prog = program(gl, "fullscreen.vert", "gbuffer_sky.frag")
         self.sky_vao = gl.ctx.vertex_array(self.sky_prog, [])
         self.target: RenderTarget | None = None

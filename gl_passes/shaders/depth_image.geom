@@ -1,8 +1,8 @@
 #version 430 core
 // Optional geometry stage for depth images: triangle id = object's base face
-// offset + primitive id + 1, as triangle_id.geom does for the G-buffer (and the
-// thesis, §2.3.1). Only used to measure its cost (TRI_FROM_GEOM); by default
-// the fragment shader reads gl_PrimitiveID instead.
+// offset + primitive id + 1 (the thesis, §2.3.1). Only used to measure its cost
+// (TRI_FROM_GEOM); by default the fragment shader reads gl_PrimitiveID instead,
+// as the G-buffer's does.
 layout(triangles) in;
 layout(triangle_strip, max_vertices = 3) out;
 uniform uint u_base;
