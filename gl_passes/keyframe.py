@@ -18,16 +18,21 @@ import moderngl
 import numpy as np
 
 from gl_passes.bindings import Units
+from gl_passes.context import GLContext
 from gl_passes.gbuffer import RenderTarget
 from gl_passes.readback import read_texture, write_texture
+from gl_passes.shaders import compute_program
+from gl_passes.uniforms import set_uniform
 from scenes.camera import Camera
 
-#: Units of the reuse shaders (best_match.comp, reflection_offset.*, reflection_compose.comp).
+#: Units of the reuse shaders (keyframe_pack.comp, best_match.comp, reflection_offset.*,
+#: reflection_grid.comp, reflection_splat.comp, reflection_compose.comp).
 REUSE_UNITS = Units(
-    images=("u_prev", "u_offsets"),
+    images=("u_prev", "u_offsets", "u_grid_img", "u_zbuf", "u_inter_img", "u_reliable_img", "u_kf_position_img",
+            "u_kf_normal_img"),
     storage=("Pixels", "Results", "Flags"),
     textures=("u_kf_position", "u_kf_normal", "u_kf_depth", "u_kf_obj", "u_kf_reflection", "u_offsets_tex",
-              "u_position", "u_obj", "u_inter", "u_reliable"),
+              "u_position", "u_obj", "u_inter", "u_reliable", "u_grid"),
 )
 
 #: Reflection-ray length used for rays that miss (they read the sky, a function of
@@ -58,12 +63,14 @@ class ReflectionDepthImage:
 
 class KeyframeTextures:
     """The GPU side of a keyframe: its G-buffer target (kept until the next
-    keyframe) and the (Lr, r) texture; `bind()` binds them to REUSE_UNITS. `pixels`:
-    a uint32 buffer of its reflective pixels' indices y·W + x (GL rows, row 0 =
-    bottom; `n_pixels` of them), so per-pixel passes run over the reflectors only."""
+    keyframe; keyframe_pack.comp puts d into position.w and r into normal.w) and
+    the (Lr, r) texture; `bind()` binds them to REUSE_UNITS. `pixels`: a uint32
+    buffer of its reflective pixels' indices y·W + x (GL rows, row 0 = bottom;
+    `n_pixels` of them), so per-pixel passes run over the reflectors only."""
 
-    def __init__(self, ctx: moderngl.Context, target: RenderTarget, camera: Camera, reflected: np.ndarray,
+    def __init__(self, gl: GLContext, target: RenderTarget, camera: Camera, reflected: np.ndarray,
                  ray_length: np.ndarray, miss_distance: float) -> None:
+        ctx = gl.ctx
         self.target = target
         self.camera = camera
         self.reflected = reflected
@@ -77,6 +84,19 @@ class KeyframeTextures:
         ids = np.flatnonzero((r >= 0)[::-1].ravel()).astype(np.uint32)  # GL rows
         self.n_pixels = len(ids)
         self.pixels = ctx.buffer(ids.tobytes() if len(ids) else np.zeros(1, np.uint32).tobytes())
+        self._pack(gl)
+
+    def _pack(self, gl: GLContext) -> None:
+        """keyframe_pack.comp: d → position.w, r → normal.w."""
+        prog = compute_program(gl, "keyframe_pack.comp", REUSE_UNITS.defines())
+        t = self.target.textures
+        self.bind()
+        REUSE_UNITS.bind_image("u_kf_position_img", t["position"], read=True, write=True)
+        REUSE_UNITS.bind_image("u_kf_normal_img", t["normal"], read=True, write=True)
+        w, h = self.target.size
+        set_uniform(prog, "u_kf_size", (int(w), int(h)))
+        prog.run((w + 7) // 8, (h + 7) // 8, 1)
+        gl.ctx.memory_barrier()
 
     def bind(self) -> None:
         t = self.target.textures

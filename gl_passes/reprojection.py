@@ -42,6 +42,7 @@ from gl_passes.gbuffer import GBufferPass
 from gl_passes.keyframe import MISS_DIAGONALS, KeyframePolicy, KeyframeTextures, ReflectionDepthImage
 from gl_passes.readback import read_texture
 from gl_passes.reflection_offset import ReflectionOffsetPass
+from gl_passes.reflection_splat import ReflectionSplatPass
 from gl_passes.releasable import Releasable
 from gl_passes.upload import SceneGPU
 from scenes.buffers import ReflectionBuffers
@@ -50,6 +51,7 @@ from scenes.camera import Camera
 #: Flag of pixels traced as part of a keyframe (or by the full-tracing baseline).
 TRACED = 4
 MODES: tuple[str, ...] = ("reuse", "direct", "full")
+WARPS: tuple[str, ...] = ("splat", "mesh")
 #: Timed steps (Table 23): diffuse = G-buffer pass and its read-back; keyframe = storing
 #: the reflection depth image and its grid mesh; best_match (§5.4.1); reflection_offset
 #: (§5.4.2); warp = composition (§5.4.3); recompute = the tracer (all reflective pixels
@@ -84,8 +86,11 @@ class ReuseSettings:
     is dropped (0 = off, the thesis: its growth limit alone catches the gaps of the
     reflected scene; on costs recomputed pixels for less smearing, see
     bench/results/temporal.md); miss_diagonals: the ray length given to rays that miss
-    (sky), in scene diagonals; sync_timings: glFinish after each step, so the step
-    times are the steps' own."""
+    (sky), in scene diagonals; warp: how the grid mesh of §5.4.2 is rasterised —
+    "splat" (gl_passes.reflection_splat: compute passes, no vertex pipeline; faster on
+    a CPU rasteriser) or "mesh" (gl_passes.reflection_offset: GL's vertex, geometry
+    and fragment stages); sync_timings: glFinish after each step, so the step times
+    are the steps' own."""
 
     mode: Literal["reuse", "direct", "full"] = "reuse"
     keyframe_threshold: float = 0.3
@@ -94,6 +99,7 @@ class ReuseSettings:
     plane_tolerance: float = 1.0
     reflected_jump: float = 0.0
     miss_diagonals: float = MISS_DIAGONALS
+    warp: Literal["splat", "mesh"] = "splat"
     sync_timings: bool = True
 
     def __post_init__(self) -> None:
@@ -108,6 +114,8 @@ class ReuseSettings:
                 raise ValueError(f"{name} must be positive")
         if self.reflected_jump < 0:
             raise ValueError("reflected_jump must be >= 0")
+        if self.warp not in WARPS:
+            raise ValueError(f"warp must be one of {WARPS}, got {self.warp!r}")
 
 
 @dataclass
@@ -165,7 +173,8 @@ class ReflectionReuser(Releasable):
         self._frame_gb = GBufferPass(gl)
         self._key_gb = GBufferPass(gl)
         self.best_match = BestMatchPass(gl)
-        self.offset = ReflectionOffsetPass(gl)
+        self.offset: ReflectionOffsetPass | ReflectionSplatPass = (
+            ReflectionSplatPass(gl) if self.settings.warp == "splat" else ReflectionOffsetPass(gl))
         self.compose = CompositionPass(gl)
         self.keyframe: KeyframeTextures | None = None
         self.frames = 0
@@ -263,7 +272,7 @@ class ReflectionReuser(Releasable):
         self._frame_gb, self._key_gb = self._key_gb, self._frame_gb
         target = self._key_gb.target
         assert target is not None
-        self.keyframe = KeyframeTextures(self.gl.ctx, target, cam, reflected.copy(), length.copy(),
+        self.keyframe = KeyframeTextures(self.gl, target, cam, reflected.copy(), length.copy(),
                                          self.miss_distance)
         self.offset.prepare(self.keyframe, self.settings.plane_tolerance)
         self.best_match.reset()

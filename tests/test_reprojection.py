@@ -23,6 +23,7 @@ from scipy.ndimage import binary_dilation, binary_erosion, maximum_filter, minim
 
 from gl_passes.cluster_tracer import ClusterTracer
 from gl_passes.composition import DISOCCLUDED, NOT_REFLECTIVE, REUSED
+from gl_passes.readback import read_texture
 from gl_passes.reprojection import TRACED, ReflectionReuser, ReuseSettings
 from gl_passes.upload import SceneGPU
 from reference.raycast import RayCaster
@@ -83,12 +84,12 @@ def _frames(gl, scene, cams, settings=None, tracer=None):
         return [ru.next_frame(c) for c in cams]
 
 
-def _move_once(gl, scene, delta):
+def _move_once(gl, scene, delta, warp="splat"):
     """Keyframe at mirror_camera(96), then one frame moved by `delta`: (ours, direct
     reprojection, Embree's full trace) of the moved frame."""
     cam = mirror_camera(96)
     new = moved(cam, delta)
-    _, ours = _frames(gl, scene, [cam, new])
+    _, ours = _frames(gl, scene, [cam, new], ReuseSettings(warp=warp))
     _, direct = _frames(gl, scene, [cam, new], ReuseSettings(mode="direct"))
     return ours, direct, raytrace_reflections(scene, new, supersample=1)
 
@@ -111,8 +112,9 @@ def test_static_camera_reuses_everything_exactly(gl):
     assert_images_close(again.reflected, key.reflected, tolerance=1e-5, max_bad_fraction=0.0, name="static_refl")
 
 
-def test_planar_mirror_small_move_matches_full_trace(gl):
-    ours, direct, full = _move_once(gl, planar_mirror_scene(), (0.1, 0.03, 0.0))
+@pytest.mark.parametrize("warp", ["splat", "mesh"])
+def test_planar_mirror_small_move_matches_full_trace(gl, warp):
+    ours, direct, full = _move_once(gl, planar_mirror_scene(), (0.1, 0.03, 0.0), warp)
     reused = ours.flags == REUSED
     assert reused.sum() > 0.8 * ours.stats.reflective
     smooth = reused & _smooth(full.reflected)
@@ -144,6 +146,42 @@ def test_curved_reflectors_bounded(gl, kind):
     assert_images_close(ours.reflected, full.reflected, tolerance=CURVED_REUSED_MAE / 255, mask=reused,
                         name="reflected_reused", **MEAN_ONLY)
     assert mae < mae_d
+
+
+@pytest.mark.parametrize("kind", ["planar", "convex"])
+def test_splat_warp_rasterises_the_mesh_warp(gl, kind):
+    """The compute rasteriser (warp="splat") and GL's pipeline (warp="mesh") draw the
+    same moved grid mesh: the same pixels become reliable (but where a pixel centre
+    lies on an edge: the tie rules differ), with the same reflection up to GL's
+    snapping of vertices to 1/256 pixel (steep reflected edges) and its 24-bit depth
+    quantum where reflected surfaces overlap (the splat compares float32); the frame
+    is as close to the full trace."""
+    scene = planar_mirror_scene() if kind == "planar" else mirror_object_scene(sphere_mesh(), "sphere")
+    cam = mirror_camera(96)
+    new = moved(cam, (0.3, 0.09, 0.0))
+    tracer = EmbreeTracer(scene)
+    out = {}
+    with SceneGPU(gl, scene) as sg:
+        for warp in ("splat", "mesh"):
+            with ReflectionReuser(gl, sg, tracer, ReuseSettings(warp=warp)) as ru:
+                ru.next_frame(cam)
+                frame = ru.next_frame(new)
+                inter, reliable = (read_texture(t) for t in ru.offset.run(
+                    ru.keyframe, ru.best_match.offsets, ru.settings.growth, ru.settings.plane_tolerance, 0.0))
+            out[warp] = (frame, inter, reliable > 0.5)
+    (fs, inter_s, rel_s), (fm, inter_m, rel_m) = out["splat"], out["mesh"]
+    assert rel_m.sum() > 1000
+    assert (rel_s != rel_m).sum() <= 0.01 * rel_m.sum(), ((rel_s & ~rel_m).sum(), (rel_m & ~rel_s).sum())
+    both = rel_s & rel_m
+    diff = np.abs(inter_s - inter_m)[..., :3].max(axis=2)[both] * 255
+    assert np.quantile(diff, 0.99) <= 4.0, np.quantile(diff, [0.5, 0.9, 0.99, 1.0])
+    assert abs(fs.stats.recomputed - fm.stats.recomputed) <= 0.01 * fm.stats.reflective
+    full = raytrace_reflections(scene, new, supersample=1)
+    err_s, err_m = (np.abs(f.color - full.color).mean() * 255 for f in (fs, fm))
+    print(f"{kind}: MAE vs full trace splat {err_s:.3f}/255, mesh {err_m:.3f}/255")
+    assert err_s <= err_m + 0.05
+    if kind == "planar":  # a watertight mesh: no pixel inside the warped mirror is left out
+        assert np.all(rel_s[binary_erosion(rel_m, iterations=2)])
 
 
 def test_disoccluded_pixels_are_flagged_and_recomputed(gl):
@@ -255,7 +293,7 @@ def test_cluster_tracer_is_pluggable(gl):
 
 def test_settings_are_validated():
     for bad in ({"mode": "x"}, {"keyframe_threshold": 1.5}, {"max_steps": 0}, {"growth": 0.0},
-                {"reflected_jump": -1.0}):
+                {"reflected_jump": -1.0}, {"warp": "x"}):
         with pytest.raises(ValueError):
             ReuseSettings(**bad)
 

@@ -31,9 +31,12 @@ uniform mat4 u_kf_view_proj;
 const ivec2 RING[8] = ivec2[8](ivec2(-1, -1), ivec2(0, -1), ivec2(1, -1), ivec2(-1, 0),
                                ivec2(1, 0), ivec2(-1, 1), ivec2(0, 1), ivec2(1, 1));
 
-float match_distance(ivec2 n, vec3 R) {
+// reflective: s_n is reflective (normal.w = its ray length, < 0 where it is not).
+float match_distance(ivec2 n, vec3 R, out bool reflective) {
     vec3 w = texelFetch(u_kf_position, n, 0).xyz;
-    vec3 nn = texelFetch(u_kf_normal, n, 0).xyz;
+    vec4 nr = texelFetch(u_kf_normal, n, 0);
+    vec3 nn = nr.xyz;
+    reflective = nr.w >= 0.0;
     vec3 m = R - 2.0 * dot(R - w, nn) * nn;        // R mirrored in s_n's tangent plane
     vec3 dir = normalize(w - m);
     vec3 v = u_eye_new - w;
@@ -71,7 +74,8 @@ void main() {
         ivec2 start = s + ivec2(round(prev.xy));
         if (kf_inside(start) && kf_reflective(start)) sc = start;
     }
-    float former = match_distance(sc, R);
+    bool refl_q;
+    float former = match_distance(sc, R, refl_q);
     int steps = 0;
     bool valid = false;
     for (; steps < u_max_steps; ++steps) {
@@ -80,8 +84,8 @@ void main() {
         for (int k = 0; k < 8; ++k) {
             ivec2 q = sc + RING[k];
             if (!kf_inside(q)) continue;
-            float dq = match_distance(q, R);
-            if (kf_reflective(q)) rise = max(rise, dq - former);
+            float dq = match_distance(q, R, refl_q);
+            if (refl_q) rise = max(rise, dq - former);
             if (dq < best) { best = dq; best_p = q; }
         }
         if (best >= former) {                       // local minimum at sc
