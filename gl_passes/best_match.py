@@ -3,8 +3,10 @@
 For every reflective pixel s of the keyframe's reflection depth image, the
 offset (texel units, GL orientation) to the pixel s* whose tangent plane best
 reflects the keyframe's reflected point R toward the new eye; see best_match.comp
-for the distance, the descent and the invalid cases. Two offset images alternate:
-the previous frame's offsets start this frame's search (Alg. 9, O_p → O_c).
+for the distance, the descent and the invalid cases. Three offset images rotate:
+the previous frame's offsets start this frame's search (Alg. 9, O_p → O_c), or
+with `predict` where the previous search ended (also when invalid) and the
+extrapolation of the two previous frames' valid offsets.
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ class BestMatchPass(Releasable):
         if self._offsets and self._offsets[0].size == size:
             return
         self._free()
-        for _ in range(2):
+        for _ in range(3):
             t = self.gl.ctx.texture(size, 4, dtype="f4")
             t.filter = (moderngl.NEAREST, moderngl.NEAREST)
             self._offsets.append(t)
@@ -54,15 +56,19 @@ class BestMatchPass(Releasable):
         return self._offsets[self._current]
 
     def run(self, keyframe: KeyframeTextures, eye_new: np.ndarray, max_steps: int, plane_tol: float,
-            direct: bool = False) -> moderngl.Texture:
+            direct: bool = False, predict: bool = False) -> moderngl.Texture:
         """Offsets for the new eye (world units); direct=True: offset 0 for every
-        reflective pixel (the direct-reprojection baseline)."""
+        reflective pixel (the direct-reprojection baseline); predict: resume invalid
+        searches where they ended and start from the extrapolation of the two
+        previous frames' offsets where both are valid (best_match.comp)."""
         self.gl.check_thread()
         size = keyframe.target.size
         self._ensure(size)
-        prev, self._current = self._current, 1 - self._current
+        prev, self._current = self._current, (self._current + 1) % 3
+        prev2 = (self._current + 1) % 3
         keyframe.bind()
         REUSE_UNITS.bind_image("u_prev", self._offsets[prev], read=True, write=False)
+        REUSE_UNITS.bind_image("u_prev2", self._offsets[prev2], read=True, write=False)
         REUSE_UNITS.bind_image("u_offsets", self._offsets[self._current], read=False, write=True)
         p = self.prog
         set_kf_uniforms(p, keyframe, plane_tol)
@@ -70,6 +76,7 @@ class BestMatchPass(Releasable):
         set_uniform(p, "u_eye_new", np.asarray(eye_new, np.float64))
         set_uniform(p, "u_max_steps", int(max_steps))
         set_uniform(p, "u_direct", int(direct))
+        set_uniform(p, "u_predict", int(predict))
         set_uniform(p, "u_kf_view_proj", keyframe.camera.view_projection())
         set_uniform(p, "u_count", int(keyframe.n_pixels))
         REUSE_UNITS.bind_storage("Pixels", keyframe.pixels)

@@ -89,8 +89,13 @@ class ReuseSettings:
     (sky), in scene diagonals; warp: how the grid mesh of §5.4.2 is rasterised —
     "splat" (gl_passes.reflection_splat: compute passes, no vertex pipeline; faster on
     a CPU rasteriser) or "mesh" (gl_passes.reflection_offset: GL's vertex, geometry
-    and fragment stages); sync_timings: glFinish after each step, so the step times
-    are the steps' own."""
+    and fragment stages); predict_start: beyond Alg. 9, an invalid search resumes
+    where the previous frame's ended, and a search starts at the extrapolation of
+    the two previous frames' offsets where both are valid (fewer descent steps while
+    the camera keeps moving, the same local minima; False: the previous valid offset
+    or the pixel itself, as the thesis); sync_timings: glFinish after each step, so the step times
+    are the steps' own; search_stats: read Alg. 9's step counts back after each
+    reused frame (ReuseStats; outside the timed steps — a stream can do without)."""
 
     mode: Literal["reuse", "direct", "full"] = "reuse"
     keyframe_threshold: float = 0.3
@@ -100,7 +105,9 @@ class ReuseSettings:
     reflected_jump: float = 0.0
     miss_diagonals: float = MISS_DIAGONALS
     warp: Literal["splat", "mesh"] = "splat"
+    predict_start: bool = True
     sync_timings: bool = True
+    search_stats: bool = True
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -159,6 +166,14 @@ class ReuseFrame(ReflectionBuffers):
         return self.flags >= DISOCCLUDED
 
 
+def _scatter(flat: np.ndarray, values: np.ndarray, shape: tuple[int, ...], fill: float) -> np.ndarray:
+    """An image of `shape` (H,W[,C]) holding `values` (N[,C]) at the flat pixels
+    `flat` (y·W + x) and `fill` elsewhere."""
+    out = np.full((shape[0] * shape[1], *shape[2:]), fill, values.dtype)
+    out[flat] = values
+    return out.reshape(shape)
+
+
 class ReflectionReuser(Releasable):
     """Temporal reflection reuse for one camera stream (Alg. 8) on `gl`'s thread."""
 
@@ -207,63 +222,73 @@ class ReflectionReuser(Releasable):
         # diffuse components and the new view's geometry (Alg. 8, first line)
         target = self._frame_gb.draw(self.scene_gpu, cam)
         tex = target.textures
-        diffuse = read_texture(tex["color"])[..., :3]
-        s = np.where(read_texture(tex["tri_id"]) > 0, read_texture(tex["material"])[..., 0], 0.0).astype(np.float32)
+        color_s = read_texture(tex["color"])  # rgb: diffuse colour; a: s (0 on the background)
+        diffuse, s = color_s[..., :3], np.ascontiguousarray(color_s[..., 3])
         reflective = s > 0
-        n_refl = int(reflective.sum())
+        flat = np.flatnonzero(reflective)  # the reflective pixels, y·W + x with row 0 at the top
+        n_refl = len(flat)
         lap("diffuse")
         kf = self.keyframe
         is_key = (st.mode == "full" or self.policy.due or kf is None
                   or kf.target.size != (cam.width, cam.height))
-        reflected = np.zeros((cam.height, cam.width, 3), np.float32)
-        length = np.full((cam.height, cam.width), np.nan)
+        h, w = cam.height, cam.width
+        refl = np.zeros((n_refl, 3), np.float32)  # per reflective pixel: Lr, r
+        rlen = np.full(n_refl, np.nan)
         stats = ReuseStats(keyframe=is_key, reflective=n_refl, recomputed=0)
         if is_key:
-            flags = np.where(reflective, TRACED, NOT_REFLECTIVE).astype(np.uint8)
-            self._trace_into(cam, reflective, reflected, length)
+            pix_flags = np.full(n_refl, TRACED, np.uint8)
+            self._trace_into(cam, flat, np.arange(n_refl), refl, rlen)
             stats.recomputed = n_refl
             lap("recompute")
             if st.mode != "full":
-                self._store_keyframe(cam, reflected, length)
+                self._store_keyframe(cam, _scatter(flat, refl, (h, w, 3), 0.0), _scatter(flat, rlen, (h, w), np.nan))
                 self.policy.due = False
             lap("keyframe")
         else:
             assert kf is not None
             offsets = self.best_match.run(kf, np.asarray(cam.eye), st.max_steps, st.plane_tolerance,
-                                          direct=st.mode == "direct")
+                                          direct=st.mode == "direct", predict=st.predict_start)
             lap("best_match")
             inter, reliable = self.offset.run(kf, offsets, st.growth, st.plane_tolerance, st.reflected_jump)
             lap("reflection_offset")
-            out, flags = self.compose.run(target, kf, inter, reliable, st.plane_tolerance, reflective)
-            reused = flags == REUSED
-            reflected[reused] = out[reused, :3]
-            r = out[..., 3].astype(np.float64)
-            length[reused] = np.where(r[reused] >= 0.999 * self.miss_distance, np.inf, r[reused])
+            out, pix_flags = self.compose.run(target, kf, inter, reliable, st.plane_tolerance, flat)
+            reused = pix_flags == REUSED
+            refl[reused] = out[reused, :3]
+            r = out[reused, 3].astype(np.float64)
+            rlen[reused] = np.where(r >= 0.999 * self.miss_distance, np.inf, r)
             lap("warp")
-            redo = flags >= DISOCCLUDED
-            self._trace_into(cam, redo, reflected, length)
-            stats.recomputed = int(redo.sum())
-            stats.disoccluded = int((flags == DISOCCLUDED).sum())
-            stats.unreliable = int((flags == UNRELIABLE).sum())
+            redo = np.flatnonzero(pix_flags >= DISOCCLUDED)
+            self._trace_into(cam, flat[redo], redo, refl, rlen)
+            stats.recomputed = len(redo)
+            stats.disoccluded = int(np.count_nonzero(pix_flags == DISOCCLUDED))
+            stats.unreliable = int(np.count_nonzero(pix_flags == UNRELIABLE))
             lap("recompute")
             self.policy.update(stats.recomputed_fraction)
-        color = diffuse * (1.0 - s[..., None]) + reflected * s[..., None]
+        color = diffuse.reshape(-1, 3).copy()
+        sv = s.reshape(-1)[flat][:, None]
+        color[flat] = color[flat] * (1.0 - sv) + refl * sv
+        frame = ReuseFrame(color=color.reshape(h, w, 3), reflected=_scatter(flat, refl, (h, w, 3), 0.0),
+                           diffuse=diffuse.copy(), specular=s, reflective=reflective,
+                           ray_length=_scatter(flat, rlen, (h, w), np.nan),
+                           flags=_scatter(flat, pix_flags, (h, w), NOT_REFLECTIVE), stats=stats)
         lap("blend")
         timings["total"] = (time.perf_counter() - t_start) * 1e3
         stats.timings_ms = timings
-        if not is_key and st.mode == "reuse":
+        if not is_key and st.mode == "reuse" and st.search_stats:
             self._search_stats(stats)
         self.frames += 1
-        return ReuseFrame(color=color.astype(np.float32), reflected=reflected, diffuse=diffuse.copy(), specular=s,
-                          reflective=reflective, ray_length=length, flags=flags, stats=stats)
+        return frame
 
-    def _trace_into(self, cam: Camera, mask: np.ndarray, reflected: np.ndarray, length: np.ndarray) -> None:
-        ys, xs = np.nonzero(mask)
-        if len(ys) == 0:
+    def _trace_into(self, cam: Camera, flat: np.ndarray, rows: np.ndarray, reflected: np.ndarray,
+                    length: np.ndarray) -> None:
+        """Trace the pixels `flat` (y·W + x, row 0 at the top) into rows `rows` of
+        the per-reflective-pixel arrays."""
+        if len(flat) == 0:
             return
+        ys, xs = np.divmod(flat, cam.width)
         col, r = self.tracer.trace(cam, np.stack([xs, ys], axis=1))
-        reflected[ys, xs] = col
-        length[ys, xs] = r
+        reflected[rows] = col
+        length[rows] = r
 
     def _store_keyframe(self, cam: Camera, reflected: np.ndarray, length: np.ndarray) -> None:
         """§5.3: this frame's G-buffer target becomes the keyframe's (the passes swap)."""

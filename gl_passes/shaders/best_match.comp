@@ -14,11 +14,19 @@
 // line from E_cur to M (mirrored in s*'s tangent plane) meets that plane, projected into
 // the keyframe — exact on a planar mirror, first order on curved ones; kept when within
 // one pixel of s*, snapped to s* within 0.01 pixel. Output per pixel (texel units, GL orientation): (ox, oy, valid 0/1, steps).
+// u_predict = 1 (beyond Alg. 9, a better start for the same descent): a search also
+// resumes where the previous frame's ended when that one was invalid (at a silhouette,
+// or at the step bound: a long search spreads over frames instead of restarting at s
+// every frame and holding up its SIMD neighbours), and when the two previous frames'
+// offsets are valid it starts at their linear extrapolation (the reflection keeps
+// moving as the camera does); either start only where that pixel is reflective.
 // u_direct = 1: the direct-reprojection baseline, offset 0 for every reflective pixel.
 layout(local_size_x = 64) in;
 #include "reuse_common.glsl"
 
 layout(rgba32f, binding = UNIT_u_prev) uniform readonly image2D u_prev;
+layout(rgba32f, binding = UNIT_u_prev2) uniform readonly image2D u_prev2;
+uniform int u_predict;
 layout(rgba32f, binding = UNIT_u_offsets) uniform writeonly image2D u_offsets;
 uniform vec3 u_eye_old;
 uniform vec3 u_eye_new;
@@ -70,9 +78,14 @@ void main() {
     vec3 R = w + reflect(normalize(w - u_eye_old), n) * refl.a;
     vec4 prev = imageLoad(u_prev, s);
     ivec2 sc = s;
-    if (prev.z > 0.5) {
+    if (prev.z > 0.5 || (u_predict == 1 && prev.w > 0.0)) {      // w: steps, > 0 once searched
         ivec2 start = s + ivec2(round(prev.xy));
         if (kf_inside(start) && kf_reflective(start)) sc = start;
+        vec4 prev2 = imageLoad(u_prev2, s);
+        if (u_predict == 1 && prev.z > 0.5 && prev2.z > 0.5) {
+            start = s + ivec2(round(2.0 * prev.xy - prev2.xy));
+            if (kf_inside(start) && kf_reflective(start)) sc = start;
+        }
     }
     bool refl_q;
     float former = match_distance(sc, R, refl_q);
