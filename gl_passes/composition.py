@@ -26,9 +26,9 @@ NOT_REFLECTIVE, REUSED, DISOCCLUDED, UNRELIABLE = 0, 1, 2, 3
 
 
 class CompositionPass(Releasable):
-    """§5.4.3 on `gl`'s thread, over the new frame's reflective pixels only. `run()`
-    returns (reflection (H,W,4) float32: Lr rgb, r; flags (H,W) uint8 of
-    NOT_REFLECTIVE / REUSED / DISOCCLUDED / UNRELIABLE), row 0 = top."""
+    """§5.4.3 on `gl`'s thread, over the new frame's reflective pixels only (a list):
+    `run()` returns their reflection (Lr rgb, r) and flags (REUSED / DISOCCLUDED /
+    UNRELIABLE)."""
 
     def __init__(self, gl: GLContext) -> None:
         gl.check_thread()
@@ -48,17 +48,17 @@ class CompositionPass(Releasable):
         self._ids = self.gl.ctx.buffer(reserve=4 * cap)
 
     def run(self, frame: RenderTarget, keyframe: KeyframeTextures, inter: moderngl.Texture,
-            reliable: moderngl.Texture, plane_tol: float, reflective: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """`reflective` (H,W) bool, row 0 = top: the new frame's pixels on reflectors."""
+            reliable: moderngl.Texture, plane_tol: float, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`pixels` (N,) the new frame's pixels on reflectors, y·W + x with row 0 at
+        the top → (reflection (N,4) float32: Lr rgb, r; flags (N,) uint8 of REUSED /
+        DISOCCLUDED / UNRELIABLE), in the order of `pixels`."""
         self.gl.check_thread()
         w, h = frame.size
-        gl_rows = reflective[::-1]
-        ids = np.flatnonzero(gl_rows.ravel()).astype(np.uint32)
-        n = len(ids)
-        out = np.zeros((h, w, 4), np.float32)
-        flags = np.zeros((h, w), np.uint8)
+        n = len(pixels)
         if n == 0:
-            return out, flags
+            return np.zeros((0, 4), np.float32), np.zeros(0, np.uint8)
+        ys, xs = np.divmod(np.asarray(pixels, np.int64), w)
+        ids = ((h - 1 - ys) * w + xs).astype(np.uint32)  # GL rows
         self._ensure(n)
         assert self._results is not None and self._flags is not None and self._ids is not None
         self._ids.write(ids.tobytes())
@@ -77,12 +77,8 @@ class CompositionPass(Releasable):
         p.run((n + GROUP - 1) // GROUP, 1, 1)
         self.gl.ctx.memory_barrier()
         res = np.frombuffer(self._results.read(size=16 * n), np.float32).reshape(n, 4)
-        fl = np.frombuffer(self._flags.read(size=4 * n), np.uint32)
-        ys, xs = np.divmod(ids.astype(np.int64), w)
-        ys = h - 1 - ys  # GL rows → row 0 = top
-        out[ys, xs] = res
-        flags[ys, xs] = fl.astype(np.uint8)
-        return out, flags
+        fl = np.frombuffer(self._flags.read(size=4 * n), np.uint32).astype(np.uint8)
+        return res, fl
 
     def _free(self) -> None:
         for buf in (self._results, self._flags, self._ids):

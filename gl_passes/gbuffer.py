@@ -1,6 +1,7 @@
 """G-buffer pass (DESIGN.md §"Conventions"; thesis §4.2 step 1).
 
-One pass writes local-shaded colour, linear depth, world normal, world position,
+One pass writes local-shaded colour (alpha: the specular factor s, 0 on the
+background), linear depth, world normal, world position,
 triangle id (gl_PrimitiveID in the fragment shader), object id and material (s, g);
 the background gets the sky colour and ids 0.
 """

@@ -174,7 +174,8 @@ class _Reuse:
             self.release(state)
             self.tracer = (ClusterTracer(state.gl, gpu, glossy_rays=glossy_rays)  # the service's ClusterSettings
                            if method == "cluster" else _CachedEmbreeTracer(scene_key, scene, glossy_rays))
-            self.reuser = ReflectionReuser(state.gl, gpu, self.tracer, ReuseSettings(sync_timings=False))
+            self.reuser = ReflectionReuser(state.gl, gpu, self.tracer,
+                                           ReuseSettings(sync_timings=False, search_stats=False))
             self.key = key
         return self.reuser
 

@@ -1,5 +1,6 @@
 #version 430 core
-// G-buffer: local-shaded colour, linear depth, world normal and position,
+// G-buffer: local-shaded colour (rgb; a = the specular factor s, so that one read-back
+// brings both), linear depth, world normal and position,
 // triangle id (the object's base face offset u_base + gl_PrimitiveID + 1, which
 // counts the draw's triangles from 0: no geometry shader), object id and material (s, g).
 #include "common.glsl"
@@ -22,7 +23,7 @@ layout(location = 6) out vec2 out_material;
 void main() {
     vec3 n = normalize(vs_normal);
     if (!gl_FrontFacing) n = -n;  // only reachable with culling off
-    out_color = vec4(local_shade(u_albedo, n), 1.0);
+    out_color = vec4(local_shade(u_albedo, n), u_specular);
     out_depth = vs_depth;
     out_normal = vec4(n, 0.0);
     out_position = vec4(vs_position, 1.0);

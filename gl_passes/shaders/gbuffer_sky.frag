@@ -1,5 +1,5 @@
 #version 430 core
-// Background of the G-buffer: sky colour along the pixel's ray, ids 0.
+// Background of the G-buffer: sky colour along the pixel's ray (a: s = 0), ids 0.
 #include "common.glsl"
 // Camera basis scaled by the half-extents of the image plane at unit distance.
 uniform vec3 u_cam_right;
