@@ -35,6 +35,7 @@ class BestMatchPass(Releasable):
         self.prog = compute_program(gl, "best_match.comp", REUSE_UNITS.defines())
         self._offsets: list[moderngl.Texture] = []
         self._current = 0
+        self._history = 0  # offset images computed since the last reset (valid previous frames)
 
     def _ensure(self, size: tuple[int, int]) -> None:
         if self._offsets and self._offsets[0].size == size:
@@ -47,9 +48,9 @@ class BestMatchPass(Releasable):
         self.reset()
 
     def reset(self) -> None:
-        """No valid previous offsets (every search starts at its own pixel)."""
-        for t in self._offsets:
-            t.write(np.zeros((t.size[1], t.size[0], 4), np.float32).tobytes())
+        """No valid previous offsets (every search starts at its own pixel): the
+        next run ignores the older offset images (nothing is cleared)."""
+        self._history = 0
 
     @property
     def offsets(self) -> moderngl.Texture:
@@ -77,12 +78,14 @@ class BestMatchPass(Releasable):
         set_uniform(p, "u_max_steps", int(max_steps))
         set_uniform(p, "u_direct", int(direct))
         set_uniform(p, "u_predict", int(predict))
+        set_uniform(p, "u_history", int(min(self._history, 2)))
         set_uniform(p, "u_kf_view_proj", keyframe.camera.view_projection())
         set_uniform(p, "u_count", int(keyframe.n_pixels))
         REUSE_UNITS.bind_storage("Pixels", keyframe.pixels)
         if keyframe.n_pixels:
             p.run((keyframe.n_pixels + GROUP - 1) // GROUP, 1, 1)
         self.gl.ctx.memory_barrier()
+        self._history += 1
         return self.offsets
 
     def read(self) -> np.ndarray:

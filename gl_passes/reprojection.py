@@ -169,7 +169,8 @@ class ReuseFrame(ReflectionBuffers):
 def _scatter(flat: np.ndarray, values: np.ndarray, shape: tuple[int, ...], fill: float) -> np.ndarray:
     """An image of `shape` (H,W[,C]) holding `values` (N[,C]) at the flat pixels
     `flat` (y·W + x) and `fill` elsewhere."""
-    out = np.full((shape[0] * shape[1], *shape[2:]), fill, values.dtype)
+    n = shape[0] * shape[1]
+    out = np.zeros((n, *shape[2:]), values.dtype) if fill == 0 else np.full((n, *shape[2:]), fill, values.dtype)
     out[flat] = values
     return out.reshape(shape)
 

@@ -27,6 +27,7 @@ layout(local_size_x = 64) in;
 layout(rgba32f, binding = UNIT_u_prev) uniform readonly image2D u_prev;
 layout(rgba32f, binding = UNIT_u_prev2) uniform readonly image2D u_prev2;
 uniform int u_predict;
+uniform int u_history;   // how many of u_prev, u_prev2 hold this keyframe's offsets (0, 1, 2)
 layout(rgba32f, binding = UNIT_u_offsets) uniform writeonly image2D u_offsets;
 uniform vec3 u_eye_old;
 uniform vec3 u_eye_new;
@@ -76,12 +77,12 @@ void main() {
     vec3 w = texelFetch(u_kf_position, s, 0).xyz;
     vec3 n = texelFetch(u_kf_normal, s, 0).xyz;
     vec3 R = w + reflect(normalize(w - u_eye_old), n) * refl.a;
-    vec4 prev = imageLoad(u_prev, s);
+    vec4 prev = u_history >= 1 ? imageLoad(u_prev, s) : vec4(0.0);
     ivec2 sc = s;
     if (prev.z > 0.5 || (u_predict == 1 && prev.w > 0.0)) {      // w: steps, > 0 once searched
         ivec2 start = s + ivec2(round(prev.xy));
         if (kf_inside(start) && kf_reflective(start)) sc = start;
-        vec4 prev2 = imageLoad(u_prev2, s);
+        vec4 prev2 = u_history >= 2 ? imageLoad(u_prev2, s) : vec4(0.0);
         if (u_predict == 1 && prev.z > 0.5 && prev2.z > 0.5) {
             start = s + ivec2(round(2.0 * prev.xy - prev2.xy));
             if (kf_inside(start) && kf_reflective(start)) sc = start;
