@@ -40,26 +40,35 @@ uniform mat4 u_kf_view_proj;
 const ivec2 RING[8] = ivec2[8](ivec2(-1, -1), ivec2(0, -1), ivec2(1, -1), ivec2(-1, 0),
                                ivec2(1, 0), ivec2(-1, 1), ivec2(0, 1), ivec2(1, 1));
 
-// reflective: s_n is reflective (normal.w = its ray length, < 0 where it is not).
-float match_distance(ivec2 n, vec3 R, out bool reflective) {
-    vec3 w = texelFetch(u_kf_position, n, 0).xyz;
-    vec4 nr = texelFetch(u_kf_normal, n, 0);
-    vec3 nn = nr.xyz;
-    reflective = nr.w >= 0.0;
-    vec3 m = R - 2.0 * dot(R - w, nn) * nn;        // R mirrored in s_n's tangent plane
-    vec3 dir = normalize(w - m);
-    vec3 v = u_eye_new - w;
+// A keyframe sample as the search uses it: world position w and eye depth d
+// (position.w), normal n, reflective (normal.w = its ray length, < 0 where it is not).
+struct Sample { vec3 w; float d; vec3 n; bool reflective; };
+
+Sample fetch_sample(ivec2 p) {
+    vec4 wd = texelFetch(u_kf_position, p, 0);
+    vec4 nr = texelFetch(u_kf_normal, p, 0);
+    return Sample(wd.xyz, wd.w, nr.xyz, nr.w >= 0.0);
+}
+
+float match_distance(Sample c, vec3 R) {
+    vec3 m = R - 2.0 * dot(R - c.w, c.n) * c.n;     // R mirrored in s_n's tangent plane
+    vec3 dir = normalize(c.w - m);
+    vec3 v = u_eye_new - c.w;
     return length(v - dot(v, dir) * dir);           // E_cur to the line through M and W_n
 }
 
-vec2 subpixel(ivec2 sc, vec3 R) {
-    vec3 w = texelFetch(u_kf_position, sc, 0).xyz;
-    vec3 nn = texelFetch(u_kf_normal, sc, 0).xyz;
-    vec3 m = R - 2.0 * dot(R - w, nn) * nn;
+// kf_same_surface for two fetched samples and their object ids.
+bool same_surface(Sample a, uint oa, Sample b, uint ob) {
+    float tol = u_plane_tol * u_pixel_angle;
+    return oa != 0u && oa == ob && abs(dot(a.w - b.w, b.n)) <= tol * b.d && abs(dot(b.w - a.w, a.n)) <= tol * a.d;
+}
+
+vec2 subpixel(ivec2 sc, Sample c, vec3 R) {
+    vec3 m = R - 2.0 * dot(R - c.w, c.n) * c.n;
     vec3 d = m - u_eye_new;
-    float denom = dot(d, nn);
+    float denom = dot(d, c.n);
     if (abs(denom) < 1e-12) return vec2(0.0);
-    vec3 x = u_eye_new + d * (dot(w - u_eye_new, nn) / denom);
+    vec3 x = u_eye_new + d * (dot(c.w - u_eye_new, c.n) / denom);
     vec4 clip = u_kf_view_proj * vec4(x, 1.0);
     if (clip.w <= 0.0) return vec2(0.0);
     vec2 delta = (clip.xy / clip.w * 0.5 + 0.5) * vec2(u_kf_size) - 0.5 - vec2(sc);
@@ -88,30 +97,36 @@ void main() {
             if (kf_inside(start) && kf_reflective(start)) sc = start;
         }
     }
-    bool refl_q;
-    float former = match_distance(sc, R, refl_q);
+    Sample cur = fetch_sample(sc);
+    uint obj_cur = texelFetch(u_kf_obj, sc, 0).r;
+    float former = match_distance(cur, R);
     int steps = 0;
     bool valid = false;
     for (; steps < u_max_steps; ++steps) {
         float best = 3.4e38, rise = 0.0;
         ivec2 best_p = sc;
+        Sample best_s = cur;
         for (int k = 0; k < 8; ++k) {
             ivec2 q = sc + RING[k];
             if (!kf_inside(q)) continue;
-            float dq = match_distance(q, R, refl_q);
-            if (refl_q) rise = max(rise, dq - former);
-            if (dq < best) { best = dq; best_p = q; }
+            Sample c = fetch_sample(q);
+            float dq = match_distance(c, R);
+            if (c.reflective) rise = max(rise, dq - former);
+            if (dq < best) { best = dq; best_p = q; best_s = c; }
         }
         if (best >= former) {                       // local minimum at sc
             valid = former <= rise;                 // ... and within about a pixel of the true one
             break;
         }
         // the minimum lies outside the silhouette (the surface test only for the step taken)
-        if (!(kf_reflective(best_p) && kf_same_surface(sc, best_p))) break;
+        uint obj_best = texelFetch(u_kf_obj, best_p, 0).r;
+        if (!(best_s.reflective && same_surface(cur, obj_cur, best_s, obj_best))) break;
         former = best;
         sc = best_p;
+        cur = best_s;
+        obj_cur = obj_best;
     }
     vec2 offset = vec2(sc - s);
-    if (valid) offset += subpixel(sc, R);
+    if (valid) offset += subpixel(sc, cur, R);
     imageStore(u_offsets, s, vec4(offset, valid ? 1.0 : 0.0, float(steps)));
 }
