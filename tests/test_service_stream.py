@@ -111,7 +111,7 @@ def test_reflective_frames_go_through_the_streams_reflection_reuser(client, monk
     assert reused["keyframe"] is False and reused["reused_ratio"] > 0.5, reused
     assert (plain["keyframe"], plain["reused_ratio"]) == (True, 0.0)
     ref = client.post(f"/scenes/{mirror}/frames", json=moved)
-    assert ref.status_code == 200
+    assert ref.status_code == 200, ref.text
     assert np.abs(decode(jpeg).astype(int) - decode(ref.content).astype(int)).mean() < 8
     deadline = time.monotonic() + 5
     while not released and time.monotonic() < deadline:
