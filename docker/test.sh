@@ -37,7 +37,9 @@ fi
 container=""
 cleanup() {
   [ -z "$container" ] || docker rm -f "$container" >/dev/null 2>&1 || true
-  if [ -n "$started_dockerd" ]; then say "stopping the dockerd it started"; $SUDO kill "$started_dockerd" || true; fi
+  if [ -n "$started_dockerd" ]; then
+    say "stopping the dockerd it started"; $SUDO kill "$started_dockerd" || true; wait "$started_dockerd" || true
+  fi
 }
 trap cleanup EXIT
 docker version --format 'docker-test: client {{.Client.Version}}, server {{.Server.Version}}'
