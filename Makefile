@@ -1,19 +1,23 @@
 # depthview: `make serve` and `make test` each do the whole idempotent setup first (apt packages,
-# the .venv, npm ci).
+# the .venv, npm ci). The Docker images (docker/) run the same serve-deps recipe and npm ci.
 VENV ?= .venv
 PY := $(VENV)/bin/python
+# What serving needs: Mesa EGL/OSMesa, a compiler for meshoptimizer's sdist, Python's venv, and
+# Node/npm for three.js (npm ci).
 APT_PKGS := libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6 g++ python3-dev
-# system-deps also installs the browser test's Chromium (chromium-headless-shell where Debian has
-# it, else chromium; driven by Playwright from PyPI, never `playwright install`) and Node/npm
+# system-deps adds the browser test's Chromium (chromium-headless-shell where Debian has it, else
+# chromium; driven by Playwright from PyPI, never `playwright install`)
 HOST ?= 0.0.0.0
 PORT ?= 8000
+DOCKER_IMAGE ?= depthview:cpu
 
-.PHONY: system-deps setup serve test test-all lint bench
-system-deps:
+.PHONY: serve-deps system-deps setup serve test test-all lint bench docker-test
+# $(1): 1 to add Chromium as well
+define apt_install
 	@missing=""; for p in $(APT_PKGS); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
 	python3 -c 'import ensurepip, venv' >/dev/null 2>&1 || missing="$$missing python3-venv python3-pip"; \
 	command -v npm >/dev/null 2>&1 || missing="$$missing nodejs npm"; \
-	chromium=""; dpkg -s chromium-headless-shell >/dev/null 2>&1 || dpkg -s chromium >/dev/null 2>&1 || chromium=1; \
+	chromium=""; [ "$(1)" = 1 ] && { dpkg -s chromium-headless-shell >/dev/null 2>&1 || dpkg -s chromium >/dev/null 2>&1 || chromium=1; }; \
 	if [ -n "$$missing$$chromium" ]; then \
 	  SUDO=$$( [ "$$(id -u)" -eq 0 ] || echo sudo ); \
 	  $$SUDO apt-get update -qq || exit 1; \
@@ -24,6 +28,13 @@ system-deps:
 	  echo "installing system packages:$$missing"; \
 	  DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $$missing; \
 	fi
+endef
+
+serve-deps:
+	$(call apt_install,0)
+
+system-deps:
+	$(call apt_install,1)
 
 $(VENV)/.installed: pyproject.toml
 	test -x $(PY) || python3 -m venv $(VENV)
@@ -37,7 +48,7 @@ node_modules/.package-lock.json: package.json package-lock.json
 
 setup: system-deps $(VENV)/.installed node_modules/.package-lock.json
 
-serve: setup
+serve: serve-deps $(VENV)/.installed node_modules/.package-lock.json
 	$(VENV)/bin/depthview serve --host $(HOST) --port $(PORT)
 
 test: setup
@@ -51,3 +62,9 @@ lint: setup
 
 bench: setup
 	$(PY) -m bench.render_throughput
+
+# Builds the CPU image (docker/Dockerfile.cpu) and runs the service smoke test in it (docker/test.sh:
+# starts dockerd if needed, imports a debootstrapped Debian root when the base image cannot be
+# pulled). Not part of `make test`.
+docker-test:
+	DOCKER_IMAGE=$(DOCKER_IMAGE) bash docker/test.sh

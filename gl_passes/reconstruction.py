@@ -32,6 +32,8 @@ camera. `export_glb` writes one node per source image.
 
 from __future__ import annotations
 
+import json
+import struct
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Literal
@@ -340,7 +342,16 @@ def glb_bytes(parts: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], names:
         tm = trimesh.Trimesh(pos[used], remap.reshape(-1, 3), vertex_colors=rgba[used], process=False)
         name = names[k] if names else f"image_{k}"
         scene.add_geometry(tm, node_name=name, geom_name=name)
+    if scene.is_empty:  # the images saw nothing: a valid glTF with one empty scene (trimesh exports none)
+        return _empty_glb()
     return scene.export(file_type="glb")
+
+
+def _empty_glb() -> bytes:
+    """A binary glTF 2.0 holding one scene without nodes."""
+    doc = json.dumps({"asset": {"version": "2.0", "generator": "depthview"}, "scene": 0, "scenes": [{}]}).encode()
+    doc += b" " * (-len(doc) % 4)  # chunks are 4-byte aligned, JSON padded with spaces
+    return struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(doc)) + struct.pack("<I4s", len(doc), b"JSON") + doc
 
 
 def mesh_arrays(mesh: MeshGPU) -> tuple[np.ndarray, np.ndarray]:

@@ -118,6 +118,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             for name, sub in s.pop("$defs", {}).items():
                 comps.setdefault(name, sub)
             comps.setdefault(model.__name__, s)
+        for name in ("FrameRequest", "DepthImagesRequest"):  # the size limits of this service's settings
+            props = comps[name]["properties"]
+            props["width"]["maximum"], props["height"]["maximum"] = settings.max_width, settings.max_height
         app.openapi_schema = schema
         return schema
 

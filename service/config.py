@@ -53,6 +53,10 @@ stream_jpeg_quality    80                           JPEG quality (1–95) of fra
                                                     moves
 stream_rest_s          0.3                          seconds without a camera message after which
                                                     the latest view is sent again as lossless PNG
+stream_reflection_mode ``reuse``                    how the stream renders reflective frames: reuse
+                                                    (thesis Ch. 5), or the baselines full (every
+                                                    reflective pixel traced each frame, same tracer)
+                                                    and direct (depth reprojection)
 node_modules           ``<repo>/node_modules``      where ``npm ci`` installed three.js for the
                                                     /client page (set it for a non-editable install)
 =====================  ===========================  ===============================================
@@ -90,6 +94,8 @@ ENV_PREFIX = "DEPTHVIEW_"
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
 MIB = 1024 * 1024
+#: gl_passes.reprojection.MODES: how the stream renders reflective frames.
+STREAM_REFLECTION_MODES = ("reuse", "direct", "full")
 
 # Per-unit costs of the memory-budget estimate (``max_job_bytes``; formulas in the
 # module docstring, applied by ``service.budget``). Calibrated by the peak resident
@@ -189,6 +195,9 @@ class Settings:
     stream_jpeg_quality: int = 80
     #: Seconds the camera must rest before the latest view is sent again as PNG.
     stream_rest_s: float = 0.3
+    #: Reflective stream frames: "reuse" (thesis Ch. 5), or the baselines "full" (every
+    #: reflective pixel traced every frame by the same tracer) and "direct" (depth reprojection).
+    stream_reflection_mode: str = "reuse"
     #: node_modules holding three.js for the /client page (``npm ci`` at the repository root).
     node_modules: Path = field(default_factory=lambda: REPO_ROOT / "node_modules")
 
@@ -212,6 +221,9 @@ class Settings:
         for name in ("job_timeout_s", "header_timeout_s", "body_timeout_s", "stream_rest_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"setting {name} must be > 0, got {getattr(self, name)!r}")
+        if self.stream_reflection_mode not in STREAM_REFLECTION_MODES:
+            raise ValueError(f"setting stream_reflection_mode must be one of {', '.join(STREAM_REFLECTION_MODES)}, "
+                             f"got {self.stream_reflection_mode!r}")
         if self.gl_backend is not None and self.gl_backend not in ("egl", "osmesa"):
             raise ValueError(f"setting gl_backend must be 'egl' or 'osmesa', got {self.gl_backend!r}")
 
@@ -266,7 +278,7 @@ def _convert(name: str, raw: str, var: str) -> Any:
         raise ValueError(f"{var}={raw[:40]!r} is not a number") from exc
     if name in ("data_dir", "node_modules"):
         return Path(raw)
-    if name == "gl_backend":
+    if name in ("gl_backend", "stream_reflection_mode"):
         return raw.strip().lower()
     if name == "cors_origins":
         return _origins(raw)

@@ -37,17 +37,21 @@ class CasterCache:
         self._casters: OrderedDict[str, tuple[RayCaster, threading.Lock]] = OrderedDict()
 
     def get(self, key: str, scene: Scene) -> tuple[RayCaster, threading.Lock, float, bool]:
-        """(caster, its lock, BVH build ms (0 on a hit), hit)."""
+        """(caster, its lock, BVH build ms (0 on a hit), hit). A caster serves the very Scene
+        object it was built for: once the store has loaded the scene again (its cache evicted
+        the old object) the BVH is built again for the new one, as the renders check."""
         with self._lock:
             entry = self._casters.get(key)
-            if entry is not None:
+            if entry is not None and entry[0].scene is scene:
                 self._casters.move_to_end(key)
                 return entry[0], entry[1], 0.0, True
         t0 = time.perf_counter()
         caster = RayCaster(scene)  # built outside the lock: other scenes' frames go on
         build = (time.perf_counter() - t0) * 1e3
         with self._lock:
-            entry = self._casters.setdefault(key, (caster, threading.Lock()))
+            entry = self._casters.get(key)
+            if entry is None or entry[0].scene is not scene:
+                entry = self._casters[key] = (caster, threading.Lock())
             self._casters.move_to_end(key)
             while len(self._casters) > self.size:
                 self._casters.popitem(last=False)

@@ -7,7 +7,8 @@
 * request validation: malformed JSON is 400 on every endpoint; invalid fields 422
   with their location, message and an excerpt of the offending value;
 * 405 carries ``Allow`` listing every method the path answers (Starlette lists only
-  the first route's when one path has several routes).
+  the first route's when one path has several routes);
+* anything unexpected is a 500 ``ErrorResponse`` too (not Starlette's plain text).
 """
 
 from __future__ import annotations
@@ -131,6 +132,13 @@ async def http_error(request: Request, exc: Exception) -> JSONResponse:
     return JSONResponse({"detail": detail}, status_code=exc.status_code, headers=headers or None)
 
 
+async def internal_error(request: Request, exc: Exception) -> JSONResponse:
+    """Anything unexpected: 500 as an ErrorResponse like every other error (the server
+    logs the traceback: Starlette raises the exception on after this answer)."""
+    return JSONResponse({"detail": f"internal error ({type(exc).__name__}); the service log has the details"},
+                        status_code=500)
+
+
 #: Methods a 405 may list in Allow.
 HTTP_METHODS = ("DELETE", "GET", "HEAD", "OPTIONS", "PATCH", "POST", "PUT")
 
@@ -152,6 +160,7 @@ def install(app: FastAPI) -> None:
     app.add_exception_handler(SceneLoadError, store_error)
     app.add_exception_handler(RequestValidationError, validation_error)
     app.add_exception_handler(StarletteHTTPException, http_error)
+    app.add_exception_handler(Exception, internal_error)
 
 
 def responses(statuses: dict[int, str]) -> dict[int | str, dict[str, Any]]:

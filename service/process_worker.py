@@ -400,6 +400,8 @@ class ProcessWorkerPool:
         finally:
             slot.busy = False
         kind, value = outcome
+        with self._cv:  # counted before it is delivered: whoever sees the result sees the job counted
+            count_job(self, {"ok": "done", "timeout": "expired"}.get(kind, "failed"), time.perf_counter() - t0, waited)
         if kind == "ok":
             fut.set_result(value)
         elif kind == "err":
@@ -416,8 +418,6 @@ class ProcessWorkerPool:
             fut.set_exception(WorkerDied(f"render worker process {pid} died (exit code {code}) while running "
                                          f"{job.label or 'a render job'}; it is being replaced"))
             self._replace(slot, f"process {pid} died (exit code {code})")
-        with self._cv:
-            count_job(self, {"ok": "done", "timeout": "expired"}.get(kind, "failed"), time.perf_counter() - t0, waited)
 
     def _wait(self, slot: _Slot, job: _Job) -> tuple:
         """("ok", result) | ("err", exc) | ("lost", (exc, why the context failed)) |

@@ -9,7 +9,7 @@ the route, also with 422.
 from __future__ import annotations
 
 import math
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictFloat, StrictInt, field_validator, model_validator
 
@@ -18,10 +18,13 @@ from scenes.camera import Camera, CameraError
 #: Strict scalars (issue 15): ``true`` is not a number, ``"64"`` is not a number,
 #: ``"no"`` is not a boolean; an integer is accepted where a float is expected.
 Number = StrictFloat
-Vec3 = tuple[Number, Number, Number]
 #: Largest magnitude of a camera or light coordinate: positions are rendered in float32,
 #: and beyond this their differences (view direction, light edges) lose all precision.
 MAX_COORDINATE = 1e12
+#: A coordinate (the bounds are in the OpenAPI document; ``_finite_vec3`` checks them first
+#: with a message naming the vector).
+Coordinate = Annotated[Number, Field(ge=-MAX_COORDINATE, le=MAX_COORDINATE)]
+Vec3 = tuple[Coordinate, Coordinate, Coordinate]
 #: Smallest vertical field of view in degrees: below it the projection's 1/tan(fov/2)
 #: overflows the float32 precision of the depth and position buffers.
 MIN_FOV = 0.01
@@ -130,7 +133,8 @@ class Effects(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     soft_shadows: SoftShadowSpec | None = Field(default=None, description="soft shadows (thesis Ch. 3)")
-    reflections: str = Field(default="none", description=f"reflection method; one of {list(REFLECTION_METHODS)}")
+    reflections: str = Field(default="none", description=f"reflection method; one of {list(REFLECTION_METHODS)}",
+                             json_schema_extra={"enum": list(REFLECTION_METHODS)})
     glossy_rays: StrictInt = Field(default=8, ge=1, le=MAX_GLOSSY_RAYS, description="lobe rays per glossy sample")
 
     @field_validator("reflections")

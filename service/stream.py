@@ -167,15 +167,16 @@ class _Reuse:
         self.tracer: ClusterTracer | _CachedEmbreeTracer | None = None
         self.key: tuple[Any, ...] | None = None
 
-    def get(self, state: GLState, scene_key: str, scene: Scene, method: str, glossy_rays: int) -> ReflectionReuser:
+    def get(self, state: GLState, scene_key: str, scene: Scene, method: str, glossy_rays: int,
+            mode: str = "reuse") -> ReflectionReuser:
         gpu = state.scene_gpu(scene_key, scene)
-        key = (id(gpu), method, glossy_rays)  # a new upload (the GPU cache evicted the old one), method or lobe
+        key = (id(gpu), method, glossy_rays, mode)  # a new upload (the GPU cache evicted the old one), method, ...
         if self.reuser is None or key != self.key:
             self.release(state)
             self.tracer = (ClusterTracer(state.gl, gpu, glossy_rays=glossy_rays)  # the service's ClusterSettings
                            if method == "cluster" else _CachedEmbreeTracer(scene_key, scene, glossy_rays))
             self.reuser = ReflectionReuser(state.gl, gpu, self.tracer,
-                                           ReuseSettings(sync_timings=False, search_stats=False))
+                                           ReuseSettings(mode=mode, sync_timings=False, search_stats=False))
             self.key = key
         return self.reuser
 
@@ -197,10 +198,12 @@ class StreamReflectionJob(SceneJob):
     method: str
     glossy_rays: int
     stream: str
+    #: ReuseSettings.mode: "reuse", or the baselines "full" and "direct" (stream_reflection_mode).
+    mode: str = "reuse"
 
     def __call__(self, state: GLState) -> Any:
         reuse = state.clients.setdefault(self.stream, _Reuse())
-        reuser = reuse.get(state, self.scene_key, self.load(state), self.method, self.glossy_rays)
+        reuser = reuse.get(state, self.scene_key, self.load(state), self.method, self.glossy_rays, self.mode)
         return reuser.next_frame(self.camera)
 
 
@@ -225,7 +228,9 @@ class ReuseFrameSource(JobFrameSource):
     pixels, 0 on keyframes) and the keyframe flag. Every other frame renders as
     ``JobFrameSource`` renders it. The reuser lives on one worker (its jobs are pinned to
     it: the stream's key) and ``close()`` frees it there; a worker process that dies
-    takes it along (the next frame is a keyframe on its replacement)."""
+    takes it along (the next frame is a keyframe on its replacement). The setting
+    ``stream_reflection_mode`` swaps the reuse for a baseline: ``full`` traces every
+    reflective pixel of every frame with the same tracer (every frame a keyframe)."""
 
     def __init__(self, r: Render, scene_id: str) -> None:
         super().__init__(r, scene_id)
@@ -241,7 +246,7 @@ class ReuseFrameSource(JobFrameSource):
         camera = req.to_camera().fit_clip(scene.bounds)
         self._used = True
         job = StreamReflectionJob(self.scene_id, scene, camera, req.effects.reflections, req.effects.glossy_rays,
-                                  self._key)
+                                  self._key, self.r.settings.stream_reflection_mode)
         frame = await timed.job(job, f"stream frame {self.scene_id[:12]}", pin=self._key)
         st = frame.stats
         ratio = 0.0 if st.keyframe or not st.reflective else 1.0 - st.recomputed_fraction

@@ -390,18 +390,21 @@ class RenderWorker:
         self.busy = True
         waited = time.monotonic() - job.submitted
         t0 = time.perf_counter()
+        result: Any = None
+        error: BaseException | None = None
         try:
             result = job.fn(self._state)
         except BaseException as exc:  # noqa: BLE001 - delivered to the future, the thread lives on
-            ok = False
-            fut.set_exception(exc)
-        else:
-            ok = True
-            fut.set_result(result)
+            error = exc
         finally:
             self.busy = False
+        # counted before it is delivered: whoever sees the result sees the job counted
         with self._stats_lock:
-            count_job(self, "done" if ok else "failed", time.perf_counter() - t0, waited)
+            count_job(self, "done" if error is None else "failed", time.perf_counter() - t0, waited)
+        if error is None:
+            fut.set_result(result)
+        else:
+            fut.set_exception(error)
 
 
 def count_job(worker: Any, outcome: str, seconds: float, waited: float) -> None:

@@ -198,3 +198,29 @@ def test_temporal_bench_smoke_writes_its_tables():
     assert "## Table 22" in md and "## Table 23" in md and md.count("| mirror |") == 4 + 4 + 1 + 4
     assert "| mirror | 2 |" in md.split("## Criteria")[1]
     assert "temporal_mae.png" in res["files"] and "temporal_mirror_path0_embree_triplet.png" in res["files"]
+
+
+def test_service_load_smoke_writes_its_tables(tmp_path):
+    """bench.service_load end to end at tiny sizes: real server processes (one render
+    worker), frames under 1 and 2 clients, the stream with reuse, full trace and no
+    reflections; the JSON, the report and the plot."""
+    import json
+
+    from bench.service_load import main
+
+    out = tmp_path / "service"
+    assert main(["--smoke", "--no-progress", "--out", str(out)]) == 0
+    data = json.loads(out.with_suffix(".json").read_text())
+    assert [(r["workers"], r["clients"]) for r in data["frames"]] == [(1, 1), (1, 2)]
+    for r in data["frames"]:
+        assert r["ok"] > 0 and r["statuses"] == {"200": r["ok"]} and r["throughput_fps"] > 0
+        assert 0 < r["p50_ms"] <= r["p99_ms"]
+    stream = {s["label"]: s for s in data["stream"]}
+    assert set(stream) == {"no reflections", "cluster, reuse", "cluster, full trace"}
+    assert all(s["frames"] > 0 and s["latency"]["p50_ms"] > 0 for s in stream.values())
+    assert stream["cluster, full trace"]["keyframes"] == stream["cluster, full trace"]["answered"]
+    assert stream["cluster, full trace"]["reused_ratio_mean"] == 0
+    assert stream["cluster, reuse"]["reused_ratio_mean"] > 0.3  # a slow orbit: most reflections reused
+    md = out.with_suffix(".md").read_text()
+    assert "## Frames" in md and "## Stream" in md and md.count("\n| 1 | ") == 2
+    assert "| cluster, reuse |" in md and (tmp_path / "service_frames.png").stat().st_size > 0

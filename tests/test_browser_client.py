@@ -142,3 +142,36 @@ def _scenario(page, server: str) -> None:
     page.wait_for_function("() => window.depthview.lastStats.id === window.depthview.lastSentId"
                            " && !document.getElementById('frame').classList.contains('hidden')", timeout=30_000)
     assert page.problems == []
+
+
+def test_a_new_user_orbits_a_built_in_scene_with_reflections_streaming(page, server, tmp_path):
+    """The issue's done-when in the browser, by the README's first link: the built-in mirror
+    scene with reflections by the cluster method, orbited with the mouse; reflective frames
+    stream and the stream's reflection reuse (Ch. 5) answers the orbit (not keyframes only)."""
+    try:
+        page.goto(f"{server}/client?scene=mirror&reflections=cluster&token={TOKEN}")
+        page.wait_for_function("() => window.depthview && window.depthview.framesShown >= 1", timeout=60_000)
+        assert page.input_value("#reflections") == "cluster"
+        sent = state(page)["lastSentId"]
+        page.select_option("#scale", "0.5")  # smaller frames: quicker on this CPU (and a new keyframe)
+        # lastRendered: the latest rendered frame's stats (lastStats may be its PNG re-send at rest)
+        page.wait_for_function(f"() => window.depthview.lastRendered.id > {sent}", timeout=60_000)
+        key = state(page)["lastRendered"]
+        assert key["keyframe"] is True and key["reused_ratio"] == 0, key  # the first frame of this size
+        before = page.evaluate(CANVAS_STATS, "frame")
+        for _ in range(4):  # a slow orbit, a few pixels a drag: reflections reused from the keyframe
+            sent = state(page)["lastSentId"]
+            drag(page, 5, 0)
+            page.wait_for_function(f"() => window.depthview.lastRendered.id > {sent}", timeout=60_000)
+            if state(page)["lastRendered"]["reused_ratio"] > 0:
+                break
+        stats = state(page)["lastRendered"]
+        assert stats["keyframe"] is False and stats["reused_ratio"] > 0.3, stats
+        page.wait_for_timeout(300)
+        after = page.evaluate(CANVAS_STATS, "frame")
+        assert after["std"] > 10 and after["differ"] > 0.2 and after["hash"] != before["hash"], (before, after)
+        assert page.problems == []
+    except BaseException as exc:
+        page.screenshot(path=str(tmp_path / "failure.png"))
+        raise AssertionError(f"{exc}\nscreenshot: {tmp_path / 'failure.png'}; page state: {state(page)}; "
+                             f"page problems: {page.problems}") from exc

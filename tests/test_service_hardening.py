@@ -276,6 +276,36 @@ def test_every_documented_status_has_a_schema(client):
         assert name in spec["components"]["schemas"]
 
 
+def test_the_document_states_the_limits_the_service_enforces(tmp_path):
+    """Sizes up to this service's limits, coordinates within ±1e12, the reflection methods:
+    what the service refuses with 422 the OpenAPI document says it does not accept."""
+    with service(tmp_path, ready=False, max_width=200, max_height=100) as c:
+        comps = c.get("/openapi.json").json()["components"]["schemas"]
+    for name in ("FrameRequest", "DepthImagesRequest"):
+        assert comps[name]["properties"]["width"]["maximum"] == 200
+        assert comps[name]["properties"]["height"]["maximum"] == 100
+    eye = comps["CameraSpec"]["properties"]["eye"]["prefixItems"]
+    assert all(item["minimum"] == -1e12 and item["maximum"] == 1e12 for item in eye)
+    assert comps["Effects"]["properties"]["reflections"]["enum"] == ["none", "cluster", "raytrace", "envmap"]
+
+
+def test_an_unexpected_error_is_a_json_500(tmp_path, monkeypatch):
+    """Anything unexpected answers the documented ErrorResponse, not Starlette's plain text."""
+    from service.store import SceneStore
+
+    def broken(self):
+        raise RuntimeError("the disk is on fire")
+
+    from service.app import create_app
+
+    monkeypatch.setattr(SceneStore, "list", broken)
+    # raise_server_exceptions=False: the server logs the exception; the client sees the answer
+    with TestClient(create_app(Settings(data_dir=tmp_path, workers=0)), raise_server_exceptions=False) as c:
+        r = c.get("/scenes")
+    assert r.status_code == 500 and r.headers["content-type"] == "application/json"
+    assert r.json() == {"detail": "internal error (RuntimeError); the service log has the details"}
+
+
 # --- slow clients -------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def live(tmp_path_factory) -> Iterator[tuple[str, int]]:

@@ -88,3 +88,19 @@ def test_second_reflective_frame_of_a_scene_hits_the_caches_and_names_each_step(
         first, second = (_server_timing(frame(c, sid, "raytrace")) for _ in range(2))
         assert set(first) == {"bvh", "trace", "encode"}
         assert first["bvh"][1] == "cache miss" and second["bvh"] == (0.0, "cache hit")
+
+
+def test_raytraced_frames_survive_the_scene_cache_evicting_their_scene(tmp_path):
+    """The worker's BVH cache keys casters by scene id; a scene the store loads again (its cache
+    evicted the old object) gets a caster for the new object, not 422 "caster was built for
+    another scene" (found by the full suite: two services in one process shared the cache)."""
+    with service(tmp_path, scene_cache_size=1) as c:
+        sid = c.post("/scenes", json={"builtin": "mirror"}).json()["id"]
+        other = c.post("/scenes", json={"builtin": "cornell"}).json()["id"]
+        frame(c, sid, "raytrace", rays=1)
+        r = c.post(f"/scenes/{other}/frames", json={"camera": CAMERA, "width": 16, "height": 16})
+        assert r.status_code == 200  # the cache of one scene now holds cornell
+        frame(c, sid, "raytrace", rays=1)  # mirror loaded again: a new Scene object
+        r = c.post(f"/scenes/{sid}/frames", json={"camera": CAMERA, "width": 16, "height": 16, "effects": {
+            "soft_shadows": {"samples": 2, "method": "raytrace"}}})
+        assert r.status_code == 200, r.text  # the soft-shadow truth shares the cache

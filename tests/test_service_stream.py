@@ -111,12 +111,36 @@ def test_reflective_frames_go_through_the_streams_reflection_reuser(client, monk
     assert reused["keyframe"] is False and reused["reused_ratio"] > 0.5, reused
     assert (plain["keyframe"], plain["reused_ratio"]) == (True, 0.0)
     ref = client.post(f"/scenes/{mirror}/frames", json=moved)
-    assert ref.status_code == 200
+    assert ref.status_code == 200, ref.text
     assert np.abs(decode(jpeg).astype(int) - decode(ref.content).astype(int)).mean() < 8
     deadline = time.monotonic() + 5
     while not released and time.monotonic() < deadline:
         time.sleep(0.02)
     assert len(released) == 1 and released[0].keyframe is None
+
+
+def test_the_full_trace_baseline_recomputes_every_frame(tmp_path):
+    """stream_reflection_mode=full (the baseline bench.service_load compares the reuse with):
+    every reflective frame is traced whole, a keyframe with nothing reused, and looks like
+    the reused stream's frame of the same view."""
+    mirror = builtin_id("mirror")
+    body = {"camera": {"eye": [2.5, 1.6, 3.0], "target": [0.0, 0.9, -0.5]}, "width": 96, "height": 64,
+            "effects": {"reflections": "cluster"}}
+    moved = {**body, "camera": {"eye": [2.45, 1.6, 3.02], "target": [0.0, 0.9, -0.5]}}
+    frames = {}
+    for mode in ("full", "reuse"):
+        with service(tmp_path / mode, stream_reflection_mode=mode) as c, \
+                c.websocket_connect(f"/scenes/{mirror}/stream") as ws:
+            ws.receive_json()
+            ws.send_json({**body, "id": 1})
+            key, _ = receive_rendered(ws)
+            ws.send_json({**moved, "id": 2})
+            frames[mode] = receive_rendered(ws)
+            assert (key["keyframe"], key["reused_ratio"]) == (True, 0.0)
+    full, reuse = frames["full"][0], frames["reuse"][0]
+    assert (full["keyframe"], full["reused_ratio"]) == (True, 0.0)
+    assert reuse["keyframe"] is False and reuse["reused_ratio"] > 0.5
+    assert np.abs(decode(frames["full"][1]).astype(int) - decode(frames["reuse"][1]).astype(int)).mean() < 8
 
 
 @pytest.mark.parametrize(("message", "status", "words"), [
@@ -334,8 +358,11 @@ def test_stream_settings_come_from_the_environment_and_are_checked():
                            "DEPTHVIEW_STREAM_JPEG_QUALITY": "60", "DEPTHVIEW_STREAM_REST_S": "0.5"})
     assert (s.stream_max_per_client, s.stream_max_total, s.stream_max_message_bytes, s.stream_max_pixels,
             s.stream_jpeg_quality, s.stream_rest_s) == (2, 5, 4096, 65536, 60, 0.5)
+    assert Settings().stream_reflection_mode == "reuse"
+    assert Settings.from_env({"DEPTHVIEW_STREAM_REFLECTION_MODE": "Full"}).stream_reflection_mode == "full"
     for bad in ({"DEPTHVIEW_STREAM_JPEG_QUALITY": "0"}, {"DEPTHVIEW_STREAM_REST_S": "0"},
-                {"DEPTHVIEW_STREAM_MAX_TOTAL": "0"}, {"DEPTHVIEW_STREAM_MAX_PIXELS": "many"}):
+                {"DEPTHVIEW_STREAM_MAX_TOTAL": "0"}, {"DEPTHVIEW_STREAM_MAX_PIXELS": "many"},
+                {"DEPTHVIEW_STREAM_REFLECTION_MODE": "sometimes"}):
         with pytest.raises(ValueError):
             Settings.from_env(bad)
 

@@ -307,6 +307,10 @@ function setMode(mode) {
 }
 
 for (const b of document.querySelectorAll('.segmented button')) b.addEventListener('click', () => setMode(b.dataset.mode));
+// ?reflections=cluster|raytrace|envmap presets the picker (the README's first link)
+if ([...$('reflections').options].some((o) => o.value === params.get('reflections'))) {
+  $('reflections').value = params.get('reflections');
+}
 $('reflections').addEventListener('change', queueCamera);
 $('scale').addEventListener('change', queueCamera);
 $('shadows').addEventListener('change', () => {
