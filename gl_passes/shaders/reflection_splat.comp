@@ -33,7 +33,7 @@ uniform float u_point_bias;
 uniform float u_growth;
 uniform float u_reflected_jump;
 
-struct Vertex { vec2 xy; float z; vec4 refl; bool valid; uint id; };
+struct Vertex { vec2 xy; float z; vec4 refl; bool valid; };
 
 Vertex grid_vertex(ivec2 p) {
     Vertex v;
@@ -42,7 +42,6 @@ Vertex grid_vertex(ivec2 p) {
     v.valid = o.z > 0.5 && v.refl.a >= 0.0;
     v.xy = vec2(p) + o.xy + 0.5;                 // window coordinates (pixels)
     v.z = clamp((texelFetch(u_kf_depth, p, 0).r + max(v.refl.a, 0.0)) * u_depth_scale, 0.0, 1.0);
-    v.id = uint(p.y * u_kf_size.x + p.x);
     return v;
 }
 
@@ -59,26 +58,26 @@ void fragment(ivec2 pix, float z, vec4 refl) {
 #endif
 }
 
-// Edge function of a → b at c, always evaluated from the vertex with the lower id, so
-// that the two triangles sharing an edge get exactly opposite values.
-float edge(Vertex a, Vertex b, vec2 c) {
-    if (a.id < b.id) {
-        vec2 d = b.xy - a.xy, e = c - a.xy;
-        return d.x * e.y - d.y * e.x;
-    }
-    vec2 d = a.xy - b.xy, e = c - b.xy;
-    return -(d.x * e.y - d.y * e.x);
+// Edge equation (A, B, C) of the line from a to b, E(c) = A c.x + B c.y + C, for
+// a.id < b.id: each edge is set up once per quad from its lower-id end, so the two
+// triangles sharing it evaluate exactly opposite values (watertight).
+vec3 edge_equation(Vertex a, Vertex b) {
+    vec2 d = b.xy - a.xy;
+    return vec3(-d.y, d.x, d.y * a.xy.x - d.x * a.xy.y);
 }
 
-// Top-left rule for a counter-clockwise triangle in GL window coordinates (y up).
-bool top_left(vec2 a, vec2 b) {
-    vec2 d = b - a;
+// Top-left rule for the edge p → q of a counter-clockwise triangle in GL window
+// coordinates (y up).
+bool top_left(vec2 p, vec2 q) {
+    vec2 d = q - p;
     return d.y < 0.0 || (d.y == 0.0 && d.x < 0.0);
 }
 
 bool covers(float e, bool tl) { return e > 0.0 || (e == 0.0 && tl); }
 
-void triangle(Vertex a, Vertex b, Vertex c) {
+// Triangle a, b, c with the equations of its edges a → b, b → c, c → a (positive on
+// the left of each direction).
+void triangle(Vertex a, Vertex b, Vertex c, vec3 e_ab, vec3 e_bc, vec3 e_ca) {
     if (!(a.valid && b.valid && c.valid)) return;
     if (u_reflected_jump > 0.0) {
         if (abs(a.refl.a - b.refl.a) > u_reflected_jump * min(a.refl.a, b.refl.a)) return;
@@ -88,17 +87,21 @@ void triangle(Vertex a, Vertex b, Vertex c) {
     vec2 ab = b.xy - a.xy, ac = c.xy - a.xy;
     float area2 = ab.x * ac.y - ab.y * ac.x;      // twice the signed area (px²)
     if (0.5 * abs(area2) > u_growth * 0.5 || area2 == 0.0) return;
-    if (area2 < 0.0) { Vertex t = b; b = c; c = t; area2 = -area2; }
-    bool tl0 = top_left(b.xy, c.xy), tl1 = top_left(c.xy, a.xy), tl2 = top_left(a.xy, b.xy);
+    float sg = area2 > 0.0 ? 1.0 : -1.0;          // counter-clockwise: the interior is positive
+    e_ab *= sg; e_bc *= sg; e_ca *= sg;
+    bool ccw = area2 > 0.0;
+    bool tl_ab = ccw ? top_left(a.xy, b.xy) : top_left(b.xy, a.xy);
+    bool tl_bc = ccw ? top_left(b.xy, c.xy) : top_left(c.xy, b.xy);
+    bool tl_ca = ccw ? top_left(c.xy, a.xy) : top_left(a.xy, c.xy);
     vec2 lo = min(a.xy, min(b.xy, c.xy)), hi = max(a.xy, max(b.xy, c.xy));
     ivec2 p0 = max(ivec2(ceil(lo - 0.5)), ivec2(0));
     ivec2 p1 = min(ivec2(floor(hi - 0.5)), u_kf_size - 1);
     for (int y = p0.y; y <= p1.y; ++y) {
         for (int x = p0.x; x <= p1.x; ++x) {
-            vec2 cxy = vec2(x, y) + 0.5;
-            float w0 = edge(b, c, cxy), w1 = edge(c, a, cxy), w2 = edge(a, b, cxy);
-            if (!(covers(w0, tl0) && covers(w1, tl1) && covers(w2, tl2))) continue;
-            vec3 bary = vec3(w0, w1, w2) / area2;
+            vec3 cxy = vec3(vec2(x, y) + 0.5, 1.0);
+            float wa = dot(e_bc, cxy), wb = dot(e_ca, cxy), wc = dot(e_ab, cxy);
+            if (!(covers(wa, tl_bc) && covers(wb, tl_ca) && covers(wc, tl_ab))) continue;
+            vec3 bary = vec3(wa, wb, wc) / (wa + wb + wc);
             float z = bary.x * a.z + bary.y * b.z + bary.z * c.z;
             fragment(ivec2(x, y), z, bary.x * a.refl + bary.y * b.refl + bary.z * c.refl);
         }
@@ -116,7 +119,15 @@ void main() {
     }
     uint mask = texelFetch(u_grid, s, 0).r;
     if (mask == 0u || !v00.valid) return;
+    // ids: 00 < 10 < 01 < 11; every edge equation from its lower-id end
     Vertex v11 = grid_vertex(s + ivec2(1, 1));
-    if ((mask & 1u) != 0u) triangle(v00, grid_vertex(s + ivec2(1, 0)), v11);
-    if ((mask & 2u) != 0u) triangle(v00, v11, grid_vertex(s + ivec2(0, 1)));
+    vec3 e_00_11 = edge_equation(v00, v11);
+    if ((mask & 1u) != 0u) {
+        Vertex v10 = grid_vertex(s + ivec2(1, 0));
+        triangle(v00, v10, v11, edge_equation(v00, v10), edge_equation(v10, v11), -e_00_11);
+    }
+    if ((mask & 2u) != 0u) {
+        Vertex v01 = grid_vertex(s + ivec2(0, 1));
+        triangle(v00, v11, v01, e_00_11, -edge_equation(v01, v11), -edge_equation(v00, v01));
+    }
 }
