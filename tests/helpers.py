@@ -398,3 +398,19 @@ def temporal_bench_scenario() -> dict:
         main(["--scenes", "mirror", "--frames", "4", "--res", "32", "--out", str(out)])
         return {"json": json.loads(out.with_suffix(".json").read_text()), "md": out.with_suffix(".md").read_text(),
                 "files": sorted(p.name for p in Path(tmp).iterdir())}
+
+
+def temporal_sweeps_scenario() -> dict:
+    """Scenario (own process): bench.temporal_sweeps on the mirror scene, 8-frame
+    paths at 32², two thresholds, two camera speeds."""
+    import json
+    import tempfile
+    from pathlib import Path
+
+    from bench.temporal_sweeps import main
+
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "sweeps"
+        main(["--scenes", "mirror", "--frames", "8", "--res", "32", "--thresholds", "0.0", "1.0",
+              "--speeds", "4", "8", "--no-progress", "--out", str(out)])
+        return {"json": json.loads(out.with_suffix(".json").read_text()), "md": out.with_suffix(".md").read_text()}

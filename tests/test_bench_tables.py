@@ -200,6 +200,22 @@ def test_temporal_bench_smoke_writes_its_tables():
     assert "temporal_mae.png" in res["files"] and "temporal_mirror_path0_embree_triplet.png" in res["files"]
 
 
+def test_temporal_sweeps_smoke_writes_its_tables():
+    """bench.temporal_sweeps end to end: threshold 0 makes every frame after any
+    recomputation a keyframe, threshold 1 never a second one; the 8-frame path is
+    recorded at both speeds."""
+    from tests.helpers import run_isolated, temporal_sweeps_scenario
+
+    res = run_isolated(temporal_sweeps_scenario)
+    (run,) = res["json"]["runs"]
+    never = next(t for t in run["thresholds"] if t["threshold"] == 1.0)
+    always = next(t for t in run["thresholds"] if t["threshold"] == 0.0)
+    assert never["keyframe_interval_max"] == 8 and always["keyframe_interval_mean"] < 8
+    assert all(t["speedup"] > 0 and t["mae_mean"] >= 0 for t in run["thresholds"])
+    assert [s["path_frames"] for s in run["speeds"]] == [4, 8] and [s["frames"] for s in run["speeds"]] == [4, 8]
+    assert "## Keyframe threshold" in res["md"] and "## Camera speed" in res["md"]
+
+
 def test_service_load_smoke_writes_its_tables(tmp_path):
     """bench.service_load end to end at tiny sizes: real server processes (one render
     worker), frames under 1 and 2 clients, the stream with reuse, full trace and no
