@@ -13,7 +13,16 @@
   sample's tangent plane), as a vertex shared by every sample taking it (indexed
   mesh: a continuous surface gives a watertight mesh); otherwise it is the
   intersection of c's camera ray with the sample's tangent plane, with its depth
-  clamped to ± `max_corner_extent` pixel footprints (grazing planes). Every corner
+  clamped to ± `max_corner_extent` pixel footprints of the sample's (grazing
+  planes; Alg. 4 states no clamp). The clamp defaults to 2 footprints: a corner
+  stays on the tangent plane where the plane's depth changes by at most that much
+  over the half pixel (0.5 px, or 0.71 px diagonally) to the corner, i.e. for
+  planes up to 76° (70.5° in the worst direction) from facing the camera;
+  steeper planes are flattened toward the image plane. Without a tight clamp, a tangent plane seen at a grazing angle
+  (a silhouette, a blade or twig seen edge-on) becomes a fin along the view ray,
+  which light samples away from the capturing eye see broadside: at 8 footprints
+  NR and conventional shadows are measurably darker on every Table 8 scene
+  (bench/results/soft_shadows.md, diagnostic "corner clamp"). Every corner
   lies on its pixel corner's camera ray, so each quad covers exactly its pixel as
   seen from I's camera. Three compute passes (shaders/reconstruct_hybrid_*.comp).
 * Grid reconstruction (the baseline of §3.2): neighbouring pixel centres joined
@@ -72,12 +81,13 @@ class ReconstructionSettings:
     plane_tolerance: same-surface test, in pixel footprints (the world size of one
     pixel at the sample's depth): a neighbour within this distance of the sample's
     tangent plane is on its surface. max_corner_extent: grazing clamp of a
-    tangent-plane corner's depth, in pixel footprints. compact_error: the compact
+    tangent-plane corner's depth, in pixel footprints (see the module docstring).
+    compact_error: the compact
     mesh's absolute error bound, in pixel footprints at the image's median depth."""
 
     kind: Reconstruction = "hybrid"
     plane_tolerance: float = 1.0
-    max_corner_extent: float = 8.0
+    max_corner_extent: float = 2.0
     compact_error: float = 0.5
 
     def __post_init__(self) -> None:

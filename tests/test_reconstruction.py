@@ -152,6 +152,37 @@ def test_isolated_sample_gives_exactly_one_quad(gl):
     assert len(gtri) == 0  # the grid baseline drops it
 
 
+def test_grazing_isolated_sample_corners_are_clamped(gl):
+    # A sliver through pixel (10, 12)'s centre ray at depth 4, turned 85° away from
+    # facing the camera (its plane holds the image's up and a direction 5° off the
+    # view axis): ±0.3 px wide, ±0.2 px high on screen, so H sees none of it. The
+    # tangent plane meets the corner rays (±0.5 px aside) about 0.5/tan 5° ≈ 5.7
+    # footprints in front of / behind the sample: the default clamp (2 footprints)
+    # holds them at ±2; with max_corner_extent = 8 they stay on the plane.
+    r, up, _ = FRONT.basis()
+    p = pixel_point(10.5, 12.5, 4.0)
+    d = p - EYE
+    foot = 4.0 * 2 * np.tan(np.radians(FRONT.fov) / 2) / H  # world size of a pixel at depth 4
+    t = np.cos(np.radians(5)) * d / np.linalg.norm(d) + np.sin(np.radians(5)) * r
+    a = 0.3 * foot / np.sin(np.radians(5))
+    b = 0.2 * foot
+    verts = np.array([p - a * t - b * up, p + a * t - b * up, p + a * t + b * up, p - a * t + b * up])
+    n = np.cross(verts[1] - verts[0], verts[2] - verts[0])
+    faces = [[0, 1, 2], [0, 2, 3]] if n @ (EYE - p) > 0 else [[0, 2, 1], [0, 3, 2]]
+    sliver = SceneObject("sliver", verts, np.array(faces), material=Material((0.5, 0.5, 0.5)))
+    spread = {}
+    for extent in (None, 8.0):
+        settings = HYBRID if extent is None else ReconstructionSettings(max_corner_extent=extent)
+        ss, [(pos, tri)] = reconstruct(gl, Scene([sliver]), [FRONT], settings=settings)
+        assert ss.images[0].n_samples == 1 and ss.offsets[0].n_samples == 0
+        assert quad_pixels(pos, tri, FRONT).tolist() == [[10, 12]]
+        _, z = FRONT.project(pos[np.unique(tri)].astype(np.float64))
+        spread[extent] = np.abs(z - 4.0) / foot  # the sample's eye depth is 4
+    assert HYBRID.max_corner_extent == 2.0
+    np.testing.assert_allclose(spread[None], 2.0, rtol=1e-3)  # all four corners clamped at ±2 footprints
+    assert 4.5 < spread[8.0].min() and spread[8.0].max() < 7.0  # on the tangent plane, ≈ 5.7
+
+
 def test_fig17_corner_cases(gl):
     """S_0: all four corners from H (shared); S_2: one corner missing (tangent
     plane); S_5: isolated (four tangent-plane corners). An L-shaped patch: pixel
