@@ -21,7 +21,13 @@ joins whatever is there):
            draw per map, on grass at detail 20 (one upload of the mesh either way);
   peeling  why 4 peeling layers beat the NR images here: the light's distance
            (0.6 / 1.0 / 1.5 diagonals) and two-sided peeling (k = --sweep-k), with the
-           errors split into too dark and too bright.
+           errors split into too dark and too bright;
+  gap      the measured gap between NR and peeling (k = --sweep-k): reference
+           cameras aimed along the light's axis or at the scene and the corner clamp
+           (8 or 2 footprints) for every method; the union of 1…4 images (too dark /
+           too bright); a single image's error per light sample against the light
+           sample's distance from the capturing eye (a corner vs the centre); and two
+           redundancy rules for NR's later images, tried and not kept.
 
     python -m bench.soft_shadows --part table8 --scenes nest,grass,city,tree
     python -m bench.soft_shadows --report-only
@@ -32,7 +38,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +52,7 @@ from gl_passes.reconstruction import (
     RECONSTRUCTIONS,
     SAMPLING_METHODS,
     ReconstructionSettings,
+    Reconstructor,
     reconstruct_set,
     render_set,
 )
@@ -54,13 +61,14 @@ from gl_passes.upload import SceneGPU
 from reference.raycast import RayCaster
 from reference.shadows import error_maps, error_picture, light_visibility, shadow_errors, visible_counts
 from scenes.camera import Camera, look_at_scene
-from scenes.lights import PEEL_LAYERS, default_area_light, reference_cameras
+from scenes.depth_image import DepthImage
+from scenes.lights import AIMS, PEEL_LAYERS, default_area_light, light_diagonal, reference_cameras
 from scenes.model import AreaLight, Scene
 from scenes.shading import area_light_shade
 
 OUT = RESULTS_DIR / "soft_shadows"
 SCENES = ("nest", "grass", "city", "tree")
-PARTS = ("table8", "table9", "table10", "fig20", "peeling", "layered")
+PARTS = ("table8", "table9", "table10", "fig20", "peeling", "layered", "gap")
 #: The thesis's Table 8 (intensity mean/max, visibility mean/max) for NR, conventional, peeling.
 THESIS_TABLE8 = {
     "nest": {"non_redundant": (3.00, 106, 6.31, 110), "conventional": (5.62, 179, 7.72, 179),
@@ -226,6 +234,117 @@ def part_peeling(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str
                     for m in meshes:
                         m.release()
     two_sided.release()
+    return out
+
+
+#: Corner clamps compared by the gap part (pixel footprints; 2 is the default, 8 the rule before).
+GAP_CLAMPS = (8.0, 2.0)
+#: Later-image redundancy rules the gap part tries on top of Alg. 3 (see `drop_redundant`).
+GAP_RULES = ("same_surface", "visible")
+
+
+def drop_redundant(images: list[DepthImage], rule: str, plane_tol: float = 1.0,
+                   depth_tol: float = 2.0) -> list[DepthImage]:
+    """Copies of `images` without the samples of I_i (i > 0) that an earlier image
+    I_j already holds by `rule` (a diagnostic of the gap part, tried and not kept):
+
+    same_surface: I_j's texel at the sample's projection holds its surface (the
+      same triangle, or within plane_tol footprints of that texel sample's tangent
+      plane: the hybrid corner rule instead of Alg. 3's triangle id);
+    visible: same_surface, or the sample faces V_j and I_j's texel holds nothing or
+      a sample more than depth_tol footprints farther (V_j saw past it: a sampling
+      gap of I_j, not an occlusion; Alg. 2's visibility redundancy read off the
+      depth image)."""
+    out = [images[0]]
+    for i in range(1, len(images)):
+        img = images[i]
+        m = img.mask
+        s = img.position[m].astype(np.float64)
+        tri = img.tri_id[m]
+        drop = np.zeros(len(s), bool)
+        for prev in images[:i]:
+            cam = prev.camera
+            eye = np.asarray(cam.eye)
+            px, z = cam.project(s)
+            x, y = np.floor(px[:, 0]).astype(np.int64), np.floor(px[:, 1]).astype(np.int64)
+            inside = (z > 0) & (x >= 0) & (y >= 0) & (x < cam.width) & (y < cam.height)
+            x, y = x.clip(0, cam.width - 1), y.clip(0, cam.height - 1)
+            t, q, n = prev.tri_id[y, x], prev.position[y, x].astype(np.float64), prev.normal[y, x]
+            foot = 2 * np.tan(np.radians(cam.fov) / 2) / cam.height
+            zq = (q - eye) @ cam.basis()[2]
+            held = inside & (t > 0)
+            drop |= held & ((t == tri) | (np.abs(np.einsum("ij,ij->i", n, s - q)) <= plane_tol * foot * zq))
+            if rule == "visible":
+                facing = np.einsum("ij,ij->i", img.normal[m], eye - s) > 0
+                drop |= inside & facing & ((t == 0) | (zq > z + depth_tol * foot * z))
+        keep = np.zeros_like(img.tri_id)
+        keep[m] = np.where(drop, 0, tri)
+        out.append(replace(img, tri_id=keep))
+    return out
+
+
+def per_sample_errors(bits: np.ndarray, truth: np.ndarray, mask: np.ndarray, k: int) -> np.ndarray:
+    """(k²,) mean over the mask's pixels of the wrong decisions for each light sample."""
+    x = np.bitwise_xor(bits, truth)[mask]
+    return np.array([((x[:, s >> 5] >> np.uint32(s & 31)) & 1).mean() if len(x) else 0.0 for s in range(k * k)])
+
+
+def part_gap(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str, Any]:
+    """Where NR + hybrid loses to peeling (k = sweep_k): camera aim × corner clamp for
+    every method; the union of the first 1…4 images; a single image's error per light
+    sample against the sample's distance from the capturing eye; later-image rules."""
+    k = args.sweep_k
+    bounds = st.scene.bounds
+    light = default_area_light(bounds, st.scene.sun_direction)
+    rec = Reconstructor(gl)
+    out: dict[str, Any] = {"aim_clamp": {}, "union": {}, "per_sample": {}, "rules": {}}
+    try:
+        with SoftShadowPass(gl, ShadowSettings(samples=k, shadow_map_resolution=args.shadow_res)) as sp:
+            geo, exact, _ = truths(st, sp, light, k)
+
+            def occlusion(images: list[DepthImage], offsets: list[DepthImage], settings: ReconstructionSettings,
+                          first: int | None = None) -> tuple[np.ndarray, int]:
+                meshes = [rec.reconstruct(i, o, settings) for i, o in list(zip(images, offsets, strict=True))[:first]]
+                try:
+                    bits = sp.visibility(meshes, bounds, st.points, st.normals, st.mask, light).bits
+                    return bits, sum(m.n_triangles for m in meshes)
+                finally:
+                    for m in meshes:
+                        m.release()
+
+            for aim in progress(AIMS, args.progress, desc=f"{st.scene.name} gap", leave=False):
+                out["aim_clamp"][aim] = {}
+                for method in SAMPLING_METHODS:
+                    cams = reference_cameras(light, bounds, method, args.ref_res, aim=aim)
+                    sampled = render_set(gl, st.gpu, method, cams, layers=PEEL_LAYERS)
+                    cover = float(np.mean([img.n_samples / img.depth.size for img in sampled.images[:1]]))
+                    runs = {}
+                    for clamp in GAP_CLAMPS:
+                        bits, tris = occlusion(sampled.images, sampled.offsets,
+                                               ReconstructionSettings(max_corner_extent=clamp))
+                        runs[str(clamp)] = {**errors(bits, geo, exact, st.mask), "triangles": tris}
+                    out["aim_clamp"][aim][method] = {"coverage_first_image": cover, "runs": runs}
+                    if aim != "scene":
+                        continue
+                    # defaults from here on: aim at the scene, clamp 2
+                    settings = ReconstructionSettings()
+                    out["union"][method] = [errors(occlusion(sampled.images, sampled.offsets, settings, n)[0],
+                                                   geo, exact, st.mask) for n in range(1, len(sampled.images) + 1)]
+                    first, _ = occlusion(sampled.images, sampled.offsets, settings, 1)
+                    dist = np.linalg.norm(light.samples(k) - np.asarray(cams[0].eye), axis=1) / light_diagonal(light)
+                    err = per_sample_errors(first, geo, st.mask, k) * k * k
+                    slope, intercept = np.polyfit(dist, err, 1) if np.ptp(dist) > 1e-9 else (0.0, err.mean())
+                    out["per_sample"][method] = {"distance": dist, "error": err, "mean_error": float(err.mean()),
+                                                 "mean_distance": float(dist.mean()), "intercept": float(intercept),
+                                                 "slope": float(slope)}
+                    out["rules"][method] = {}
+                    for rule in GAP_RULES:
+                        kept = drop_redundant(sampled.images, rule)
+                        bits, tris = occlusion(kept, sampled.offsets, settings)
+                        out["rules"][method][rule] = {**errors(bits, geo, exact, st.mask), "triangles": tris,
+                                                      "samples": sum(img.n_samples for img in kept)}
+    finally:
+        rec.release()
     return out
 
 
@@ -403,6 +522,74 @@ def criteria(data: dict[str, dict[str, Any]]) -> list[str]:
             md_table(["criterion", "holds on", "scenes / values"], rows), ""]
 
 
+def _iv(e: dict[str, Any], which: str = "vs_geometry") -> str:
+    """'intensity · visibility' mean errors of one run."""
+    return f"{e[which]['intensity_mean']:.3f} · {e[which]['visibility_mean']:.3f}"
+
+
+def gap_report(gap: dict[str, Any]) -> list[str]:
+    """The gap part's tables (see `part_gap`)."""
+    if not gap:
+        return []
+    first = next(iter(gap.values()))
+    k, res = first["args"]["sweep_k"], first["args"]["ref_res"]
+    combos = [(aim, str(c)) for aim in AIMS for c in GAP_CLAMPS]
+    lines = [f"## The gap between NR and peeling, measured (hybrid, k = {k}, reference {res}²)", "",
+             "### Reference cameras and the corner clamp", "",
+             "Every method, with the reference cameras aimed along the light's axis (`aim=light`, the rule "
+             "before) or at the scene box (`aim=scene`, the default), and tangent-plane corners clamped at 8 "
+             "(the clamp before) or 2 pixel footprints (the default). Coverage: share of the first image's "
+             "pixels that hold a sample. Cells: mean intensity · visibility error.", ""]
+    for which, title in (("vs_geometry", "geometry-shadow-map truth"), ("vs_exact", "exact Embree truth")):
+        rows = []
+        for scene, r in gap.items():
+            for method in SAMPLING_METHODS:
+                cov = " / ".join(f"{r['runs']['aim_clamp'][aim][method]['coverage_first_image']:.2f}"
+                                 for aim in AIMS)
+                rows.append([scene, method, cov, *(_iv(r["runs"]["aim_clamp"][aim][method]["runs"][c], which)
+                                                   for aim, c in combos)])
+        lines += [f"Against the {title}:", "",
+                  md_table(["scene", "images", "coverage (" + " / ".join(AIMS) + ")",
+                            *(f"aim={aim}, clamp {float(c):g}" for aim, c in combos)], rows), ""]
+    rows = []
+    for scene, r in gap.items():
+        for method in ("non_redundant", "peeling"):
+            rows.append([scene, method, *(f"{e['vs_geometry']['visibility_mean']:.3f} ({e['too_dark_mean']:.3f} / "
+                                          f"{e['too_bright_mean']:.3f})" for e in r["runs"]["union"][method])])
+    lines += ["### Adding images: the union of the first n images", "",
+              "Mean visibility error against the geometry truth (too dark / too bright) when the shadow maps hold "
+              "the reconstructions of the first n images of the set only (defaults: aim=scene, clamp 2). NR's "
+              "I_1..I_3 trade too-bright for too-dark samples; peeling's deeper layers add little of either.", "",
+              md_table(["scene", "images", *(f"first {n}" for n in range(1, 5))], rows), ""]
+    rows = []
+    for scene, r in gap.items():
+        for method, what in (("non_redundant", "I_0, from a corner"), ("peeling", "layer 0, from the centre")):
+            x = r["runs"]["per_sample"][method]
+            rows.append([scene, what, f"{x['mean_error']:.3f}", f"{x['mean_distance']:.2f}",
+                         f"{x['intercept']:.3f} + {x['slope']:.3f} · d"])
+    lines += ["### One image as the occluder, per light sample", "",
+              "Shadow maps of the first image's reconstruction alone: mean wrong decisions per pixel for each "
+              f"light sample (× k² = {k * k}, so the mean over the samples is the mean visibility error), against "
+              "the sample's distance d from the image's eye (in light diagonals), with a least-squares line. The "
+              "light's corners are on average twice as far from the light samples as its centre.", "",
+              md_table(["scene", "image", "mean error", "mean d", "fit"], rows), ""]
+    rows = []
+    for scene, r in gap.items():
+        for method in SAMPLING_METHODS:
+            base = r["runs"]["aim_clamp"]["scene"][method]["runs"][str(GAP_CLAMPS[-1])]
+            rules = r["runs"]["rules"][method]
+            rows.append([scene, method, _iv(base), *(f"{_iv(rules[rule])} ({rules[rule]['samples']:,})"
+                                                       for rule in GAP_RULES)])
+    lines += ["### Later-image redundancy rules (tried, not kept)", "",
+              "`drop_redundant`: samples of image i > 0 dropped before the reconstruction when an earlier image's "
+              "texel at their projection holds their surface (same_surface: same triangle or within 1 footprint "
+              "of its tangent plane) or, in addition, when the earlier eye saw past them (visible: a sampling gap "
+              "of the earlier image, not an occlusion). Cells: mean intensity · visibility error against the "
+              "geometry truth (samples kept); the first column is the default (no rule beyond Alg. 3).", "",
+              md_table(["scene", "images", "Alg. 3 only", *GAP_RULES], rows), ""]
+    return lines
+
+
 def write_report(data: dict[str, dict[str, Any]], info: dict[str, Any] | None) -> Path:
     lines = ["# Soft shadows from depth-image reconstructions (thesis Ch. 3, Tables 8–11, Fig. 20)", "",
              "Generated by `python -m bench.soft_shadows` (parts joined by `--report-only`). Light: a square "
@@ -514,6 +701,7 @@ def write_report(data: dict[str, dict[str, Any]], info: dict[str, Any] | None) -
                                             f"({runs[n]['too_dark_mean']:.2f} / {runs[n]['too_bright_mean']:.2f})"
                                             for n in names)])
         lines += [md_table(["scene", "light distance", *names], rows), ""]
+    lines += gap_report(data["gap"])
     ly = data["layered"].get("grass")
     if ly:
         r = ly["runs"]
@@ -572,7 +760,7 @@ def main(argv: list[str] | None = None) -> int:
                     _save(part, "grass", args, info, runs, time.perf_counter() - t0)
                     continue
                 fn = {"table8": part_table8, "table9": part_table9, "table10": part_table10,
-                      "peeling": part_peeling}[part]
+                      "peeling": part_peeling, "gap": part_gap}[part]
                 for name in args.scenes:
                     st = stage_scene(gl, make_builtin(name))
                     try:

@@ -39,6 +39,11 @@ def light_normal(light: AreaLight) -> np.ndarray:
     return n / np.linalg.norm(n)
 
 
+def light_diagonal(light: AreaLight) -> float:
+    """Length of the light rectangle's diagonal |u + v| (world units)."""
+    return float(np.linalg.norm(np.asarray(light.u, np.float64) + np.asarray(light.v, np.float64)))
+
+
 #: Where a light camera looks (`light_camera`): "light" along the light's −normal
 #: (every shadow map, so all k² maps share one orientation), "scene" at the centre
 #: of the scene box (the reference images of Alg. 5, see `reference_cameras`).

@@ -6,6 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from bench.sampling_report import layer_table, useful_table
+from scenes.camera import Camera
+from scenes.depth_image import DepthImage
 
 
 def _m(useful: int, useful_earlier: int = 0, occ=(0.1, 0.5, 0.6), use=(0.9, 0.02, 0.7), avail: float = 0.9) -> dict:
@@ -240,3 +242,43 @@ def test_service_load_smoke_writes_its_tables(tmp_path):
     md = out.with_suffix(".md").read_text()
     assert "## Frames" in md and "## Stream" in md and md.count("\n| 1 | ") == 2
     assert "| cluster, reuse |" in md and (tmp_path / "service_frames.png").stat().st_size > 0
+
+
+def _flat_image(tri: np.ndarray, depth: np.ndarray) -> DepthImage:
+    """A 1×n depth image of the camera below: sample x on pixel x's centre ray at eye depth
+    depth[x], normal facing the camera, triangle tri[x] (0 = no sample)."""
+    n = len(tri)
+    cam = Camera((0.0, 0.0, 0.0), (0.0, 0.0, -1.0), fov=10.0, width=n, height=1, near=0.1, far=100.0)
+    d = cam.pixel_directions()[0]
+    z = depth / (d @ np.array([0.0, 0.0, -1.0]))
+    pos = (d * z[:, None]).astype(np.float32)[None]
+    normal = np.tile(np.array([0, 0, 1], np.float32), (1, n, 1))
+    return DepthImage(cam, np.zeros((1, n, 3), np.float32), np.where(tri > 0, depth, np.inf).astype(np.float32)[None],
+                      normal, pos, np.asarray(tri, np.uint32)[None])
+
+
+def test_drop_redundant_by_hand():
+    """Two images from one camera, 5 pixels. I_0 holds a wall at depth 5 (triangles
+    1, 2) in pixels 0–3 and nothing in pixel 4. I_1 holds: pixel 0 the wall's other
+    triangle (same surface), pixel 1 a sample in front of the wall (depth 3: V_0's
+    ray would have met it first, yet I_0's texel shows the wall: a gap I_0's ray passed
+    by), pixel 2 one behind the wall (depth 8: occluded from V_0), pixel 3 nothing,
+    pixel 4 a sample where I_0 saw nothing (V_0 saw past it)."""
+    from bench.soft_shadows import drop_redundant
+
+    i0 = _flat_image(np.array([1, 1, 2, 2, 0]), np.array([5.0, 5, 5, 5, 0]))
+    i1 = _flat_image(np.array([2, 7, 8, 0, 9]), np.array([5.0, 3, 8, 0, 4]))
+    same = drop_redundant([i0, i1], "same_surface")
+    visible = drop_redundant([i0, i1], "visible")
+    assert same[0] is i0 and visible[0] is i0
+    assert same[1].tri_id[0].tolist() == [0, 7, 8, 0, 9]  # only the wall's other triangle goes
+    assert visible[1].tri_id[0].tolist() == [0, 0, 8, 0, 0]  # only the occluded sample stays
+    assert i1.tri_id[0].tolist() == [2, 7, 8, 0, 9]  # the input is not changed
+
+
+def test_per_sample_errors_by_hand():
+    from bench.soft_shadows import per_sample_errors
+
+    truth = np.array([[[0b1111]], [[0b1111]]], np.uint32)  # 2 pixels, k = 2: all 4 samples visible
+    approx = np.array([[[0b1110]], [[0b0110]]], np.uint32)  # sample 0 wrong twice, sample 3 once
+    np.testing.assert_allclose(per_sample_errors(approx, truth, np.ones((2, 1), bool), 2), [1.0, 0, 0, 0.5])
