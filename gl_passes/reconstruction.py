@@ -22,7 +22,7 @@
   (a silhouette, a blade or twig seen edge-on) becomes a fin along the view ray,
   which light samples away from the capturing eye see broadside: at 8 footprints
   NR and conventional shadows are measurably darker on every Table 8 scene
-  (bench/results/soft_shadows.md, diagnostic "corner clamp"). Every corner
+  (bench/results/soft_shadows.md, "Reference cameras and the corner clamp"). Every corner
   lies on its pixel corner's camera ray, so each quad covers exactly its pixel as
   seen from I's camera. Three compute passes (shaders/reconstruct_hybrid_*.comp).
 * Grid reconstruction (the baseline of §3.2): neighbouring pixel centres joined
