@@ -10,6 +10,18 @@ screen (§4.3 steps 2–3), the bin resolution is
 and a sample with normal azimuth θ ∈ [0°, 360°) (atan2(n.z, n.x)) and polar
 angle φ ∈ [0°, 180°] (acos n.y) goes to bin (⌊n_θ·θ/360°⌋, ⌊n_φ·φ/180°⌋, R).
 
+The normal is the sample's mirror normal, the one its mirror ray is reflected about
+(reflect_common.glsl mirror_normal): the interpolated shading normal, or the
+geometric normal where the project's below-surface rule reflects about it
+(reference.reflections.mirror_directions), turned toward the viewer. The thesis
+bins "by the pixel's normal rather than by the reflected ray" (§4.3); with the
+below-surface rule the two normals differ, and binning by the shading normal puts
+such a sample's ray, far from its bin's others, into a cluster whose camera must
+then widen to hold it: on a small curved reflector (a tap) the frustums grew to
+near-hemispheres of coarse texels and most rays lost their hits
+(bench/results/reflections_issue17_quality.md).
+`bin_normal="shading"` keeps the shading normal (for comparison).
+
 The scale s_R: the printed formula multiplies by a_R / n_v ("literal" rule). Taken
 literally it gives every reflector a single bin as soon as a few reflectors are on
 screen (25 reflectors: a_R / n_v ≈ 1/625), i.e. at most n_v clusters, which
@@ -96,11 +108,14 @@ def decode64(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 class ClusteringPass:
     """Owns the count/assign programs, the raw-bin image and the stats SSBO."""
 
-    def __init__(self, gl: GLContext) -> None:
+    def __init__(self, gl: GLContext, bin_normal: str = "mirror") -> None:
         gl.check_thread()
+        if bin_normal not in ("mirror", "shading"):
+            raise ValueError(f"bin_normal must be 'mirror' or 'shading', got {bin_normal!r}")
         self.gl = gl
         self.count_prog = compute_program(gl, "cluster_count.comp", UNITS.defines())
-        self.assign_prog = compute_program(gl, "cluster_assign.comp", UNITS.defines())
+        self.assign_prog = compute_program(gl, "cluster_assign.comp", {
+            **UNITS.defines(), **({"SHADING_NORMAL_BINS": "1"} if bin_normal == "shading" else {})})
         self.bins_tex: moderngl.Texture | None = None
         self._remap = np.full(1, -1, np.int32)  # raw bin → cluster index of the last run (−1: empty bin)
         self._buffers: dict[str, moderngl.Buffer] = {}
@@ -117,8 +132,10 @@ class ClusteringPass:
         return buf
 
     def run(self, textures: dict[str, moderngl.Texture], bounds: tuple[np.ndarray, np.ndarray],
-            n_objects: int, bin_scale: float = 1.0, rule: str = "relative") -> ClusterStats:
-        """Cluster the reflective samples of a G-buffer (its textures on the GPU)."""
+            n_objects: int, eye: np.ndarray, bin_scale: float = 1.0, rule: str = "relative") -> ClusterStats:
+        """Cluster the reflective samples of a G-buffer (its textures on the GPU) seen
+        from `eye`; the scene's mesh storage buffers (MeshVerts, MeshFaces) must be
+        bound by the caller."""
         self.gl.check_thread()
         ctx = self.gl.ctx
         size = textures["obj_id"].size
@@ -129,7 +146,7 @@ class ClusteringPass:
             self.bins_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
         groups = ((size[0] + GROUP - 1) // GROUP, (size[1] + GROUP - 1) // GROUP, 1)
         for name, key in (("u_obj", "obj_id"), ("u_material", "material"), ("u_normal", "normal"),
-                          ("u_position", "position")):
+                          ("u_position", "position"), ("u_tri", "tri_id")):
             UNITS.bind_texture(name, textures[key])
 
         # Pass 1: reflective samples per object.
@@ -154,6 +171,7 @@ class ClusteringPass:
         lo, hi = lo - pad, hi + pad
         prog = self.assign_prog
         set_uniform(prog, "u_lo", lo)
+        set_uniform(prog, "u_eye", np.asarray(eye, np.float64))
         self._lo, self._ext = lo, hi - lo
         set_uniform(prog, "u_inv_ext", 1.0 / (hi - lo))
         prog.run(*groups)

@@ -1,8 +1,13 @@
 #version 430 core
 // §4.3 step 4: bin every reflective sample by (normal theta bin, normal phi bin,
 // reflector id) and accumulate the bin's statistics (count, position and normal
-// sums in 64-bit fixed point: 32-bit atomics with carry).
+// sums in 64-bit fixed point: 32-bit atomics with carry). The normal is the one
+// the sample's mirror ray is reflected about (reflect_common.glsl mirror_normal);
+// SHADING_NORMAL_BINS: the interpolated shading normal, whatever the ray.
 layout(local_size_x = 16, local_size_y = 16) in;
+#include "reflect_common.glsl"
+layout(binding = UNIT_u_tri) uniform usampler2D u_tri;
+uniform vec3 u_eye;
 layout(binding = UNIT_u_obj) uniform usampler2D u_obj;
 layout(binding = UNIT_u_material) uniform sampler2D u_material;
 layout(binding = UNIT_u_normal) uniform sampler2D u_normal;
@@ -27,7 +32,11 @@ void main() {
     if (any(greaterThanEqual(p, size))) return;
     uint o = texelFetch(u_obj, p, 0).r;
     if (o == 0u || texelFetch(u_material, p, 0).r <= 0.0) { imageStore(u_bin_image, p, uvec4(0u)); return; }
+    vec3 P = texelFetch(u_position, p, 0).xyz;
     vec3 n = normalize(texelFetch(u_normal, p, 0).xyz);
+#ifndef SHADING_NORMAL_BINS
+    n = mirror_normal(normalize(P - u_eye), n, geom_normal(texelFetch(u_tri, p, 0).r));
+#endif
     float theta = atan(n.z, n.x);
     if (theta < 0.0) theta += 2.0 * PI;
     float phi = acos(clamp(n.y, -1.0, 1.0));
@@ -38,7 +47,7 @@ void main() {
     imageStore(u_bin_image, p, uvec4(bin + 1u));
     uint base = bin * STRIDE;
     atomicAdd(stats[base], 1u);
-    vec3 q = clamp((texelFetch(u_position, p, 0).xyz - u_lo) * u_inv_ext, 0.0, 1.0) * FIXED;
+    vec3 q = clamp((P - u_lo) * u_inv_ext, 0.0, 1.0) * FIXED;
     vec3 qn = clamp(n * 0.5 + 0.5, 0.0, 1.0) * FIXED;
     for (uint k = 0u; k < 3u; ++k) {
         add64(base + 1u + 2u * k, uint(q[k] + 0.5));
