@@ -38,7 +38,7 @@ import numpy as np
 
 from gl_passes.chunks import box_corners, boxes_in_frustum, facing_away
 from gl_passes.cluster_units import UNITS
-from gl_passes.clustering import ClusterStats
+from gl_passes.clustering import ClusterStats, decode_ordered
 from gl_passes.context import GLContext
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
@@ -145,13 +145,6 @@ def camera_frame(camera: Camera, n: np.ndarray, p_c: np.ndarray) -> tuple[np.nda
         up = plane_basis(fwd)[0]
     up /= np.linalg.norm(up)
     return np.cross(fwd, up), up, fwd
-
-
-def decode_ordered(u: np.ndarray) -> np.ndarray:
-    """Inverse of f2o in reflect_common.glsl (order-preserving float ↔ uint)."""
-    u = np.asarray(u, np.uint32)
-    bits = np.where(u & np.uint32(0x80000000), u & np.uint32(0x7FFFFFFF), ~u).astype(np.uint32)
-    return bits.view(np.float32).astype(np.float64)
 
 
 def ext_init(n: int) -> np.ndarray:

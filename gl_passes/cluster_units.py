@@ -16,11 +16,12 @@ from gl_passes.bindings import Units
 UNITS = Units(
     # images (write targets of compute passes)
     images=("u_bin_image", "u_out", "u_out_color", "u_out_reflected", "u_out_diffuse", "u_pack_image",
-            "u_block_min_image", "u_block_max_image"),
+            "u_block_min_image", "u_block_max_image", "u_mnormal_image"),
     # storage blocks
-    storage=("ObjCount", "BinTable", "BinStats", "Remap", "Ext", "Frames", "MeshVerts", "MeshFaces"),
+    storage=("ObjCount", "BinTable", "BinStats", "Remap", "Ext", "Frames", "MeshVerts", "MeshFaces", "Labels",
+             "CompCount", "SplitList"),
     # samplers
     textures=("u_bins", "u_tri", "u_normal", "u_position", "u_atlas", "u_color", "u_material", "u_reflected",
               "u_atlas_self_tri", "u_atlas_self", "u_pack", "u_block_min", "u_atlas_peel", "u_atlas_peel_tri",
-              "u_block_max", "u_atlas_peel_other", "u_obj", "u_prev"),
+              "u_block_max", "u_atlas_peel_other", "u_obj", "u_prev", "u_mnormal"),
 )

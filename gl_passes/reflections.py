@@ -9,7 +9,9 @@ shaders comes from gl_passes.cluster_units.UNITS.
    scenes, step "scene_setup", ~0 on a scene's later frames): triangle chunks with
    AABBs and normal cones, and the levels of detail (meshoptimizer) with theirs;
 1. G-buffer at ss×ss supersampling (GBufferPass at ss·W × ss·H);
-2. clustering of the reflective samples on the GPU (gl_passes.clustering, §4.3);
+2. clustering of the reflective samples on the GPU (gl_passes.clustering, §4.3):
+   bins of the mirror normal and reflector, split into the connected components of
+   continuous normal field (planar ones sharing a cluster per plane);
 3. one cluster camera per cluster (gl_passes.cluster_camera, §4.4): per-cluster
    statistics and ray extents by compute passes with atomics, the per-cluster
    camera algebra in numpy on those few numbers;
@@ -154,8 +156,14 @@ class ClusterSettings:
     (bench/reflections.py, bench/reflection_sweeps.py), so that the service renders
     what the benchmark measures.
 
-    Clustering (§4.3): bin_scale multiplies the bin counts, bin_rule picks how they
-    follow the reflector's sample count (gl_passes.clustering).
+    Clustering (§4.3, gl_passes.clustering): bin_scale multiplies the bin counts,
+    bin_rule picks how they follow the reflector's sample count, bin_normal the normal
+    binned ("mirror": the one the mirror ray is reflected about; "shading": the
+    interpolated normal whatever the ray). normal_break > 0 splits each bin into the
+    components of its samples whose neighbours' mirror normals differ by at most that
+    many degrees (0 = off: clusters are the bins); a component of at least
+    min_component × the G-buffer's samples is split off (planar ones grouped per
+    plane, curved ones each a cluster when split_curved, else back in their bin).
     Cluster cameras (§4.4): max_shift clamps the e0 → P_c shift 1 − f; resolution_scale
     multiplies the texel density derived from the cluster's projected sample spacing;
     max_resolution caps an image's side (texels).
@@ -187,6 +195,10 @@ class ClusterSettings:
     resolution_scale: float = 1.0
     bin_scale: float = 1.0
     bin_rule: str = "relative"
+    bin_normal: str = "mirror"
+    normal_break: float = 10.0
+    min_component: float = 1 / 1024
+    split_curved: bool = True
     thickness: float = 1.0
     atlas_max: int = 4096
     atlas_budget: float | None = 16.0
@@ -215,6 +227,10 @@ class ClusterSettings:
             raise ValueError("lod_errors must be positive and increasing")
         if self.lod_texels <= 0:
             raise ValueError("lod_texels must be > 0")
+        if self.bin_normal not in ("mirror", "shading"):
+            raise ValueError("bin_normal must be 'mirror' or 'shading'")
+        if not 0 <= self.normal_break < 180 or not 0 <= self.min_component <= 1:
+            raise ValueError("normal_break must be in [0, 180) degrees and min_component in [0, 1]")
 
     def replace(self, **changes) -> ClusterSettings:
         """A copy with `changes` applied (validated again)."""
@@ -234,7 +250,7 @@ class ClusterReflections(Releasable):
         self.gl = gl
         self.settings = settings
         self.gbuffer = GBufferPass(gl)
-        self.clustering = ClusteringPass(gl)
+        self.clustering = ClusteringPass(gl, settings.bin_normal)
         self.extent = ClusterExtentPass(gl)
         units = UNITS.defines()
         defines = {**units, "FADE_FRACTION": repr(float(FADE_FRACTION)), "MAX_RAYS": str(MAX_RAYS),
@@ -383,15 +399,17 @@ class ClusterReflections(Releasable):
         tex = self.gbuffer.draw(scene_gpu, ss_cam).textures
         lap("gbuffer")
         # 2. clustering
-        stats = self.clustering.run(tex, scene.bounds, len(scene.objects), st.bin_scale, st.bin_rule)
+        eye = np.asarray(cam.eye, np.float64)
+        UNITS.bind_storage("MeshVerts", scene_gpu.vbo)
+        UNITS.bind_storage("MeshFaces", scene_gpu.ibo)
+        min_samples = max(1, round(st.min_component * ss_cam.width * ss_cam.height))
+        stats = self.clustering.run(tex, scene.bounds, len(scene.objects), eye, st.bin_scale, st.bin_rule,
+                                    st.normal_break, min_samples, st.split_curved)
         lap("clustering")
         # 3. cluster cameras
         bins = self.clustering.bins_tex
         size = bins.size
-        UNITS.bind_storage("MeshVerts", scene_gpu.vbo)
-        UNITS.bind_storage("MeshFaces", scene_gpu.ibo)
         self._bind_gbuffer(bins, tex)
-        eye = np.asarray(cam.eye, np.float64)
         cams = cc.initial_cameras(stats, cam, scene.materials, scene.diagonal)
         atlas_size = (0, 0)
         drawn = 0

@@ -277,27 +277,34 @@ def test_sphere_errors_are_points_hidden_from_the_cluster_camera(gl, refl):
     assert np.mean(c[use] == visible[use]) >= 0.9, np.mean(c[use] == visible[use])
 
 
-def test_others_second_surface_captures_hidden_hits(gl, refl):
+@pytest.mark.parametrize("clustering", ["shading_bins", "default"])
+def test_others_second_surface_captures_hidden_hits(gl, clustering):
     """Non-planar clusters' fourth layer (the other objects' second surface) holds
     true hits that their shifted camera e_c sees hidden behind another object: on
     two frames of each bench room the thesis occlusion error per reflected ray
-    never rises and falls by more than half in total (0.73/0.90/1.83/8.41 % →
-    0.48/0.89/1.69/0.35 % when written); with the layer off the first three layers
-    are unchanged and the fourth is empty."""
+    never rises with it; with the layer off the first three layers are unchanged
+    and the fourth is empty. With the clustering the layer was measured with (bins
+    of the shading normal, no components: "shading_bins") the error falls by more
+    than half in total (0.73/0.90/1.83/8.41 % → 0.48/0.89/1.69/0.35 % when
+    written); with the default clustering (mirror-normal bins split into
+    components, issue 17), which already holds most of those hits in the first
+    layer, it still falls in total."""
     from gl_passes.reflections import ClusterReflections, ClusterSettings
     from gl_passes.upload import SceneGPU
     from reference.reflections import raytrace_reflections
     from scenes.builtin import make_builtin
     from scenes.camera import flythrough_path
 
+    base = ClusterSettings(bin_normal="shading", normal_break=0.0) if clustering == "shading_bins" \
+        else ClusterSettings()
     rates = []
-    with ClusterReflections(gl, ClusterSettings(others_peel=False)) as off:
+    with ClusterReflections(gl, base.replace(others_peel=False)) as off, ClusterReflections(gl, base) as on:
         for name in ("living_room", "bathroom"):
             scene = make_builtin(name)
             with SceneGPU(gl, scene) as sg:
                 for frame in (1, 3):
                     cam = flythrough_path(scene.bounds, 8, width=64, height=64)[frame]
-                    with4, with3 = refl.render(sg, cam, diagnostics=True), off.render(sg, cam, diagnostics=True)
+                    with4, with3 = on.render(sg, cam, diagnostics=True), off.render(sg, cam, diagnostics=True)
                     ref = raytrace_reflections(scene, cam)
                     for layer in range(3):
                         assert_images_equal(with4.diagnostics.layer_depths[layer],
@@ -308,4 +315,4 @@ def test_others_second_surface_captures_hidden_hits(gl, refl):
                                                             _captured(o, ref)) for o in (with3, with4)])
     r = np.asarray(rates)
     assert np.all(r[:, 1] <= r[:, 0]), r
-    assert r[:, 1].sum() < 0.5 * r[:, 0].sum(), r
+    assert r[:, 1].sum() < (0.5 if clustering == "shading_bins" else 1.0) * r[:, 0].sum(), r

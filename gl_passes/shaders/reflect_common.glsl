@@ -23,6 +23,15 @@ vec3 mirror_dir(vec3 d, vec3 n, vec3 ng) {
     return r;
 }
 
+// The normal the mirror direction (mirror_dir) is reflected about: the shading
+// normal n, or the geometric normal ng where the below-surface rule applies,
+// turned toward the viewer (-d); exactly n or ng up to sign, so that a flat
+// surface's samples share one normal to the last bit.
+vec3 mirror_normal(vec3 d, vec3 n, vec3 ng) {
+    vec3 m = dot(normalize(d - 2.0 * dot(d, n) * n), ng) < 0.0 ? ng : n;
+    return dot(m, d) > 0.0 ? -m : m;
+}
+
 // Lobe direction: tilt the axis m by rho·half toward phi, offset = rho·(cos phi, sin phi),
 // in the branchless orthonormal frame of Duff et al. (scenes.glossy.lobe_directions).
 vec3 lobe_dir(vec3 m, float half_angle, vec2 off) {
