@@ -411,8 +411,9 @@ EMBREE_PATHS = {
 
 def test_embree_paths_are_queued_and_timed_like_gl_jobs(tmp_path, cornell_id, monkeypatch):
     """Every Embree path is one job on the worker thread: behind a busy worker it gets 504
-    at the time limit, with the queue full 503 + Retry-After, and on a free worker 200."""
-    with service(tmp_path, queue_size=1, job_timeout_s=1.0, retry_after_s=3) as c:
+    at the time limit, with the queue full 503 + Retry-After, and on a free worker 200
+    (the limit leaves a loaded machine time for the small renders)."""
+    with service(tmp_path, queue_size=1, job_timeout_s=2.5, retry_after_s=3) as c:
         worker: RenderWorker = c.app.state.worker
         for name, (suffix, body) in EMBREE_PATHS.items():
             started, release = threading.Event(), threading.Event()
@@ -425,7 +426,7 @@ def test_embree_paths_are_queued_and_timed_like_gl_jobs(tmp_path, cornell_id, mo
             assert started.wait(10)
             try:
                 r = c.post(f"/scenes/{cornell_id}/{suffix}", json=body)  # queued behind the blocker
-                assert r.status_code == 504 and "1 s" in r.json()["detail"], (name, r.text)
+                assert r.status_code == 504 and "2.5 s" in r.json()["detail"], (name, r.text)
                 r = c.post(f"/scenes/{cornell_id}/{suffix}", json=body)  # the abandoned job holds the slot
                 assert r.status_code == 503 and r.headers["retry-after"] == "3", (name, r.text)
             finally:
@@ -446,14 +447,14 @@ def test_embree_paths_are_queued_and_timed_like_gl_jobs(tmp_path, cornell_id, mo
         # An Embree job that runs past the limit is 504 too (it was in the thread pool,
         # out of the timeout's reach, before).
         def slow_raytrace(*args):
-            time.sleep(1.5)
+            time.sleep(4.0)
             raise AssertionError("unused")
 
         monkeypatch.setattr(jobs, "raytrace_cached", slow_raytrace)
         suffix, body = EMBREE_PATHS["raytraced reflections"]
         t0 = time.monotonic()
         r = c.post(f"/scenes/{cornell_id}/{suffix}", json=body)
-        assert r.status_code == 504 and time.monotonic() - t0 < 1.4, r.text
+        assert r.status_code == 504 and time.monotonic() - t0 < 3.8, r.text
 
 
 def test_jobs_are_picklable_specs_that_load_their_scene_by_address(client, cornell_id):
