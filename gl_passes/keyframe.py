@@ -123,7 +123,8 @@ class KeyframeTextures:
 @dataclass
 class KeyframePolicy:
     """§5.4.4: the next frame is a keyframe when more than `threshold` of the
-    reflective pixels of this frame were recomputed (thesis: 0.3)."""
+    reflective pixels of this frame were recomputed (thesis: 0.3; ReuseSettings
+    chooses the threshold)."""
 
     threshold: float = 0.3
     due: bool = True

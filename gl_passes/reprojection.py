@@ -78,7 +78,9 @@ class ReuseSettings:
 
     mode: "reuse" (Ch. 5), "direct" or "full" (baselines); keyframe_threshold:
     recomputed fraction of the reflective pixels above which the next frame is a
-    keyframe (§5.4.4: 0.3); max_steps: bound on Alg. 9's descent steps per pixel
+    keyframe (§5.4.4 uses 0.3 and calls it a quality/efficiency choice; 0.2 here:
+    fewer pixels recomputed, faster and closer to the full trace on both benchmark
+    scenes, bench/results/temporal_sweeps.md); max_steps: bound on Alg. 9's descent steps per pixel
     (a search that reaches it is invalid); growth: area ratio above which a warped
     triangle is dropped (§5.5.1: 16); plane_tolerance: same-surface test (depth
     discontinuity), in pixel footprints; reflected_jump: beyond the thesis, a
@@ -98,7 +100,7 @@ class ReuseSettings:
     reused frame (ReuseStats; outside the timed steps — a stream can do without)."""
 
     mode: Literal["reuse", "direct", "full"] = "reuse"
-    keyframe_threshold: float = 0.3
+    keyframe_threshold: float = 0.2
     max_steps: int = 64
     growth: float = 16.0
     plane_tolerance: float = 1.0
