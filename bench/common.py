@@ -12,6 +12,7 @@ import math
 import os
 import platform
 import statistics
+import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -61,6 +62,18 @@ def _version(mod: str) -> str | None:
         return version(mod)
     except Exception:  # noqa: BLE001 - any failure means "unknown"
         return None
+
+
+def git_revision() -> str:
+    """The checkout's short commit (with '+' when its tree has changes), or '?'."""
+    try:
+        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                             check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
+                               text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "?"
+    return rev + ("+" if dirty else "")
 
 
 def machine_info(gl: Any = None) -> dict[str, Any]:

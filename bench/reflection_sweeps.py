@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.common import RESULTS_DIR, load_named_scene, write_json
+from bench.common import RESULTS_DIR, git_revision, load_named_scene, write_json
 from bench.reflections import occlusion_metrics, report_from_json, view_camera
 from gl_passes.context import create_gl_context
 from gl_passes.reflections import DEFAULT_SETTINGS, ClusterReflections
@@ -149,6 +149,19 @@ def sweep_scene(gl, name: str, res: int, repeat: int, tables: set[str]) -> dict:
     return out
 
 
+def merge_sweeps(old: list[dict], new: list[dict], stamp: str) -> list[dict]:
+    """The sweeps of a run (`--tables` a subset) over the earlier ones: per scene, the
+    tables measured now replace theirs and are stamped with `stamp` in the scene's
+    "measured" (table key → date and commit); the other tables stay as they were."""
+    merged = {s["scene"]: dict(s) for s in old}
+    for s in new:
+        entry = merged.setdefault(s["scene"], {"scene": s["scene"], "res": s["res"]})
+        tables = [k for k in s if k.startswith("table")]
+        entry.update(s)
+        entry["measured"] = {**entry.get("measured", {}), **dict.fromkeys(tables, stamp)}
+    return list(merged.values())
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", nargs="+", default=["living_room", "bathroom"])
@@ -168,7 +181,8 @@ def main(argv: list[str] | None = None) -> None:
     gl.release()
     path = out.with_suffix(".json")
     data = json.loads(path.read_text())
-    data["sweeps"] = sweeps
+    data["sweeps"] = merge_sweeps(data.get("sweeps", []), sweeps,
+                                  time.strftime("%Y-%m-%d", time.gmtime()) + " " + git_revision())
     write_json(path, data)
     report_from_json(out, data)
     print(out.with_suffix(".md").read_text())

@@ -335,6 +335,25 @@ def _sweep_section(sweeps: list[dict], key: str, title: str, text: str, headers:
     return [title, "", text, "", md_table(["scene", *headers], [[s["scene"], *row(r)] for s in t for r in s[key]]), ""]
 
 
+#: What the sweep tables without a stamp predate (bench.reflection_sweeps stamps them since).
+UNSTAMPED_SWEEPS = ("measured 2026-11-21 to 11-23, before clusters were split at the breaks of the mirror-normal "
+                    "field (7ac743a), so their cluster counts and times are those of the earlier clustering")
+
+
+def sweeps_measured(sweeps: list[dict]) -> list[str]:
+    """When and at which commit the sweep tables were measured: a line per stamp,
+    naming its tables and scenes."""
+    by_stamp: dict[str, tuple[set[str], set[str]]] = {}
+    for s in sweeps:
+        for k in s:
+            if k.startswith("table"):
+                keys, scenes = by_stamp.setdefault(s.get("measured", {}).get(k, UNSTAMPED_SWEEPS), (set(), set()))
+                keys.add(k.removeprefix("table"))
+                scenes.add(s["scene"])
+    return [f"- {', '.join(sorted(keys))} ({', '.join(sorted(scenes))}): {stamp}"
+            for stamp, (keys, scenes) in by_stamp.items()]
+
+
 def sweeps_markdown(sweeps: list[dict]) -> list[str]:
     """Markdown for Tables 15–18 and 20 (empty when there are no sweeps)."""
     if not sweeps:
@@ -346,7 +365,8 @@ def sweeps_markdown(sweeps: list[dict]) -> list[str]:
     res = sweeps[0]["res"]
     md = [f"## Parameter sweeps (Tables 15–18, 20; §4.7.2) at {res}² unless stated", "",
           "`bench/reflection_sweeps.py`: the Table 12 view, one parameter at a time, single frames after a "
-          "warm-up on the shared machine (compare within a table). Thesis values (GTX 570) in the captions.", ""]
+          "warm-up on the shared machine (compare within a table). Thesis values (GTX 570) in the captions.", "",
+          *sweeps_measured(sweeps), ""]
     t = [s for s in sweeps if "table15" in s]
     if t:
         md += ["### Table 15: clusters (thesis: 156 / 141 / 123 / 86 / 32 clusters → 12 / 13 / 15 / 15 / 20 fps)",

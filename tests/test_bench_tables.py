@@ -175,6 +175,24 @@ def test_reflection_step_breakdown_from_the_timing_rows():
     assert "costs about half of Embree's trace" in text
 
 
+def test_reflection_sweeps_merge_keeps_the_tables_not_measured_again():
+    from bench.reflection_sweeps import merge_sweeps
+    from bench.reflections import UNSTAMPED_SWEEPS, sweeps_measured
+
+    old = [{"scene": "a", "res": 512, "table15": [1], "tablelayers": [2]}, {"scene": "b", "res": 512, "table15": [3]}]
+    new = [{"scene": "a", "res": 512, "tablelayers": [20], "tablelod": [30]},
+           {"scene": "c", "res": 512, "table15": [4]}]
+    merged = merge_sweeps(old, new, "2026-11-25 abc")
+    assert merged == [
+        {"scene": "a", "res": 512, "table15": [1], "tablelayers": [20], "tablelod": [30],
+         "measured": {"tablelayers": "2026-11-25 abc", "tablelod": "2026-11-25 abc"}},
+        {"scene": "b", "res": 512, "table15": [3]},
+        {"scene": "c", "res": 512, "table15": [4], "measured": {"table15": "2026-11-25 abc"}}]
+    assert old[0]["tablelayers"] == [2]  # the earlier run's records are not modified
+    assert sorted(sweeps_measured(merged)) == sorted([
+        f"- 15 (a, b): {UNSTAMPED_SWEEPS}", "- 15, layers, lod (a, c): 2026-11-25 abc"])
+
+
 def test_temporal_keyframe_intervals():
     from bench.temporal import intervals
 
