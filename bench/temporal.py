@@ -145,7 +145,8 @@ def run_path(gl, sg, make_tracer, cams, stem: str, out_dir: Path, overrides: dic
             "disoccluded_mean": float(np.mean(per["disoccluded"])),
             "unreliable_mean": float(np.mean(per["unreliable"])),
             "full_ms_mean": float(full_ms.mean()), "full_diffuse_ms_mean": float(np.mean(per["full_diffuse_ms"])),
-            "ours_ms_mean": float(ours_ms.mean()), "per_frame": per,
+            "ours_ms_mean": float(ours_ms.mean()),
+            "per_frame": {**per, **{f"{s}_ms": v for s, v in step_ms.items()}},
             "farthest_from_keyframe": best[0]}
 
 
