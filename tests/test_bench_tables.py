@@ -200,6 +200,19 @@ def test_temporal_keyframe_intervals():
     assert intervals([True]) == [1]
 
 
+def test_temporal_report_states_why_runs_are_smaller_than_the_thesis():
+    from bench.temporal import SMALLER_RUNS, run_groups
+
+    def row(scene, seed, tracer, frames, res):
+        return {"scene": scene, "path": f"fly-through {seed}", "tracer": tracer, "frames": frames, "res": res,
+                "path_frames": 500}
+
+    lines = run_groups([row("a", 0, "embree", 500, 1024), row("b", 1, "embree", 500, 1024),
+                        row("a", 1, "clusters", 100, 512), row("a", 0, "clusters", 100, 512)])
+    assert lines == ["embree: 500 · 1024² on a, b, fly-through paths 0, 1.",
+                     f"clusters: 100 of 500 · 512² on a, fly-through paths 0, 1: {SMALLER_RUNS['clusters']}."]
+
+
 def test_temporal_bench_smoke_writes_its_tables():
     """bench.temporal end to end (tables, JSON, pictures)."""
     from tests.helpers import run_isolated, temporal_bench_scenario
