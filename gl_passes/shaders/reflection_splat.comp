@@ -75,6 +75,23 @@ bool top_left(vec2 p, vec2 q) {
 
 bool covers(float e, bool tl) { return e > 0.0 || (e == 0.0 && tl); }
 
+// Narrows the pixel columns [xlo, xhi] of row centre cy to those where the edge
+// e (A x + B y + C, interior positive) can be non-negative at a pixel centre. The
+// margin (one pixel, plus the bound's float error: a few ulps of the terms over |A|)
+// keeps every pixel the exact test below could pass; a horizontal edge, or one whose
+// bound lies far outside any image, leaves the span as it is (the exact test decides
+// its rows: a row on the edge line depends on the sign of a rounded zero); an empty
+// span leaves xlo > xhi.
+void span(vec3 e, float cy, inout float xlo, inout float xhi) {
+    if (e.x == 0.0) return;    // a horizontal edge bounds rows, not columns
+    float r = e.y * cy + e.z;
+    float m = 1.0 + 1e-6 * (abs(e.y * cy) + abs(e.z) + abs(e.x) * float(u_kf_size.x)) / abs(e.x);
+    float x = -r / e.x - 0.5;
+    if (!(abs(x) + m < 1e7)) return;    // a near-horizontal edge (or overflow): no narrowing
+    if (e.x > 0.0) xlo = max(xlo, ceil(x - m));
+    else xhi = min(xhi, floor(x + m));
+}
+
 // Triangle a, b, c with the equations of its edges a → b, b → c, c → a (positive on
 // the left of each direction).
 void triangle(Vertex a, Vertex b, Vertex c, vec3 e_ab, vec3 e_bc, vec3 e_ca) {
@@ -97,7 +114,16 @@ void triangle(Vertex a, Vertex b, Vertex c, vec3 e_ab, vec3 e_bc, vec3 e_ca) {
     ivec2 p0 = max(ivec2(ceil(lo - 0.5)), ivec2(0));
     ivec2 p1 = min(ivec2(floor(hi - 0.5)), u_kf_size - 1);
     for (int y = p0.y; y <= p1.y; ++y) {
-        for (int x = p0.x; x <= p1.x; ++x) {
+        // the row's span where no edge is negative (one pixel of margin for rounding;
+        // the exact test below decides), so a long sliver costs its rows, not its box
+        float cy = float(y) + 0.5;
+        float xlo = float(p0.x), xhi = float(p1.x);
+        span(e_ab, cy, xlo, xhi);
+        span(e_bc, cy, xlo, xhi);
+        span(e_ca, cy, xlo, xhi);
+        xlo = min(xlo, float(p1.x) + 1.0);    // bounded, so the int conversions are defined
+        xhi = max(xhi, float(p0.x) - 1.0);
+        for (int x = int(xlo); x <= int(xhi); ++x) {
             vec3 cxy = vec3(vec2(x, y) + 0.5, 1.0);
             float wa = dot(e_bc, cxy), wb = dot(e_ca, cxy), wc = dot(e_ab, cxy);
             if (!(covers(wa, tl_bc) && covers(wb, tl_ca) && covers(wc, tl_ab))) continue;
