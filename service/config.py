@@ -94,8 +94,6 @@ ENV_PREFIX = "DEPTHVIEW_"
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
 MIB = 1024 * 1024
-#: gl_passes.reprojection.MODES: how the stream renders reflective frames.
-STREAM_REFLECTION_MODES = ("reuse", "direct", "full")
 
 # Per-unit costs of the memory-budget estimate (``max_job_bytes``; formulas in the
 # module docstring, applied by ``service.budget``). Calibrated by the peak resident
@@ -221,8 +219,10 @@ class Settings:
         for name in ("job_timeout_s", "header_timeout_s", "body_timeout_s", "stream_rest_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"setting {name} must be > 0, got {getattr(self, name)!r}")
-        if self.stream_reflection_mode not in STREAM_REFLECTION_MODES:
-            raise ValueError(f"setting stream_reflection_mode must be one of {', '.join(STREAM_REFLECTION_MODES)}, "
+        from gl_passes.reprojection import MODES  # ReuseSettings.mode (imported here: settings load without GL)
+
+        if self.stream_reflection_mode not in MODES:
+            raise ValueError(f"setting stream_reflection_mode must be one of {', '.join(MODES)}, "
                              f"got {self.stream_reflection_mode!r}")
         if self.gl_backend is not None and self.gl_backend not in ("egl", "osmesa"):
             raise ValueError(f"setting gl_backend must be 'egl' or 'osmesa', got {self.gl_backend!r}")
