@@ -64,9 +64,9 @@ def light_camera(light: AreaLight, eye: np.ndarray, bounds: tuple[np.ndarray, np
     e = np.asarray(eye, dtype=np.float64)
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
     d = corners - e
-    if np.any(d @ -light_normal(light) <= 0):
-        raise ValueError("the scene box is not entirely in front of the light")
     fwd = -light_normal(light)
+    if np.any(d @ fwd <= 0):
+        raise ValueError("the scene box is not entirely in front of the light")
     up = np.asarray(light.v, np.float64)
     if aim == "scene":
         fwd = (lo + hi) / 2 - e
@@ -95,9 +95,8 @@ def reference_cameras(light: AreaLight, bounds: tuple[np.ndarray, np.ndarray], m
     spends its resolution² pixels on the scene (§3.4.2's "reference images
     1024²"). aim = "light" (the rule before): every camera looks along the light's
     −normal like the shadow maps; from a corner the box then sits off the axis and
-    the fov must grow to hold it (60–65° instead of 36–37° for the default light):
-    the scene covers 6–12 % of a corner image's pixels against 20–33 % of the
-    centre image's (bench/results/soft_shadows.md). The centre camera is the same
-    either way (the default light's axis passes through the box centre)."""
+    the fov must grow to hold it, so the scene covers a small share of a corner
+    image's pixels (measured in bench/results/soft_shadows.md). The centre camera
+    is the same either way (the default light's axis passes through the box centre)."""
     eyes = [np.asarray(light.center)] if method == "peeling" else list(light.corners())
     return [light_camera(light, e, bounds, resolution, aim=aim) for e in eyes]
