@@ -335,9 +335,8 @@ def _sweep_section(sweeps: list[dict], key: str, title: str, text: str, headers:
     return [title, "", text, "", md_table(["scene", *headers], [[s["scene"], *row(r)] for s in t for r in s[key]]), ""]
 
 
-#: What the sweep tables without a stamp predate (bench.reflection_sweeps stamps them since).
-UNSTAMPED_SWEEPS = ("measured 2026-11-21 to 11-23, before clusters were split at the breaks of the mirror-normal "
-                    "field (7ac743a), so their cluster counts and times are those of the earlier clustering")
+#: How the report names a sweep table without a stamp (bench.reflection_sweeps stamps each table it measures).
+UNSTAMPED_SWEEPS = "not stamped"
 
 
 def sweeps_measured(sweeps: list[dict]) -> list[str]:

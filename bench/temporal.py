@@ -58,6 +58,7 @@ from reference.reflection_tracer import EmbreeTracer
 from scenes.camera import flythrough_path
 
 MODES = ("full", "reuse", "direct")
+THESIS_PATH_FRAMES, THESIS_RES = 500, 1024  # §5.5: the thesis's paths and output resolution
 #: Thesis Table 22 (500 frames a path at 1024², GTX 980M, OptiX as full tracing): scene,
 #: path, reflective % max/avg, OptiX fps max/min/avg, ours fps max/min/avg, keyframe
 #: interval max/avg, recomputed %.
@@ -256,14 +257,14 @@ def run_groups(rows: list[dict]) -> list[str]:
     for (tracer, size), rs in groups.items():
         scenes = ", ".join(dict.fromkeys(r["scene"] for r in rs))
         paths = ", ".join(sorted({r["path"].removeprefix("fly-through ") for r in rs}))
-        small = rs[0]["frames"] < 500 or rs[0].get("res", 1024) < 1024
+        small = rs[0]["frames"] < THESIS_PATH_FRAMES or rs[0].get("res", THESIS_RES) < THESIS_RES
         why = f": {SMALLER_RUNS[tracer]}" if small and tracer in SMALLER_RUNS else ""
         lines.append(f"{tracer}: {size} on {scenes}, fly-through paths {paths}{why}.")
     return lines
 
 
 def write_report(out: Path, args: argparse.Namespace, info: dict, rows: list[dict], seconds: float) -> None:
-    facts = [*run_groups(rows), "The thesis: 500 frames a path at 1024².",
+    facts = [*run_groups(rows), f"The thesis: {THESIS_PATH_FRAMES} frames a path at {THESIS_RES}².",
              "Ours and direct reprojection are compared with full tracing by the same tracer, frame by frame; "
              "a command stopped before its end keeps the paths it finished."]
     lines = report_head("Temporal reflection reuse (thesis Ch. 5)", "`; `".join(args.commands), facts, seconds, info)
