@@ -5,8 +5,9 @@ offset (texel units, GL orientation) to the pixel s* whose tangent plane best
 reflects the keyframe's reflected point R toward the new eye; see best_match.comp
 for the distance, the descent and the invalid cases. Three offset images rotate:
 the previous frame's offsets start this frame's search (Alg. 9, O_p → O_c), or
-with `predict` where the previous search ended (also when invalid) and the
-extrapolation of the two previous frames' valid offsets.
+with `predict` where the previous search ended (also when invalid), the
+extrapolation of the two previous frames' valid offsets, or the pixel's own
+plane match when its distance is the lesser (best_match.comp).
 """
 
 from __future__ import annotations
@@ -60,8 +61,9 @@ class BestMatchPass(Releasable):
             direct: bool = False, predict: bool = False) -> moderngl.Texture:
         """Offsets for the new eye (world units); direct=True: offset 0 for every
         reflective pixel (the direct-reprojection baseline); predict: resume invalid
-        searches where they ended and start from the extrapolation of the two
-        previous frames' offsets where both are valid (best_match.comp)."""
+        searches where they ended, start from the extrapolation of the two
+        previous frames' offsets where both are valid, or from the pixel's plane
+        match where it is closer (best_match.comp)."""
         self.gl.check_thread()
         size = keyframe.target.size
         self._ensure(size)

@@ -13,6 +13,7 @@ binds them to (reuse_common.glsl).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import moderngl
 import numpy as np
@@ -20,7 +21,7 @@ import numpy as np
 from gl_passes.bindings import Units
 from gl_passes.context import GLContext
 from gl_passes.gbuffer import RenderTarget
-from gl_passes.readback import read_texture, write_texture
+from gl_passes.readback import read_texture
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
 from scenes.camera import Camera
@@ -68,23 +69,53 @@ class KeyframeTextures:
     buffer of its reflective pixels' indices y·W + x (GL rows, row 0 = bottom;
     `n_pixels` of them), so per-pixel passes run over the reflectors only."""
 
-    def __init__(self, gl: GLContext, target: RenderTarget, camera: Camera, reflected: np.ndarray,
-                 ray_length: np.ndarray, miss_distance: float) -> None:
+    def __init__(self, gl: GLContext, target: RenderTarget, camera: Camera, pixels: np.ndarray,
+                 reflected: np.ndarray, ray_length: np.ndarray, miss_distance: float) -> None:
+        """pixels (N,) int: the traced pixels y·W + x, row 0 at the top, ascending;
+        reflected (N,3) float32 and ray_length (N,) float64 there (the Tracer's
+        values: +inf a miss, NaN not reflective)."""
         ctx = gl.ctx
         self.target = target
         self.camera = camera
-        self.reflected = reflected
-        self.ray_length = ray_length
+        self._values = (np.asarray(pixels), reflected, ray_length)
         r = np.where(np.isposinf(ray_length), miss_distance, ray_length)
-        r = np.where(np.isfinite(r), r, -1.0)
+        r[~np.isfinite(r)] = -1.0
         self.max_ray_length = float(r.max(initial=0.0))
+        w, h = target.size
+        ys = np.asarray(pixels) // w
+        gl_ids = np.asarray(pixels) + (h - 1 - 2 * ys) * w  # GL rows
+        image = np.zeros((h * w, 4), np.float32)
+        image[:, 3] = -1.0
+        image[gl_ids, :3] = reflected
+        image[gl_ids, 3] = r
         self.texture = ctx.texture(target.size, 4, dtype="f4")
         self.texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        write_texture(self.texture, np.concatenate([reflected, r[..., None]], axis=-1))
-        ids = np.flatnonzero((r >= 0)[::-1].ravel()).astype(np.uint32)  # GL rows
+        self.texture.write(image)
+        traced = np.zeros(h * w, bool)
+        traced[gl_ids[r >= 0]] = True
+        ids = np.flatnonzero(traced).astype(np.uint32)  # ascending GL rows
         self.n_pixels = len(ids)
-        self.pixels = ctx.buffer(ids.tobytes() if len(ids) else np.zeros(1, np.uint32).tobytes())
+        self.pixels = ctx.buffer(ids if len(ids) else np.zeros(1, np.uint32))
         self._pack(gl)
+
+    @cached_property
+    def reflected(self) -> np.ndarray:
+        """(H,W,3) float32 reflected colour (B.3), row 0 = top, 0 where not traced."""
+        pixels, reflected, _ = self._values
+        w, h = self.target.size
+        out = np.zeros((h * w, 3), np.float32)
+        out[pixels] = reflected
+        return out.reshape(h, w, 3)
+
+    @cached_property
+    def ray_length(self) -> np.ndarray:
+        """(H,W) float64 reflected-ray length (B.4), row 0 = top: +inf a miss, NaN
+        not reflective."""
+        pixels, _, ray_length = self._values
+        w, h = self.target.size
+        out = np.full(h * w, np.nan)
+        out[pixels] = ray_length
+        return out.reshape(h, w)
 
     def _pack(self, gl: GLContext) -> None:
         """keyframe_pack.comp: d → position.w, r → normal.w."""

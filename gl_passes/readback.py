@@ -35,4 +35,4 @@ def write_texture(tex: moderngl.Texture, image: np.ndarray) -> None:
     its dtype), flipped to GL's bottom-up rows: the inverse of `read_texture`."""
     w, h = tex.size
     arr = np.asarray(image, dtype=_DTYPES[tex.dtype]).reshape(h, w, tex.components)
-    tex.write(np.ascontiguousarray(arr[::-1]).tobytes())
+    tex.write(np.ascontiguousarray(arr[::-1]))

@@ -31,12 +31,13 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Literal, Protocol
 
 import numpy as np
 
 from gl_passes.best_match import BestMatchPass
-from gl_passes.composition import DISOCCLUDED, NOT_REFLECTIVE, REUSED, UNRELIABLE, CompositionPass
+from gl_passes.composition import DISOCCLUDED, NOT_REFLECTIVE, UNRELIABLE, CompositionPass
 from gl_passes.context import GLContext
 from gl_passes.gbuffer import GBufferPass
 from gl_passes.keyframe import MISS_DIAGONALS, KeyframePolicy, KeyframeTextures, ReflectionDepthImage
@@ -45,7 +46,6 @@ from gl_passes.reflection_offset import ReflectionOffsetPass
 from gl_passes.reflection_splat import ReflectionSplatPass
 from gl_passes.releasable import Releasable
 from gl_passes.upload import SceneGPU
-from scenes.buffers import ReflectionBuffers
 from scenes.camera import Camera
 
 #: Flag of pixels traced as part of a keyframe (or by the full-tracing baseline).
@@ -92,12 +92,15 @@ class ReuseSettings:
     "splat" (gl_passes.reflection_splat: compute passes, no vertex pipeline; faster on
     a CPU rasteriser) or "mesh" (gl_passes.reflection_offset: GL's vertex, geometry
     and fragment stages); predict_start: beyond Alg. 9, an invalid search resumes
-    where the previous frame's ended, and a search starts at the extrapolation of
-    the two previous frames' offsets where both are valid (fewer descent steps while
-    the camera keeps moving, the same local minima; False: the previous valid offset
-    or the pixel itself, as the thesis); sync_timings: glFinish after each step, so the step times
-    are the steps' own; search_stats: read Alg. 9's step counts back after each
-    reused frame (ReuseStats; outside the timed steps — a stream can do without)."""
+    where the previous frame's ended, a search starts at the extrapolation of
+    the two previous frames' offsets where both are valid, and at the pixel's own
+    plane match (its tangent plane's reflection of R toward the new eye, projected
+    into the keyframe) where that is closer, which starts the first frames after a
+    keyframe next to their match (fewer descent steps, the same local minima; False:
+    the previous valid offset or the pixel itself, as the thesis); sync_timings:
+    glFinish after each step, so the step times are the steps' own; search_stats:
+    read Alg. 9's step counts back after each reused frame (ReuseStats; outside the
+    timed steps — a stream can do without)."""
 
     mode: Literal["reuse", "direct", "full"] = "reuse"
     keyframe_threshold: float = 0.2
@@ -152,22 +155,6 @@ class ReuseStats:
         return self.recomputed / self.reflective if self.reflective else 0.0
 
 
-@dataclass
-class ReuseFrame(ReflectionBuffers):
-    """ReflectionBuffers of the frame (one sample per pixel: specular = s,
-    ray_length of the reflected ray, reused or traced) plus flags (H,W) uint8:
-    composition.NOT_REFLECTIVE / REUSED / DISOCCLUDED / UNRELIABLE, or TRACED on
-    keyframes and full tracing; and stats."""
-
-    flags: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.uint8))
-    stats: ReuseStats = field(default_factory=lambda: ReuseStats(False, 0, 0))
-
-    @property
-    def recomputed(self) -> np.ndarray:
-        """(H,W) bool: pixels traced in this frame."""
-        return self.flags >= DISOCCLUDED
-
-
 def _scatter(flat: np.ndarray, values: np.ndarray, shape: tuple[int, ...], fill: float) -> np.ndarray:
     """An image of `shape` (H,W[,C]) holding `values` (N[,C]) at the flat pixels
     `flat` (y·W + x) and `fill` elsewhere."""
@@ -175,6 +162,46 @@ def _scatter(flat: np.ndarray, values: np.ndarray, shape: tuple[int, ...], fill:
     out = np.zeros((n, *shape[2:]), values.dtype) if fill == 0 else np.full((n, *shape[2:]), fill, values.dtype)
     out[flat] = values
     return out.reshape(shape)
+
+
+@dataclass
+class ReuseFrame:
+    """One frame of the reuse, the fields of ReflectionBuffers (one sample per
+    pixel: specular = s, ray_length of the reflected ray, reused or traced) plus
+    flags (H,W) uint8: composition.NOT_REFLECTIVE / REUSED / DISOCCLUDED /
+    UNRELIABLE, or TRACED on keyframes and full tracing; and stats. color, diffuse,
+    specular and reflective are images; reflected, ray_length and flags are built
+    from the per-reflective-pixel values on first use (a stream needs only color).
+    pixels (N,) int: the reflective pixels y·W + x (row 0 at the top); per_pixel:
+    their (reflected (N,3) float32, ray_length (N,) float64, flags (N,) uint8)."""
+
+    color: np.ndarray
+    diffuse: np.ndarray
+    specular: np.ndarray
+    reflective: np.ndarray
+    pixels: np.ndarray
+    per_pixel: tuple[np.ndarray, np.ndarray, np.ndarray]
+    stats: ReuseStats
+
+    @cached_property
+    def reflected(self) -> np.ndarray:
+        """(H,W,3) float32 reflected colour, 0 off reflectors."""
+        return _scatter(self.pixels, self.per_pixel[0], (*self.specular.shape, 3), 0.0)
+
+    @cached_property
+    def ray_length(self) -> np.ndarray:
+        """(H,W) float64 reflected-ray length, +inf on a miss, NaN off reflectors."""
+        return _scatter(self.pixels, self.per_pixel[1], self.specular.shape, np.nan)
+
+    @cached_property
+    def flags(self) -> np.ndarray:
+        """(H,W) uint8 per-pixel class (NOT_REFLECTIVE off reflectors)."""
+        return _scatter(self.pixels, self.per_pixel[2], self.specular.shape, NOT_REFLECTIVE)
+
+    @property
+    def recomputed(self) -> np.ndarray:
+        """(H,W) bool: pixels traced in this frame."""
+        return self.flags >= DISOCCLUDED
 
 
 class ReflectionReuser(Releasable):
@@ -234,17 +261,16 @@ class ReflectionReuser(Releasable):
         kf = self.keyframe
         is_key = (st.mode == "full" or self.policy.due or kf is None
                   or kf.target.size != (cam.width, cam.height))
-        h, w = cam.height, cam.width
-        refl = np.zeros((n_refl, 3), np.float32)  # per reflective pixel: Lr, r
-        rlen = np.full(n_refl, np.nan)
         stats = ReuseStats(keyframe=is_key, reflective=n_refl, recomputed=0)
         if is_key:
+            refl = np.zeros((n_refl, 3), np.float32)  # per reflective pixel: Lr, r
+            rlen = np.full(n_refl, np.nan)
             pix_flags = np.full(n_refl, TRACED, np.uint8)
             self._trace_into(cam, flat, np.arange(n_refl), refl, rlen)
             stats.recomputed = n_refl
             lap("recompute")
             if st.mode != "full":
-                self._store_keyframe(cam, _scatter(flat, refl, (h, w, 3), 0.0), _scatter(flat, rlen, (h, w), np.nan))
+                self._store_keyframe(cam, flat, refl, rlen)
                 self.policy.due = False
             lap("keyframe")
         else:
@@ -255,10 +281,10 @@ class ReflectionReuser(Releasable):
             inter, reliable = self.offset.run(kf, offsets, st.growth, st.plane_tolerance, st.reflected_jump)
             lap("reflection_offset")
             out, pix_flags = self.compose.run(target, kf, inter, reliable, st.plane_tolerance, flat)
-            reused = pix_flags == REUSED
-            refl[reused] = out[reused, :3]
-            r = out[reused, 3].astype(np.float64)
-            rlen[reused] = np.where(r >= 0.999 * self.miss_distance, np.inf, r)
+            # every pixel not reused is traced below, over these rows
+            refl = np.array(out[:, :3])
+            rlen = out[:, 3].astype(np.float64)
+            rlen[rlen >= 0.999 * self.miss_distance] = np.inf
             lap("warp")
             redo = np.flatnonzero(pix_flags >= DISOCCLUDED)
             self._trace_into(cam, flat[redo], redo, refl, rlen)
@@ -267,13 +293,12 @@ class ReflectionReuser(Releasable):
             stats.unreliable = int(np.count_nonzero(pix_flags == UNRELIABLE))
             lap("recompute")
             self.policy.update(stats.recomputed_fraction)
-        color = diffuse.reshape(-1, 3).copy()
+        color = np.array(diffuse)  # (H,W,3), contiguous
+        cf = color.reshape(-1, 3)
         sv = s.reshape(-1)[flat][:, None]
-        color[flat] = color[flat] * (1.0 - sv) + refl * sv
-        frame = ReuseFrame(color=color.reshape(h, w, 3), reflected=_scatter(flat, refl, (h, w, 3), 0.0),
-                           diffuse=diffuse.copy(), specular=s, reflective=reflective,
-                           ray_length=_scatter(flat, rlen, (h, w), np.nan),
-                           flags=_scatter(flat, pix_flags, (h, w), NOT_REFLECTIVE), stats=stats)
+        cf[flat] = cf[flat] * (1.0 - sv) + refl * sv
+        frame = ReuseFrame(color=color, diffuse=diffuse, specular=s, reflective=reflective,
+                           pixels=flat, per_pixel=(refl, rlen, pix_flags), stats=stats)
         lap("blend")
         timings["total"] = (time.perf_counter() - t_start) * 1e3
         stats.timings_ms = timings
@@ -293,15 +318,15 @@ class ReflectionReuser(Releasable):
         reflected[rows] = col
         length[rows] = r
 
-    def _store_keyframe(self, cam: Camera, reflected: np.ndarray, length: np.ndarray) -> None:
-        """§5.3: this frame's G-buffer target becomes the keyframe's (the passes swap)."""
+    def _store_keyframe(self, cam: Camera, pixels: np.ndarray, reflected: np.ndarray, length: np.ndarray) -> None:
+        """§5.3: this frame's G-buffer target becomes the keyframe's (the passes swap);
+        pixels (N,) y·W + x (row 0 at the top) with their traced values."""
         if self.keyframe is not None:
             self.keyframe.release()
         self._frame_gb, self._key_gb = self._key_gb, self._frame_gb
         target = self._key_gb.target
         assert target is not None
-        self.keyframe = KeyframeTextures(self.gl, target, cam, reflected.copy(), length.copy(),
-                                         self.miss_distance)
+        self.keyframe = KeyframeTextures(self.gl, target, cam, pixels, reflected, length, self.miss_distance)
         self.offset.prepare(self.keyframe, self.settings.plane_tolerance)
         self.best_match.reset()
 

@@ -17,6 +17,8 @@ error source (§5.5.2) — hence bounds on means there:
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.ndimage import binary_dilation, binary_erosion, maximum_filter, minimum_filter
@@ -322,28 +324,40 @@ def test_reuser_frees_what_it_creates():
 def test_search_starts_from_the_previous_offsets_and_is_bounded(gl):
     """Alg. 9: a search starts at the previous frame's offset when valid (fewer steps
     along a steady move than a search from the pixel itself), and max_steps bounds it
-    (a search that reaches the bound is an invalid match, its pixels recomputed)."""
+    (a search that reaches the bound is an invalid match, its pixels recomputed).
+    Beyond Alg. 9 (predict_start, the default), the first frame after a keyframe
+    starts at each pixel's own plane match, on a planar mirror the match itself."""
     scene = planar_mirror_scene()
     cam = mirror_camera(64)
     cams = [cam, *(moved(cam, (0.1 * k, 0.0, 0.0)) for k in (1, 2, 3))]
     tracer = EmbreeTracer(scene)
+    thesis = ReuseSettings(keyframe_threshold=1.0, predict_start=False)
     steps = {}
     with SceneGPU(gl, scene) as sg:
         for warm in (True, False):
-            with ReflectionReuser(gl, sg, tracer, ReuseSettings(keyframe_threshold=1.0)) as ru:
+            with ReflectionReuser(gl, sg, tracer, thesis) as ru:
                 for c in cams:
                     if not warm:
                         ru.best_match.reset()  # no previous offsets: every search starts at its pixel
                     f = ru.next_frame(c)
                 steps[warm] = f.stats.search_steps_mean
-        with ReflectionReuser(gl, sg, tracer, ReuseSettings(keyframe_threshold=1.0, max_steps=1)) as ru:
+        with ReflectionReuser(gl, sg, tracer, dataclasses.replace(thesis, max_steps=1)) as ru:
             ru.next_frame(cam)
             bounded = ru.next_frame(cams[3])
-    print(f"search steps, warm / cold start: {steps[True]:.2f} / {steps[False]:.2f}")
+        first = {}
+        for predict in (False, True):
+            with ReflectionReuser(gl, sg, tracer, dataclasses.replace(thesis, predict_start=predict)) as ru:
+                ru.next_frame(cam)
+                first[predict] = ru.next_frame(cams[3]).stats
+    print(f"search steps, warm / cold start: {steps[True]:.2f} / {steps[False]:.2f}; first frame after the "
+          f"keyframe, from the pixel / its plane match: {first[False].search_steps_mean:.2f} / "
+          f"{first[True].search_steps_mean:.2f}")
     assert steps[True] < 0.5 * steps[False], steps
     assert bounded.stats.search_steps_max == 1 and bounded.stats.step_bound_hits > 100
     assert bounded.stats.invalid_matches >= bounded.stats.step_bound_hits
     assert bounded.stats.unreliable > 0
+    assert first[True].search_steps_mean < 0.1 * first[False].search_steps_mean
+    assert first[True].invalid_matches <= first[False].invalid_matches
 
 
 def test_frames_without_reflectors_are_the_diffuse_image(gl):

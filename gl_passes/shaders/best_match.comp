@@ -20,6 +20,11 @@
 // every frame and holding up its SIMD neighbours), and when the two previous frames'
 // offsets are valid it starts at their linear extrapolation (the reflection keeps
 // moving as the camera does); either start only where that pixel is reflective.
+// It also tries s's own plane match (the point of s's tangent plane that reflects R
+// toward the new eye, projected into the keyframe: the match itself on a planar
+// mirror, first order on curved ones) and starts there when that pixel lies on s's
+// object and its distance is the lesser: the first frames after a keyframe, with no
+// previous offsets, start next to their match instead of at s.
 // u_direct = 1: the direct-reprojection baseline, offset 0 for every reflective pixel.
 layout(local_size_x = 64) in;
 #include "reuse_common.glsl"
@@ -63,15 +68,27 @@ bool same_surface(Sample a, uint oa, Sample b, uint ob) {
     return oa != 0u && oa == ob && abs(dot(a.w - b.w, b.n)) <= tol * b.d && abs(dot(b.w - a.w, a.n)) <= tol * a.d;
 }
 
-vec2 subpixel(ivec2 sc, Sample c, vec3 R) {
+// Where the line from E_cur to M (R mirrored in c's tangent plane) meets that plane,
+// projected into the keyframe: pixel coordinates (texel units, GL orientation; row
+// centres at integer + 0.5 - 0.5 = integer). false when the line is parallel to the
+// plane or the point lies behind the keyframe camera. Exact on a planar mirror.
+bool plane_match(Sample c, vec3 R, out vec2 pixel) {
     vec3 m = R - 2.0 * dot(R - c.w, c.n) * c.n;
     vec3 d = m - u_eye_new;
     float denom = dot(d, c.n);
-    if (abs(denom) < 1e-12) return vec2(0.0);
+    pixel = vec2(0.0);
+    if (abs(denom) < 1e-12) return false;
     vec3 x = u_eye_new + d * (dot(c.w - u_eye_new, c.n) / denom);
     vec4 clip = u_kf_view_proj * vec4(x, 1.0);
-    if (clip.w <= 0.0) return vec2(0.0);
-    vec2 delta = (clip.xy / clip.w * 0.5 + 0.5) * vec2(u_kf_size) - 0.5 - vec2(sc);
+    if (clip.w <= 0.0) return false;
+    pixel = (clip.xy / clip.w * 0.5 + 0.5) * vec2(u_kf_size) - 0.5;
+    return true;
+}
+
+vec2 subpixel(ivec2 sc, Sample c, vec3 R) {
+    vec2 x;
+    if (!plane_match(c, R, x)) return vec2(0.0);
+    vec2 delta = x - vec2(sc);
     if (any(greaterThan(abs(delta), vec2(1.0)))) return vec2(0.0);
     return mix(delta, vec2(0.0), lessThan(abs(delta), vec2(0.01)));
 }
@@ -100,6 +117,25 @@ void main() {
     Sample cur = fetch_sample(sc);
     uint obj_cur = texelFetch(u_kf_obj, sc, 0).r;
     float former = match_distance(cur, R);
+    if (u_predict == 1) {
+        // s's own plane match (exact on a planar mirror, first order on curved ones):
+        // the start when its distance is the lesser, on s's object
+        vec2 x;
+        if (plane_match(Sample(w, 0.0, n, true), R, x)) {
+            ivec2 start = ivec2(round(x));
+            if (start != sc && kf_inside(start)) {
+                Sample c = fetch_sample(start);
+                uint obj_start = texelFetch(u_kf_obj, start, 0).r;
+                float dist = match_distance(c, R);
+                if (c.reflective && obj_start == texelFetch(u_kf_obj, s, 0).r && dist < former) {
+                    sc = start;
+                    cur = c;
+                    obj_cur = obj_start;
+                    former = dist;
+                }
+            }
+        }
+    }
     int steps = 0;
     bool valid = false;
     for (; steps < u_max_steps; ++steps) {
