@@ -47,8 +47,8 @@ class CompositionPass(Releasable):
         self._flags = self.gl.ctx.buffer(reserve=4 * cap)
         self._ids = self.gl.ctx.buffer(reserve=4 * cap)
 
-    def run(self, frame: RenderTarget, keyframe: KeyframeTextures, inter: moderngl.Texture,
-            reliable: moderngl.Texture, plane_tol: float, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def run(self, frame: RenderTarget, keyframe: KeyframeTextures, inter: moderngl.Texture, plane_tol: float,
+            pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """`pixels` (N,) the new frame's pixels on reflectors, y·W + x with row 0 at
         the top → (reflection (N,4) float32: Lr rgb, r; flags (N,) uint8 of REUSED /
         DISOCCLUDED / UNRELIABLE), in the order of `pixels`."""
@@ -64,8 +64,7 @@ class CompositionPass(Releasable):
         self._ids.write(ids.tobytes())
         keyframe.bind()
         t = frame.textures
-        for name, tex in (("u_position", t["position"]), ("u_obj", t["obj_id"]), ("u_inter", inter),
-                          ("u_reliable", reliable)):
+        for name, tex in (("u_position", t["position"]), ("u_obj", t["obj_id"]), ("u_inter", inter)):
             REUSE_UNITS.bind_texture(name, tex)
         for name, buf in (("Pixels", self._ids), ("Results", self._results), ("Flags", self._flags)):
             REUSE_UNITS.bind_storage(name, buf)

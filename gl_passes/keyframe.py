@@ -29,11 +29,11 @@ from scenes.camera import Camera
 #: Units of the reuse shaders (keyframe_pack.comp, best_match.comp, reflection_offset.*,
 #: reflection_grid.comp, reflection_splat.comp, reflection_compose.comp).
 REUSE_UNITS = Units(
-    images=("u_prev", "u_prev2", "u_offsets", "u_grid_img", "u_zbuf", "u_inter_img", "u_reliable_img",
+    images=("u_prev", "u_prev2", "u_offsets", "u_grid_img", "u_zbuf", "u_inter_img",
             "u_kf_position_img", "u_kf_normal_img"),
     storage=("Pixels", "Results", "Flags"),
     textures=("u_kf_position", "u_kf_normal", "u_kf_depth", "u_kf_obj", "u_kf_reflection", "u_offsets_tex",
-              "u_position", "u_obj", "u_inter", "u_reliable", "u_grid"),
+              "u_position", "u_obj", "u_inter", "u_grid"),
 )
 
 #: Reflection-ray length used for rays that miss (they read the sky, a function of

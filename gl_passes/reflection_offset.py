@@ -13,8 +13,9 @@ integer offsets the pixel centres of a mesh moved by whole pixels lie on its
 triangles' edges and vertices, where the rasteriser's tie rule, not the mesh,
 would decide coverage; the points lie POINT_BIAS farther, so they only fill
 pixels no kept triangle covers (a triangle's interpolation holds the sub-pixel
-offsets, a point snaps to the pixel it falls in). Output: the intermediate image (Lr, r) and the
-reliability mask (1 where covered), both keyframe-sized rgba32f / r32f textures.
+offsets, a point snaps to the pixel it falls in). Output: the intermediate image
+(Lr, r), a keyframe-sized rgba32f texture; a pixel is reliable where something
+covered it, r >= 0 (ray lengths), the rest keeps r = UNCOVERED.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from gl_passes.shaders import program
 from gl_passes.uniforms import set_uniform
 
 POINT_BIAS = 1e-3  # relative depth bias of the sample points behind the triangles
+UNCOVERED = -1.0  # the intermediate image's r where no triangle or sample point covers a pixel
 
 
 def same_surface(pos: np.ndarray, nrm: np.ndarray, depth: np.ndarray, obj: np.ndarray, ok: np.ndarray,
@@ -65,7 +67,8 @@ def grid_indices(pos: np.ndarray, nrm: np.ndarray, depth: np.ndarray, obj: np.nd
 
 
 class ReflectionOffsetPass(Releasable):
-    """§5.4.2 on `gl`'s thread; `run()` returns (intermediate, reliable) textures."""
+    """§5.4.2 on `gl`'s thread; `run()` returns the intermediate texture (Lr, r;
+    reliable where r >= 0)."""
 
     def __init__(self, gl: GLContext) -> None:
         gl.check_thread()
@@ -79,7 +82,6 @@ class ReflectionOffsetPass(Releasable):
         self._counts = (0, 0)
         self.size: tuple[int, int] | None = None
         self.inter: moderngl.Texture | None = None
-        self.reliable: moderngl.Texture | None = None
         self._depth: moderngl.Texture | None = None
         self._fbo: moderngl.Framebuffer | None = None
 
@@ -89,11 +91,10 @@ class ReflectionOffsetPass(Releasable):
         self._free()
         ctx = self.gl.ctx
         self.inter = ctx.texture(size, 4, dtype="f4")
-        self.reliable = ctx.texture(size, 1, dtype="f4")
-        for t in (self.inter, self.reliable):
+        for t in (self.inter,):
             t.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self._depth = ctx.depth_texture(size)
-        self._fbo = ctx.framebuffer([self.inter, self.reliable], self._depth)
+        self._fbo = ctx.framebuffer([self.inter], self._depth)
         self.size = size
 
     def prepare(self, keyframe: KeyframeTextures, plane_tol: float) -> None:
@@ -120,15 +121,15 @@ class ReflectionOffsetPass(Releasable):
         self._counts = (len(tris), keyframe.n_pixels)
 
     def run(self, keyframe: KeyframeTextures, offsets: moderngl.Texture, growth: float, plane_tol: float,
-            reflected_jump: float) -> tuple[moderngl.Texture, moderngl.Texture]:
+            reflected_jump: float) -> moderngl.Texture:
         self.gl.check_thread()
         ctx = self.gl.ctx
         w, h = keyframe.target.size
         self._ensure((w, h))
-        assert self._fbo is not None and self.inter is not None and self.reliable is not None
+        assert self._fbo is not None and self.inter is not None
         self._fbo.use()
         self._fbo.viewport = (0, 0, w, h)
-        self._fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        self._fbo.clear(0.0, 0.0, 0.0, UNCOVERED, depth=1.0)
         keyframe.bind()
         REUSE_UNITS.bind_texture("u_offsets_tex", offsets)
         depth_max = keyframe.camera.far + keyframe.max_ray_length
@@ -146,13 +147,13 @@ class ReflectionOffsetPass(Releasable):
         if self._counts[1]:
             self._vaos[1].render(moderngl.POINTS, vertices=self._counts[1])
         ctx.disable(moderngl.DEPTH_TEST)
-        return self.inter, self.reliable
+        return self.inter
 
     def _free(self) -> None:
-        for obj in (self._fbo, self._depth, self.inter, self.reliable):
+        for obj in (self._fbo, self._depth, self.inter):
             if obj is not None:
                 obj.release()
-        self._fbo = self._depth = self.inter = self.reliable = None
+        self._fbo = self._depth = self.inter = None
         self.size = None
 
     def _free_mesh(self) -> None:

@@ -3,7 +3,7 @@ mesh: the same mesh, vertex moves, triangle drops, sample points and d + r depth
 resolution as gl_passes.reflection_offset (which draws it through GL's vertex,
 geometry and fragment stages), rasterised in two compute passes over the keyframe's
 reflective pixels: an atomic depth minimum per pixel, then the fragments at that
-minimum write the intermediate image (Lr, r) and the reliability mask.
+minimum write the intermediate image (Lr, r; reliable where r >= 0).
 
 Why a second rasteriser of one mesh: on a CPU rasteriser (Mesa llvmpipe) GL's
 vertex stage is the bottleneck, and the mesh has two triangles per reflective
@@ -28,7 +28,7 @@ import numpy as np
 from gl_passes.best_match import set_kf_uniforms
 from gl_passes.context import GLContext
 from gl_passes.keyframe import REUSE_UNITS, KeyframeTextures
-from gl_passes.reflection_offset import POINT_BIAS
+from gl_passes.reflection_offset import POINT_BIAS, UNCOVERED
 from gl_passes.releasable import Releasable
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
@@ -39,8 +39,8 @@ _CLEAR_DEPTH = np.float32(1.0).view(np.uint32)  # the depth buffer's clear value
 
 class ReflectionSplatPass(Releasable):
     """§5.4.2 on `gl`'s thread, the interface of ReflectionOffsetPass: `prepare()`
-    per keyframe, `run()` → (intermediate rgba32f (Lr, r), reliable r32f) textures,
-    keyframe-sized, GL orientation."""
+    per keyframe, `run()` → the intermediate rgba32f texture (Lr, r; r = UNCOVERED
+    where nothing covers a pixel), keyframe-sized, GL orientation."""
 
     def __init__(self, gl: GLContext) -> None:
         gl.check_thread()
@@ -53,7 +53,6 @@ class ReflectionSplatPass(Releasable):
         self.grid: moderngl.Texture | None = None
         self.zbuf: moderngl.Texture | None = None
         self.inter: moderngl.Texture | None = None
-        self.reliable: moderngl.Texture | None = None
         self._fbo: moderngl.Framebuffer | None = None
         self._clear_bytes = b""
 
@@ -65,10 +64,9 @@ class ReflectionSplatPass(Releasable):
         self.grid = ctx.texture(size, 1, dtype="u4")
         self.zbuf = ctx.texture(size, 1, dtype="u4")
         self.inter = ctx.texture(size, 4, dtype="f4")
-        self.reliable = ctx.texture(size, 1, dtype="f4")
-        for t in (self.grid, self.zbuf, self.inter, self.reliable):
+        for t in (self.grid, self.zbuf, self.inter):
             t.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        self._fbo = ctx.framebuffer([self.inter, self.reliable])
+        self._fbo = ctx.framebuffer([self.inter])
         self._clear_bytes = np.full(size[0] * size[1], _CLEAR_DEPTH, np.uint32).tobytes()
         self.size = size
 
@@ -90,13 +88,13 @@ class ReflectionSplatPass(Releasable):
         self.gl.ctx.memory_barrier()
 
     def run(self, keyframe: KeyframeTextures, offsets: moderngl.Texture, growth: float, plane_tol: float,
-            reflected_jump: float) -> tuple[moderngl.Texture, moderngl.Texture]:
+            reflected_jump: float) -> moderngl.Texture:
         self.gl.check_thread()
         ctx = self.gl.ctx
         self._ensure(keyframe.target.size)
         assert self._fbo is not None and self.zbuf is not None and self.grid is not None
-        assert self.inter is not None and self.reliable is not None
-        self._fbo.clear(0.0, 0.0, 0.0, 0.0)
+        assert self.inter is not None
+        self._fbo.clear(0.0, 0.0, 0.0, UNCOVERED)
         self.zbuf.write(self._clear_bytes)
         keyframe.bind()
         REUSE_UNITS.bind_texture("u_offsets_tex", offsets)
@@ -117,16 +115,15 @@ class ReflectionSplatPass(Releasable):
             ctx.memory_barrier()
             REUSE_UNITS.bind_image("u_zbuf", self.zbuf, read=True, write=False)
             REUSE_UNITS.bind_image("u_inter_img", self.inter, read=False, write=True)
-            REUSE_UNITS.bind_image("u_reliable_img", self.reliable, read=False, write=True)
             self.resolve_prog.run(groups, 1, 1)
             ctx.memory_barrier()
-        return self.inter, self.reliable
+        return self.inter
 
     def _free(self) -> None:
-        for obj in (self._fbo, self.grid, self.zbuf, self.inter, self.reliable):
+        for obj in (self._fbo, self.grid, self.zbuf, self.inter):
             if obj is not None:
                 obj.release()
-        self._fbo = self.grid = self.zbuf = self.inter = self.reliable = None
+        self._fbo = self.grid = self.zbuf = self.inter = None
         self.size = None
 
     def release(self) -> None:

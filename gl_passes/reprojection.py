@@ -278,9 +278,9 @@ class ReflectionReuser(Releasable):
             offsets = self.best_match.run(kf, np.asarray(cam.eye), st.max_steps, st.plane_tolerance,
                                           direct=st.mode == "direct", predict=st.predict_start)
             lap("best_match")
-            inter, reliable = self.offset.run(kf, offsets, st.growth, st.plane_tolerance, st.reflected_jump)
+            inter = self.offset.run(kf, offsets, st.growth, st.plane_tolerance, st.reflected_jump)
             lap("reflection_offset")
-            out, pix_flags = self.compose.run(target, kf, inter, reliable, st.plane_tolerance, flat)
+            out, pix_flags = self.compose.run(target, kf, inter, st.plane_tolerance, flat)
             # every pixel not reused is traced below, over these rows
             refl = np.array(out[:, :3])
             rlen = out[:, 3].astype(np.float64)

@@ -9,14 +9,14 @@
 // texels of that surface among the 2×2 around P's projection, provided the nearest
 // texel is reliable. Output per listed pixel: results (Lr, r) and flags: 1 reused,
 // 2 disoccluded (P not seen by the keyframe), 3 unreliable (the intermediate image
-// holds no reliable value there); 2 and 3 are recomputed.
+// holds no reliable value there); 2 and 3 are recomputed. The intermediate image is
+// reliable where its r >= 0 (the offset passes clear r to -1).
 layout(local_size_x = 64) in;
 #include "reuse_common.glsl"
 
 layout(binding = UNIT_u_position) uniform sampler2D u_position;
 layout(binding = UNIT_u_obj) uniform usampler2D u_obj;
 layout(binding = UNIT_u_inter) uniform sampler2D u_inter;
-layout(binding = UNIT_u_reliable) uniform sampler2D u_reliable;
 layout(std430, binding = UNIT_Pixels) readonly buffer Pixels { uint pixel_ids[]; };
 layout(std430, binding = UNIT_Results) writeonly buffer Results { vec4 results[]; };
 layout(std430, binding = UNIT_Flags) writeonly buffer Flags { uint flags[]; };
@@ -55,19 +55,22 @@ void main() {
         }
         if (kf_inside(p) && on_kf_surface(p, P, obj)) {
             flag = 3u;
-            if (texelFetch(u_reliable, p, 0).r > 0.5) {
+            vec4 nearest = texelFetch(u_inter, p, 0);
+            if (nearest.a >= 0.0) {
                 ivec2 b = ivec2(floor(t));
                 vec2 f = t - vec2(b);
                 vec4 sum = vec4(0.0);
                 float wsum = 0.0;
                 for (int j = 0; j < 2; ++j) for (int i = 0; i < 2; ++i) {
                     ivec2 c = b + ivec2(i, j);
-                    if (!kf_inside(c) || texelFetch(u_reliable, c, 0).r < 0.5 || !on_kf_surface(c, P, obj)) continue;
+                    if (!kf_inside(c)) continue;
+                    vec4 inter = texelFetch(u_inter, c, 0);
+                    if (inter.a < 0.0 || !on_kf_surface(c, P, obj)) continue;
                     float w = (i == 1 ? f.x : 1.0 - f.x) * (j == 1 ? f.y : 1.0 - f.y);
-                    sum += w * texelFetch(u_inter, c, 0);
+                    sum += w * inter;
                     wsum += w;
                 }
-                if (wsum <= 0.0) { sum = texelFetch(u_inter, p, 0); wsum = 1.0; }
+                if (wsum <= 0.0) { sum = nearest; wsum = 1.0; }
                 result = sum / wsum;
                 flag = 1u;
             }

@@ -13,7 +13,7 @@
 // × (1 + u_point_bias), so it only fills what no triangle covers.
 // Pass DEPTH: atomic minimum of the depth bits per pixel (u_zbuf, cleared to 1.0).
 // Pass RESOLVE (defined): the fragments whose depth is that minimum write the
-// intermediate image (Lr, r) and reliable = 1.
+// intermediate image (Lr, r; r >= 0 marks the pixel reliable, cleared to r = -1).
 layout(local_size_x = 64) in;
 #include "reuse_common.glsl"
 
@@ -22,7 +22,6 @@ layout(binding = UNIT_u_grid) uniform usampler2D u_grid;
 #ifdef RESOLVE
 layout(r32ui, binding = UNIT_u_zbuf) uniform readonly uimage2D u_zbuf;
 layout(rgba32f, binding = UNIT_u_inter_img) uniform writeonly image2D u_inter_img;
-layout(r32f, binding = UNIT_u_reliable_img) uniform writeonly image2D u_reliable_img;
 #else
 layout(r32ui, binding = UNIT_u_zbuf) uniform coherent uimage2D u_zbuf;
 #endif
@@ -49,10 +48,7 @@ void fragment(ivec2 pix, float z, vec4 refl) {
     if (!(z < 1.0)) return;
     uint bits = floatBitsToUint(z);
 #ifdef RESOLVE
-    if (imageLoad(u_zbuf, pix).r == bits) {
-        imageStore(u_inter_img, pix, refl);
-        imageStore(u_reliable_img, pix, vec4(1.0));
-    }
+    if (imageLoad(u_zbuf, pix).r == bits) imageStore(u_inter_img, pix, refl);
 #else
     imageAtomicMin(u_zbuf, pix, bits);
 #endif
