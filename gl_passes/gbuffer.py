@@ -75,9 +75,6 @@ class GBufferPass(Releasable):
         fbo.use()
         fbo.viewport = (0, 0, *size)
         fbo.clear(depth=1.0)
-        ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
-        set_camera(self.sky_prog, cam, sun)
-        self.sky_vao.render(moderngl.TRIANGLES, vertices=3)
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.depth_func = "<"
         if cull_back_faces:
@@ -87,7 +84,15 @@ class GBufferPass(Releasable):
         set_camera(self.prog, cam, sun)
         self.drawn = scene_gpu.draw(self.prog, objects, view_proj=cam.view_projection(),
                                     eye=np.asarray(cam.eye, np.float64) if cull_back_faces else None)
-        ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+        # the background last, at the far plane (depth 1.0, the clear value): the depth
+        # test leaves it only the pixels no triangle covered, instead of shading and
+        # storing every attachment of every pixel under the geometry
+        ctx.disable(moderngl.CULL_FACE)
+        ctx.depth_func = "<="
+        set_camera(self.sky_prog, cam, sun)
+        self.sky_vao.render(moderngl.TRIANGLES, vertices=3)
+        ctx.depth_func = "<"
+        ctx.disable(moderngl.DEPTH_TEST)
         return self.target
 
     def render(self, scene_gpu: SceneGPU, camera: Camera, cull_back_faces: bool = True,
