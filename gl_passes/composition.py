@@ -57,11 +57,9 @@ class CompositionPass(Releasable):
         n = len(pixels)
         if n == 0:
             return np.zeros((0, 4), np.float32), np.zeros(0, np.uint8)
-        ys, xs = np.divmod(np.asarray(pixels, np.int64), w)
-        ids = ((h - 1 - ys) * w + xs).astype(np.uint32)  # GL rows
         self._ensure(n)
         assert self._results is not None and self._flags is not None and self._ids is not None
-        self._ids.write(ids.tobytes())
+        self._ids.write(np.asarray(pixels, np.uint32))  # the shader flips the rows
         keyframe.bind()
         t = frame.textures
         for name, tex in (("u_position", t["position"]), ("u_obj", t["obj_id"]), ("u_inter", inter)):

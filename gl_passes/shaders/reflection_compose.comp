@@ -1,7 +1,7 @@
 #version 430 core
 // Composition (thesis §5.4.3): depth-based reprojection of the intermediate reflection
 // image into the new view, one invocation per new-frame pixel q on a reflector (s > 0;
-// the caller's list of them, GL rows): its world
+// the caller's list of them, y·W + x with row 0 at the top): its world
 // point P is projected into the keyframe; when the keyframe sample there (the nearest
 // texel, or at the silhouette of P's surface the nearest of the 2×2 that is) lies
 // on P's surface (same object, P within u_plane_tol footprints of its tangent plane) the
@@ -28,7 +28,7 @@ void main() {
     uint k = gl_GlobalInvocationID.x;
     if (k >= u_count) return;
     uint id = pixel_ids[k];
-    ivec2 q = ivec2(int(id) % u_size.x, int(id) / u_size.x);
+    ivec2 q = ivec2(int(id) % u_size.x, u_size.y - 1 - int(id) / u_size.x);   // GL rows
     uint obj = texelFetch(u_obj, q, 0).r;
     vec3 P = texelFetch(u_position, q, 0).xyz;
     vec4 clip = u_kf_view_proj * vec4(P, 1.0);
