@@ -21,7 +21,7 @@ import numpy as np
 from gl_passes.bindings import Units
 from gl_passes.context import GLContext
 from gl_passes.gbuffer import RenderTarget
-from gl_passes.readback import read_texture
+from gl_passes.readback import read_texture, write_texture
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
 from scenes.camera import Camera
@@ -35,6 +35,15 @@ REUSE_UNITS = Units(
     textures=("u_kf_position", "u_kf_normal", "u_kf_depth", "u_kf_obj", "u_kf_reflection", "u_offsets_tex",
               "u_position", "u_obj", "u_inter", "u_grid"),
 )
+
+def scatter_pixels(flat: np.ndarray, values: np.ndarray, shape: tuple[int, ...], fill: float) -> np.ndarray:
+    """An image of `shape` (H,W[,C]) holding `values` (N[,C]) at the flat pixels
+    `flat` (y·W + x) and `fill` elsewhere."""
+    n = shape[0] * shape[1]
+    out = np.zeros((n, *shape[2:]), values.dtype) if fill == 0 else np.full((n, *shape[2:]), fill, values.dtype)
+    out[flat] = values
+    return out.reshape(shape)
+
 
 #: Reflection-ray length used for rays that miss (they read the sky, a function of
 #: direction only), in scene diagonals: a far point in that direction.
@@ -82,18 +91,13 @@ class KeyframeTextures:
         r[~np.isfinite(r)] = -1.0
         self.max_ray_length = float(r.max(initial=0.0))
         w, h = target.size
-        ys = np.asarray(pixels) // w
-        gl_ids = np.asarray(pixels) + (h - 1 - 2 * ys) * w  # GL rows
-        image = np.zeros((h * w, 4), np.float32)
-        image[:, 3] = -1.0
-        image[gl_ids, :3] = reflected
-        image[gl_ids, 3] = r
+        image = np.zeros((h, w, 4), np.float32)  # (Lr, r), r = -1 where not traced
+        image[..., 3] = -1.0
+        image.reshape(-1, 4)[pixels] = np.column_stack([reflected, r])
         self.texture = ctx.texture(target.size, 4, dtype="f4")
         self.texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        self.texture.write(image)
-        traced = np.zeros(h * w, bool)
-        traced[gl_ids[r >= 0]] = True
-        ids = np.flatnonzero(traced).astype(np.uint32)  # ascending GL rows
+        write_texture(self.texture, image)
+        ids = np.flatnonzero(image[::-1, :, 3].ravel() >= 0).astype(np.uint32)  # GL rows
         self.n_pixels = len(ids)
         self.pixels = ctx.buffer(ids if len(ids) else np.zeros(1, np.uint32))
         self._pack(gl)
@@ -103,9 +107,7 @@ class KeyframeTextures:
         """(H,W,3) float32 reflected colour (B.3), row 0 = top, 0 where not traced."""
         pixels, reflected, _ = self._values
         w, h = self.target.size
-        out = np.zeros((h * w, 3), np.float32)
-        out[pixels] = reflected
-        return out.reshape(h, w, 3)
+        return scatter_pixels(pixels, reflected, (h, w, 3), 0.0)
 
     @cached_property
     def ray_length(self) -> np.ndarray:
@@ -113,9 +115,7 @@ class KeyframeTextures:
         not reflective."""
         pixels, _, ray_length = self._values
         w, h = self.target.size
-        out = np.full(h * w, np.nan)
-        out[pixels] = ray_length
-        return out.reshape(h, w)
+        return scatter_pixels(pixels, ray_length, (h, w), np.nan)
 
     def _pack(self, gl: GLContext) -> None:
         """keyframe_pack.comp: d → position.w, r → normal.w."""

@@ -91,8 +91,7 @@ class ReflectionOffsetPass(Releasable):
         self._free()
         ctx = self.gl.ctx
         self.inter = ctx.texture(size, 4, dtype="f4")
-        for t in (self.inter,):
-            t.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self.inter.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self._depth = ctx.depth_texture(size)
         self._fbo = ctx.framebuffer([self.inter], self._depth)
         self.size = size

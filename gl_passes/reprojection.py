@@ -40,7 +40,7 @@ from gl_passes.best_match import BestMatchPass
 from gl_passes.composition import DISOCCLUDED, NOT_REFLECTIVE, UNRELIABLE, CompositionPass
 from gl_passes.context import GLContext
 from gl_passes.gbuffer import GBufferPass
-from gl_passes.keyframe import MISS_DIAGONALS, KeyframePolicy, KeyframeTextures, ReflectionDepthImage
+from gl_passes.keyframe import MISS_DIAGONALS, KeyframePolicy, KeyframeTextures, ReflectionDepthImage, scatter_pixels
 from gl_passes.readback import read_texture
 from gl_passes.reflection_offset import ReflectionOffsetPass
 from gl_passes.reflection_splat import ReflectionSplatPass
@@ -155,15 +155,6 @@ class ReuseStats:
         return self.recomputed / self.reflective if self.reflective else 0.0
 
 
-def _scatter(flat: np.ndarray, values: np.ndarray, shape: tuple[int, ...], fill: float) -> np.ndarray:
-    """An image of `shape` (H,W[,C]) holding `values` (N[,C]) at the flat pixels
-    `flat` (y·W + x) and `fill` elsewhere."""
-    n = shape[0] * shape[1]
-    out = np.zeros((n, *shape[2:]), values.dtype) if fill == 0 else np.full((n, *shape[2:]), fill, values.dtype)
-    out[flat] = values
-    return out.reshape(shape)
-
-
 @dataclass
 class ReuseFrame:
     """One frame of the reuse, the fields of ReflectionBuffers (one sample per
@@ -186,17 +177,17 @@ class ReuseFrame:
     @cached_property
     def reflected(self) -> np.ndarray:
         """(H,W,3) float32 reflected colour, 0 off reflectors."""
-        return _scatter(self.pixels, self.per_pixel[0], (*self.specular.shape, 3), 0.0)
+        return scatter_pixels(self.pixels, self.per_pixel[0], (*self.specular.shape, 3), 0.0)
 
     @cached_property
     def ray_length(self) -> np.ndarray:
         """(H,W) float64 reflected-ray length, +inf on a miss, NaN off reflectors."""
-        return _scatter(self.pixels, self.per_pixel[1], self.specular.shape, np.nan)
+        return scatter_pixels(self.pixels, self.per_pixel[1], self.specular.shape, np.nan)
 
     @cached_property
     def flags(self) -> np.ndarray:
         """(H,W) uint8 per-pixel class (NOT_REFLECTIVE off reflectors)."""
-        return _scatter(self.pixels, self.per_pixel[2], self.specular.shape, NOT_REFLECTIVE)
+        return scatter_pixels(self.pixels, self.per_pixel[2], self.specular.shape, NOT_REFLECTIVE)
 
     @property
     def recomputed(self) -> np.ndarray:
