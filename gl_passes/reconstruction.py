@@ -10,21 +10,40 @@
 * Hybrid reconstruction (Alg. 4): every sample of I becomes two triangles over
   its pixel. Corner c comes from H where H's sample at c lies on the sample's
   surface (same triangle id, or within `plane_tolerance` pixel footprints of the
-  sample's tangent plane), as a vertex shared by every sample taking it (indexed
-  mesh: a continuous surface gives a watertight mesh); otherwise it is the
-  intersection of c's camera ray with the sample's tangent plane, with its depth
-  clamped to ± `max_corner_extent` pixel footprints of the sample's (grazing
-  planes; Alg. 4 states no clamp). The clamp defaults to 2 footprints: a corner
-  stays on the tangent plane where the plane's depth changes by at most that much
-  over the half pixel (0.5 px, or 0.71 px diagonally) to the corner, i.e. for
-  planes up to 76° (70.5° in the worst direction) from facing the camera;
-  steeper planes are flattened toward the image plane. Without a tight clamp, a tangent plane seen at a grazing angle
-  (a silhouette, a blade or twig seen edge-on) becomes a fin along the view ray,
-  which light samples away from the capturing eye see broadside: at 8 footprints
-  NR and conventional shadows are measurably darker on every Table 8 scene
-  (bench/results/soft_shadows.md, "Reference cameras and the corner clamp"). Every corner
+  sample's tangent plane and — the depth gate — within the corner clamp's depth
+  of the sample), as a vertex shared by every sample taking it (indexed mesh: a
+  continuous surface gives a watertight mesh); otherwise it is the intersection
+  of c's camera ray with the sample's tangent plane, with its depth clamped to ±
+  `max_corner_extent` pixel footprints of the sample's (grazing planes; Alg. 4
+  states no clamp). The clamp defaults to 2 footprints: a corner stays on the
+  tangent plane where the plane's depth changes by at most that much over the
+  half pixel (0.5 px, or 0.71 px diagonally) to the corner, i.e. for planes up to
+  76° (70.5° in the worst direction) from facing the camera; steeper planes are
+  flattened toward the image plane. Without a tight clamp, a tangent plane seen
+  at a grazing angle (a silhouette, a blade or twig seen edge-on) becomes a fin
+  along the view ray, which light samples away from the capturing eye see
+  broadside (bench/results/soft_shadows.md, "Reference cameras and the corner
+  clamp"); the depth gate keeps H from bringing the same fin back: near a grazing
+  tangent plane every point along the corner ray is near the plane. Every corner
   lies on its pixel corner's camera ray, so each quad covers exactly its pixel as
-  seen from I's camera. Three compute passes (shaders/reconstruct_hybrid_*.comp).
+  seen from I's camera.
+  Beyond Alg. 4 (each a `ReconstructionSettings` flag, on by default; their
+  effects are measured in the soft-shadow report's gap tables):
+  - joined corners: neighbours on one surface (edge-adjacent, same_surface both
+    ways) that both lack H at a corner share one tangent-plane vertex there (the
+    mean of their intersections), so a surface narrower than a pixel (a blade, a
+    twig) is one connected strip, watertight along its length, instead of a row
+    of separate quads; an isolated sample still gives one quad of its own.
+  - evidence (`reconstruct_set`): image i of a set is reconstructed knowing
+    images 0..i−1. Each image rounds a surface's outline to its own pixel grid,
+    which is unbiased for one image but not for a union: NR image i keeps exactly
+    the samples beyond the earlier images' rounded outlines, and its own whole
+    pixels then reach past the true edge. Where an earlier image saw past a
+    tangent-plane corner (its texel there holds nothing, or something farther)
+    and none holds a sample at the corner's depth, the edge lies between the
+    sample and that image's missing ray: the corner moves to their middle
+    (shaders/reconstruct_evidence.glsl).
+  Three compute passes (shaders/reconstruct_hybrid_*.comp).
 * Grid reconstruction (the baseline of §3.2): neighbouring pixel centres joined
   into two triangles unless a depth discontinuity separates them
   (shaders/reconstruct_grid.comp); isolated samples give nothing.
@@ -67,9 +86,11 @@ SamplingMethod = Literal["non_redundant", "conventional", "peeling"]
 RECONSTRUCTIONS: tuple[str, ...] = ("hybrid", "grid", "compact")
 SAMPLING_METHODS: tuple[str, ...] = ("non_redundant", "conventional", "peeling")
 
+#: Most earlier images a hybrid reconstruction takes as evidence (reconstruct_evidence.glsl).
+MAX_EVIDENCE = 15
 _GROUP = 8  # local size of the reconstruction compute shaders (x and y)
 #: Units of every reconstruction shader (shared, so one binding serves all passes).
-_UNITS = Units(images=("u_i_a", "u_i_b", "u_h_a", "u_h_b", "u_flags", "u_corner_index"),
+_UNITS = Units(images=("u_i_a", "u_i_b", "u_h_a", "u_h_b", "u_flags", "u_sample_corner", "u_evidence"),
                storage=("Vertices", "Indices", "Counters"))
 
 
@@ -82,18 +103,27 @@ class ReconstructionSettings:
     pixel at the sample's depth): a neighbour within this distance of the sample's
     tangent plane is on its surface. max_corner_extent: grazing clamp of a
     tangent-plane corner's depth, in pixel footprints (see the module docstring).
-    compact_error: the compact
-    mesh's absolute error bound, in pixel footprints at the image's median depth."""
+    depth_gate: a neighbour of another triangle is on the surface only within
+    max_corner_extent footprints of the sample's depth as well. join_corners:
+    same-surface neighbours share their tangent-plane corners. evidence: corners
+    are pulled in where an earlier image of the set saw past them, judged with
+    evidence_tolerance of that image's pixel footprints (see the module docstring).
+    compact_error: the compact mesh's absolute error bound, in pixel footprints at
+    the image's median depth."""
 
     kind: Reconstruction = "hybrid"
     plane_tolerance: float = 1.0
     max_corner_extent: float = 2.0
+    depth_gate: bool = True
+    join_corners: bool = True
+    evidence: bool = True
+    evidence_tolerance: float = 2.0
     compact_error: float = 0.5
 
     def __post_init__(self) -> None:
         if self.kind not in RECONSTRUCTIONS:
             raise ValueError(f"reconstruction must be one of {RECONSTRUCTIONS}, got {self.kind!r}")
-        for name in ("plane_tolerance", "max_corner_extent", "compact_error"):
+        for name in ("plane_tolerance", "max_corner_extent", "compact_error", "evidence_tolerance"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a positive number, got {v!r}")
@@ -154,6 +184,7 @@ class Reconstructor(Releasable):
         set_uniform(prog, "u_footprint", float(2 * t / camera.height))
         set_uniform(prog, "u_plane_tol", float(settings.plane_tolerance))
         set_uniform(prog, "u_max_extent", float(settings.max_corner_extent))
+        set_uniform(prog, "u_depth_gate", bool(settings.depth_gate))
 
     def _mesh(self, vbo: moderngl.Buffer, ibo: moderngl.Buffer, counters: moderngl.Buffer,
               n_vertices: int | None = None) -> MeshGPU:
@@ -184,35 +215,73 @@ class Reconstructor(Releasable):
         return (w + _GROUP - 1) // _GROUP, (h + _GROUP - 1) // _GROUP, 1
 
     # --- reconstructions -----------------------------------------------------------
-    def hybrid(self, image: DepthImage, offset: DepthImage, settings: ReconstructionSettings) -> MeshGPU:
+    def hybrid(self, image: DepthImage, offset: DepthImage, settings: ReconstructionSettings,
+               evidence: Sequence[DepthImage] = (), complete: Sequence[bool] = ()) -> MeshGPU:
         """Alg. 4: the mesh of `image` (W×H) with corners from its offset image
-        ((W+1)×(H+1), see `offset_camera`). 2 triangles per sample."""
+        ((W+1)×(H+1), see `offset_camera`). 2 triangles per sample. `evidence`: the
+        earlier images of its set (I's size), `complete[j]` where an empty texel of
+        evidence[j] is a miss (see reconstruct_evidence.glsl)."""
         self.gl.check_thread()
         h, w = image.depth.shape
         if offset.depth.shape != (h + 1, w + 1):
             raise ValueError(f"offset image must be {(h + 1, w + 1)}, got {offset.depth.shape}")
+        if len(evidence) > MAX_EVIDENCE or len(complete) != len(evidence):
+            raise ValueError(f"at most {MAX_EVIDENCE} evidence images, each with its completeness flag")
+        if any(e.depth.shape != (h, w) for e in evidence):
+            raise ValueError(f"evidence images must be {(h, w)}, as the image")
         ctx = self.gl.ctx
         n = image.n_samples
         ia, ib = self._upload(image)
         ha, hb = self._upload(offset)
         flags = ctx.texture((w, h), 1, dtype="u4")  # 32-bit: llvmpipe's 8-bit image stores race
-        corner_index = ctx.texture((w + 1, h + 1), 1, np.zeros((h + 1, w + 1), np.uint32).tobytes(), dtype="u4")
+        sample_corner = ctx.texture((2 * w, 2 * h), 1, dtype="u4")
+        if evidence:
+            words = np.stack([_image_words(e)[0] for e in evidence])
+            ev = ctx.texture_array((w, h, len(evidence)), 4, words.tobytes(), dtype="u4")
+        else:
+            ev = ctx.texture_array((1, 1, 1), 4, dtype="u4")
         vbo = ctx.buffer(reserve=max(4 * n * VERTEX_BYTES, 16))  # ≤ 4 distinct corners per sample
         ibo = ctx.buffer(reserve=max(6 * n * 4, 16))
         counters = ctx.buffer(np.zeros(2, np.uint32).tobytes())
         for name, tex in (("u_i_a", ia), ("u_i_b", ib), ("u_h_a", ha), ("u_h_b", hb), ("u_flags", flags),
-                          ("u_corner_index", corner_index)):
-            _UNITS.bind_image(name, tex, read=True, write=name in ("u_flags", "u_corner_index"))
+                          ("u_sample_corner", sample_corner), ("u_evidence", ev)):
+            _UNITS.bind_image(name, tex, read=True, write=name in ("u_flags", "u_sample_corner"))
         self._bind_outputs(vbo, ibo, counters)
+        self._set_evidence(self.hybrid_passes[1], evidence, complete, settings)
         try:
             for prog, grid in zip(self.hybrid_passes, ((w, h), (w + 1, h + 1), (w, h)), strict=True):
                 self._set_camera(prog, image.camera, settings)
                 prog.run(*self._groups(*grid))
                 ctx.memory_barrier()
         finally:
-            for t in (ia, ib, ha, hb, flags, corner_index):
+            for t in (ia, ib, ha, hb, flags, sample_corner, ev):
                 t.release()
         return self._mesh(vbo, ibo, counters)
+
+    @staticmethod
+    def _set_evidence(prog: moderngl.ComputeShader, evidence: Sequence[DepthImage], complete: Sequence[bool],
+                      settings: ReconstructionSettings) -> None:
+        set_uniform(prog, "u_n_evidence", len(evidence))
+        set_uniform(prog, "u_join", bool(settings.join_corners))
+        if not evidence:
+            return
+        set_uniform(prog, "u_e_tol", float(settings.evidence_tolerance))
+        arrays = {name: np.zeros((MAX_EVIDENCE, 3), np.float32) for name in ("u_e_eye", "u_e_forward",
+                                                                                "u_e_right", "u_e_up")}
+        footprint = np.zeros(MAX_EVIDENCE, np.float32)
+        flag = np.zeros(MAX_EVIDENCE, np.int32)
+        for j, (img, full) in enumerate(zip(evidence, complete, strict=True)):
+            cam = img.camera
+            r, u, f = cam.basis()
+            t = np.tan(np.radians(cam.fov) / 2)
+            arrays["u_e_eye"][j] = cam.eye
+            arrays["u_e_forward"][j] = f
+            arrays["u_e_right"][j] = r * t * cam.aspect
+            arrays["u_e_up"][j] = u * t
+            footprint[j] = 2 * t / cam.height
+            flag[j] = int(full)
+        for name, values in (*arrays.items(), ("u_e_footprint", footprint), ("u_e_complete", flag)):
+            prog[name].write(values.tobytes())
 
     def grid(self, image: DepthImage, settings: ReconstructionSettings) -> MeshGPU:
         """The grid baseline: vertex y·W + x per sample, ≤ 2 triangles per 2×2 block."""
@@ -253,13 +322,14 @@ class Reconstructor(Releasable):
         colors = rgba[used, :3].astype(np.float32) / 255
         return MeshGPU.from_arrays(self.gl, pos[used], remap.reshape(-1, 3), colors)
 
-    def reconstruct(self, image: DepthImage, offset: DepthImage | None, settings: ReconstructionSettings) -> MeshGPU:
+    def reconstruct(self, image: DepthImage, offset: DepthImage | None, settings: ReconstructionSettings,
+                    evidence: Sequence[DepthImage] = (), complete: Sequence[bool] = ()) -> MeshGPU:
         """One image's mesh by settings.kind (hybrid and compact need `offset`)."""
         if settings.kind == "grid":
             return self.grid(image, settings)
         if offset is None:
             raise ValueError(f"the {settings.kind} reconstruction needs the offset image")
-        mesh = self.hybrid(image, offset, settings)
+        mesh = self.hybrid(image, offset, settings, evidence, complete)
         if settings.kind == "hybrid":
             return mesh
         try:
@@ -321,12 +391,22 @@ def render_set(gl: GLContext, scene_gpu: SceneGPU, method: SamplingMethod, camer
 
 def reconstruct_set(gl: GLContext, sampled: SampledSet, settings: ReconstructionSettings,
                     reconstructor: Reconstructor | None = None) -> list[MeshGPU]:
-    """One mesh per image of `sampled` (the caller releases them)."""
+    """One mesh per image of `sampled` (the caller releases them); with
+    settings.evidence, image i's hybrid mesh takes images 0..i−1 as evidence (all of
+    them complete but a non-redundant set's later images, whose empty texels may be
+    redundant samples rather than misses)."""
     own = reconstructor is None
     rec = Reconstructor(gl) if own else reconstructor
     try:
-        offs = sampled.offsets or [None] * len(sampled.images)
-        return [rec.reconstruct(img, off, settings) for img, off in zip(sampled.images, offs, strict=True)]
+        images = sampled.images
+        offs = sampled.offsets or [None] * len(images)
+        out = []
+        for i, (img, off) in enumerate(zip(images, offs, strict=True)):
+            earlier = images[max(0, i - MAX_EVIDENCE):i] if settings.evidence else []
+            first = i - len(earlier)
+            complete = [first + j == 0 or sampled.method != "non_redundant" for j in range(len(earlier))]
+            out.append(rec.reconstruct(img, off, settings, earlier, complete))
+        return out
     finally:
         if own:
             rec.release()

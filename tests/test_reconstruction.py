@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import io
 from collections import Counter
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -152,37 +153,6 @@ def test_isolated_sample_gives_exactly_one_quad(gl):
     assert len(gtri) == 0  # the grid baseline drops it
 
 
-def test_grazing_isolated_sample_corners_are_clamped(gl):
-    # A sliver through pixel (10, 12)'s centre ray at depth 4, turned 85° away from
-    # facing the camera (its plane holds the image's up and a direction 5° off the
-    # view axis): ±0.3 px wide, ±0.2 px high on screen, so H sees none of it. The
-    # tangent plane meets the corner rays (±0.5 px aside) about 0.5/tan 5° ≈ 5.7
-    # footprints in front of / behind the sample: the default clamp (2 footprints)
-    # holds them at ±2; with max_corner_extent = 8 they stay on the plane.
-    r, up, _ = FRONT.basis()
-    p = pixel_point(10.5, 12.5, 4.0)
-    d = p - EYE
-    foot = 4.0 * 2 * np.tan(np.radians(FRONT.fov) / 2) / H  # world size of a pixel at depth 4
-    t = np.cos(np.radians(5)) * d / np.linalg.norm(d) + np.sin(np.radians(5)) * r
-    a = 0.3 * foot / np.sin(np.radians(5))
-    b = 0.2 * foot
-    verts = np.array([p - a * t - b * up, p + a * t - b * up, p + a * t + b * up, p - a * t + b * up])
-    n = np.cross(verts[1] - verts[0], verts[2] - verts[0])
-    faces = [[0, 1, 2], [0, 2, 3]] if n @ (EYE - p) > 0 else [[0, 2, 1], [0, 3, 2]]
-    sliver = SceneObject("sliver", verts, np.array(faces), material=Material((0.5, 0.5, 0.5)))
-    spread = {}
-    for extent in (None, 8.0):
-        settings = HYBRID if extent is None else ReconstructionSettings(max_corner_extent=extent)
-        ss, [(pos, tri)] = reconstruct(gl, Scene([sliver]), [FRONT], settings=settings)
-        assert ss.images[0].n_samples == 1 and ss.offsets[0].n_samples == 0
-        assert quad_pixels(pos, tri, FRONT).tolist() == [[10, 12]]
-        _, z = FRONT.project(pos[np.unique(tri)].astype(np.float64))
-        spread[extent] = np.abs(z - 4.0) / foot  # the sample's eye depth is 4
-    assert HYBRID.max_corner_extent == 2.0
-    np.testing.assert_allclose(spread[None], 2.0, rtol=1e-3)  # all four corners clamped at ±2 footprints
-    assert 4.5 < spread[8.0].min() and spread[8.0].max() < 7.0  # on the tangent plane, ≈ 5.7
-
-
 def test_fig17_corner_cases(gl):
     """S_0: all four corners from H (shared); S_2: one corner missing (tangent
     plane); S_5: isolated (four tangent-plane corners). An L-shaped patch: pixel
@@ -207,6 +177,123 @@ def test_fig17_corner_cases(gl):
     assert shared((20, 20)) == 0 and len(np.unique(quads[(20, 20)])) == 4  # S_5
     # 8 L pixels' shared lattice corners (16 − 2 outside) + 1 private + 4 isolated.
     assert len(np.unique(tri)) == 14 + 1 + 4
+
+
+def grazing_sliver(depth: float = 4.0, turn_deg: float = 85.0) -> tuple[SceneObject, float, float]:
+    """A sliver through pixel (10, 12)'s centre ray at `depth`, turned `turn_deg`
+    away from facing FRONT about the image's up axis (±0.3 px wide, ±0.2 px high on
+    screen, so H sees none of it); returns it, the pixel footprint at `depth` and the
+    eye depth where its plane meets the corner rays on its far side."""
+    r, up, f = FRONT.basis()
+    p = pixel_point(10.5, 12.5, depth)
+    d = p - EYE
+    foot = depth * 2 * np.tan(np.radians(FRONT.fov) / 2) / H  # world size of a pixel at `depth`
+    off = np.radians(90.0 - turn_deg)
+    t = np.cos(off) * d / np.linalg.norm(d) + np.sin(off) * r
+    a = 0.3 * foot / np.sin(off)
+    b = 0.2 * foot
+    verts = np.array([p - a * t - b * up, p + a * t - b * up, p + a * t + b * up, p - a * t + b * up])
+    n = np.cross(verts[1] - verts[0], verts[2] - verts[0])
+    faces = [[0, 1, 2], [0, 2, 3]] if n @ (EYE - p) > 0 else [[0, 2, 1], [0, 3, 2]]
+    n = n / np.linalg.norm(n)
+    far = 0.0
+    for u in (10.0, 11.0):  # the corner rays left and right of the pixel: z·(n·d) = n·(p − eye)
+        dir_ = pixel_point(u, 12.0, 1.0) - EYE
+        far = max(far, float((n @ (p - EYE)) / (n @ dir_)) * float(dir_ @ f))
+    return SceneObject("sliver", verts, np.array(faces), material=Material((0.5, 0.5, 0.5))), foot, far
+
+
+def test_grazing_isolated_sample_corners_are_clamped(gl):
+    # The sliver's tangent plane meets the corner rays (±0.5 px aside) about
+    # 0.5/tan 5° ≈ 5.7 footprints in front of / behind the sample: the default clamp
+    # (2 footprints) holds them at ±2; with max_corner_extent = 8 they stay on the plane.
+    sliver, foot, _ = grazing_sliver()
+    spread = {}
+    for extent in (None, 8.0):
+        settings = HYBRID if extent is None else ReconstructionSettings(max_corner_extent=extent)
+        ss, [(pos, tri)] = reconstruct(gl, Scene([sliver]), [FRONT], settings=settings)
+        assert ss.images[0].n_samples == 1 and ss.offsets[0].n_samples == 0
+        assert quad_pixels(pos, tri, FRONT).tolist() == [[10, 12]]
+        _, z = FRONT.project(pos[np.unique(tri)].astype(np.float64))
+        spread[extent] = np.abs(z - 4.0) / foot  # the sample's eye depth is 4
+    assert HYBRID.max_corner_extent == 2.0
+    np.testing.assert_allclose(spread[None], 2.0, rtol=1e-3)  # all four corners clamped at ±2 footprints
+    assert 4.5 < spread[8.0].min() and spread[8.0].max() < 7.0  # on the tangent plane, ≈ 5.7
+
+
+def test_depth_gate_keeps_a_far_surface_out_of_a_grazing_samples_corners(gl):
+    """Behind the grazing sliver, a wall facing the camera at the depth where the
+    sliver's plane meets its far corner rays (≈ 5.7 footprints behind the sample):
+    H's samples there lie on the sliver's tangent plane. Without the depth gate the
+    sliver's quad takes those two corners from H, 5.7 footprints deep (a fin along
+    the view ray); with it (the default) all four are clamped tangent-plane corners."""
+    sliver, foot, far = grazing_sliver()
+    assert 5.0 < (far - 4.0) / foot < 6.5
+    wall = screen_rects([(0.0, W, 0.0, H)], far, "wall")
+    spread = {}
+    for gate in (True, False):
+        ss, [(pos, tri)] = reconstruct(gl, Scene([sliver, wall]), [FRONT],
+                                       settings=ReconstructionSettings(depth_gate=gate))
+        assert ss.images[0].tri_id[12, 10] in (1, 2)  # the sliver's sample (object 0's faces)
+        quad = tri[2 * int(np.flatnonzero((quad_pixels(pos, tri, FRONT) == [10, 12]).all(axis=1))[0]):][:2]
+        _, z = FRONT.project(pos[np.unique(quad)].astype(np.float64))
+        spread[gate] = np.sort((z - 4.0) / foot)
+    assert HYBRID.depth_gate
+    np.testing.assert_allclose(spread[True], [-2, -2, 2, 2], rtol=1e-3)
+    np.testing.assert_allclose(spread[False][:2], [-2, -2], rtol=1e-3)
+    np.testing.assert_allclose(spread[False][2:], (far - 4.0) / foot, rtol=1e-3)  # H's wall samples
+
+
+def test_joined_tangent_corners_make_a_subpixel_strip_one_connected_strip(gl):
+    """A strip 0.4 px high through the centres of pixels 5..14 of row 12: H's corners
+    (rows 12 and 13 of the lattice) miss it, so every corner is a tangent-plane
+    corner. Joined (the default), neighbours share theirs: 11 + 11 vertices, the 9
+    inner edges used twice, the outline once; the compact mesh is then 2 triangles.
+    Not joined (Alg. 4 as printed): 10 separate quads, 40 vertices."""
+    strip = screen_rects([(5.2, 14.8, 12.3, 12.7)], 4.0, "strip")
+    ss, [(pos, tri)] = reconstruct(gl, Scene([strip]), [FRONT])
+    assert ss.images[0].n_samples == 10 and ss.offsets[0].n_samples == 0
+    assert len(tri) == 20 and len(np.unique(tri)) == 22
+    counts = edge_counts(tri)
+    assert max(counts.values()) == 2 and sum(1 for c in counts.values() if c == 1) == perimeter(ss.images[0].mask)
+    assert sorted(map(tuple, quad_pixels(pos, tri, FRONT).tolist())) == [(x, 12) for x in range(5, 15)]
+    np.testing.assert_allclose(FRONT.project(pos.astype(np.float64))[1], 4.0, rtol=1e-5)  # on the plane
+    _, [(_, sep)] = reconstruct(gl, Scene([strip]), [FRONT], settings=ReconstructionSettings(join_corners=False))
+    assert len(sep) == 20 and len(np.unique(sep)) == 40
+    _, [(_, ctri)] = reconstruct(gl, Scene([strip]), [FRONT], settings=ReconstructionSettings(kind="compact"))
+    assert len(ctri) == 2
+
+
+def test_evidence_pulls_a_later_images_fringe_to_the_expected_edge(gl):
+    """The 1-D case of the evidence rule, by hand. A plane facing two parallel
+    cameras at eye depth 4 holds a band whose right edge lies at u = 9.3 in I_0's
+    pixel coordinates (spanning the image's height). I_0 (FRONT) samples centres up to
+    8.5 and misses 9.5: its quads end at u = 9. I_1 is FRONT moved right by 0.7
+    footprints, so its centres sit at u = k + 1.2: the one at 9.2 lands in I_0's
+    missed texel 9, so NR image I_1 keeps that column and nothing else. Alg. 4 gives
+    it the whole pixel, [8.7, 9.7]; with evidence, the outer corners (seen past by
+    I_0's centre ray at 9.5) go to the middle of the sample and that ray, (9.2 +
+    9.5) / 2 = 9.35, the inner ones (held by I_0) stay at 8.7: the union's edge errs
+    by 0.05 px instead of 0.4. I_0, with no earlier image, is unchanged."""
+    foot = 4.0 * 2 * np.tan(np.radians(FRONT.fov) / 2) / H
+    shift = 0.7 * foot * FRONT.basis()[0]
+    cam1 = replace(FRONT, eye=tuple(EYE + shift), target=tuple(np.asarray(FRONT.target) + shift))
+    # one triangle (Alg. 3 compares triangle ids: no inner edge), its right edge at u = 9.3
+    verts = np.array([pixel_point(u, v, 4.0) for u, v in ((9.3, 3.0 * H), (9.3, -2.0 * H), (-4.0 * W, 0.5 * H))])
+    band = SceneObject("band", verts, np.array([[0, 1, 2]]), material=Material((0.5, 0.6, 0.7)))
+    edges = {}
+    for evidence in (True, False):
+        ss, meshes = reconstruct(gl, Scene([band]), [FRONT, cam1], "non_redundant",
+                                 ReconstructionSettings(evidence=evidence))
+        assert ss.images[1].n_samples == H and ss.images[1].mask[:, 8].all()  # one column, u = 9.2 in I_0
+        pos, tri = meshes[1]
+        uv = FRONT.project(pos[np.unique(tri)].astype(np.float64))[0]
+        inner = (uv[:, 1] > 0.5) & (uv[:, 1] < H - 0.5)  # corners on the image's border have half the neighbours
+        edges[evidence] = np.unique(np.round(uv[inner, 0], 3))
+        i0_u = FRONT.project(meshes[0][0].astype(np.float64))[0][:, 0]
+        assert np.isclose(i0_u.max(), 9.0, atol=1e-3)
+    np.testing.assert_allclose(edges[True], [8.7, 9.35], atol=2e-3)
+    np.testing.assert_allclose(edges[False], [8.7, 9.7], atol=2e-3)
 
 
 # --- NR: no surface covered twice -------------------------------------------------------

@@ -13,6 +13,11 @@ uniform vec3 u_eye;
 uniform float u_footprint;     // pixel size per unit eye depth: 2·tan(fov/2)/H
 uniform vec3 u_forward;        // unit view direction
 uniform float u_plane_tol;     // same-surface tolerance, in pixel footprints at the sample
+uniform float u_max_extent;    // depth clamp of tangent-plane corners, in pixel footprints
+uniform bool u_depth_gate;     // other triangles: within u_max_extent footprints of depth too
+
+const float CORNER_REACH = 0.70710678;  // pixels from a pixel centre to its corners
+const ivec2 CORNER[4] = ivec2[4](ivec2(0, 0), ivec2(1, 0), ivec2(1, 1), ivec2(0, 1));
 
 struct Vertex { vec3 position; uint rgba; };
 layout(std430, binding = UNIT_Vertices) buffer Vertices { Vertex vertices[]; };
@@ -30,13 +35,18 @@ float footprint(vec3 p) {
     return max(dot(p - u_eye, u_forward), 0.0) * u_footprint;
 }
 
-// Alg. 4's "not separated by a depth discontinuity": q lies on s's surface when
-// it has the same triangle or lies within u_plane_tol pixel footprints of s's
-// tangent plane.
-bool same_surface(Sample s, Sample q) {
+// Alg. 4's "not separated by a depth discontinuity": q, `reach` pixels from s on
+// screen, lies on s's surface when it has the same triangle or lies within
+// u_plane_tol pixel footprints of s's tangent plane and (u_depth_gate) its depth
+// differs from s's by at most what the tangent-plane corners' clamp allows over
+// that distance (u_max_extent footprints per half pixel): near a grazing plane
+// every point along the ray is near the plane, and this keeps a far surface out.
+bool same_surface(Sample s, Sample q, float reach) {
     if (!q.valid) return false;
     if (q.tri == s.tri) return true;
-    return abs(dot(s.normal, q.position - s.position)) <= u_plane_tol * footprint(s.position);
+    float fp = footprint(s.position);
+    if (u_depth_gate && abs(dot(q.position - s.position, u_forward)) > 2.0 * reach * u_max_extent * fp) return false;
+    return abs(dot(s.normal, q.position - s.position)) <= u_plane_tol * fp;
 }
 
 void emit_vertex(uint index, vec3 position, uint rgba) {

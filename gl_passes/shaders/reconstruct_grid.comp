@@ -11,7 +11,7 @@ Sample at(ivec2 q) {
 }
 
 bool joined(Sample p, Sample q) {
-    return same_surface(p, q) && same_surface(q, p);
+    return same_surface(p, q, 1.0) && same_surface(q, p, 1.0);
 }
 
 void emit_triangle(uint a, uint b, uint c) {

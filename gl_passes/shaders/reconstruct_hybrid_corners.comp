@@ -1,19 +1,99 @@
 #version 430 core
-// Hybrid reconstruction, pass 2 of 3 (Alg. 4): one shared vertex per H corner that
-// some sample takes (its position and colour are H's sample there); its vertex
-// index replaces the mark in u_corner_index.
+// Hybrid reconstruction, pass 2 of 3 (Alg. 4): the vertices at one pixel corner c
+// of I, for the (up to) four samples around it. Samples that take c from H share
+// H's sample there as one vertex. The others get the intersection of c's camera ray
+// with their tangent plane (depth clamped to ± u_max_extent pixel footprints of the
+// sample's, for grazing planes); neighbours around c on one surface (edge-adjacent
+// pixels, same_surface both ways) share one vertex, the mean of their intersections,
+// so a surface narrower than a pixel (a blade, a twig) stays one connected strip
+// instead of a row of separate quads. With evidence images bound, such a corner is
+// pulled toward its samples where an earlier image of the set saw past it
+// (reconstruct_evidence.glsl). Writes each sample's corner vertex index to
+// u_sample_corner at (2x + cx, 2y + cy) for its corner (x + cx, y + cy).
 #include "reconstruct_common.glsl"
+#include "reconstruct_evidence.glsl"
 
 layout(rgba32ui, binding = UNIT_u_h_a) uniform readonly uimage2D u_h_a;
 layout(rgba32ui, binding = UNIT_u_h_b) uniform readonly uimage2D u_h_b;
-layout(r32ui, binding = UNIT_u_corner_index) uniform uimage2D u_corner_index;
+layout(r32ui, binding = UNIT_u_flags) uniform readonly uimage2D u_flags;
+layout(r32ui, binding = UNIT_u_sample_corner) uniform writeonly uimage2D u_sample_corner;
+uniform vec3 u_right;   // camera right × tan(fov/2)·aspect
+uniform vec3 u_up;      // camera up × tan(fov/2)
+uniform bool u_join;    // share tangent-plane corners between same-surface neighbours
+
+vec3 tangent_plane_corner(Sample s, ivec2 c) {
+    vec2 ndc = vec2(2.0 * float(c.x) / float(u_size.x) - 1.0, 1.0 - 2.0 * float(c.y) / float(u_size.y));
+    vec3 d = u_forward + ndc.x * u_right + ndc.y * u_up;  // ray direction with dot(d, forward) = 1
+    float zs = dot(s.position - u_eye, u_forward);
+    float denom = dot(s.normal, d);
+    float z = abs(denom) > 1e-12 ? dot(s.normal, s.position - u_eye) / denom : zs;
+    float extent = u_max_extent * footprint(s.position);
+    z = clamp(z, zs - extent, zs + extent);
+    return u_eye + z * d;
+}
 
 void main() {
     ivec2 c = ivec2(gl_GlobalInvocationID.xy);
-    if (any(greaterThan(c, u_size))) return;  // H is (W+1)×(H+1)
-    if (imageLoad(u_corner_index, c).r == 0u) return;
-    Sample h = load_sample(imageLoad(u_h_a, c), imageLoad(u_h_b, c));
-    uint index = atomicAdd(n_vertices, 1u);
-    emit_vertex(index, h.position, h.rgba);
-    imageStore(u_corner_index, c, uvec4(index));
+    if (any(greaterThan(c, u_size))) return;  // corners: (W+1)×(H+1)
+    // Slot k: the pixel whose corner k is c (k = 0: below right of c, then clockwise
+    // as seen on screen: below left, above left, above right); slots k and k+1 share
+    // an edge of the pixel grid that ends at c.
+    Sample s[4];
+    bool tangent[4];
+    bool from_h = false;
+    ivec2 pix[4];
+    for (int k = 0; k < 4; ++k) {
+        pix[k] = c - CORNER[k];
+        tangent[k] = false;
+        s[k].valid = false;
+        if (any(lessThan(pix[k], ivec2(0))) || any(greaterThanEqual(pix[k], u_size))) continue;
+        uint flags = imageLoad(u_flags, pix[k]).r;
+        if ((flags & 16u) == 0u) continue;
+        s[k] = load_sample(imageLoad(u_i_a, pix[k]), imageLoad(u_i_b, pix[k]));
+        if ((flags & (1u << k)) != 0u) from_h = true;
+        else tangent[k] = true;
+    }
+    uint h_index = 0u;
+    if (from_h) {
+        Sample h = load_sample(imageLoad(u_h_a, c), imageLoad(u_h_b, c));
+        h_index = atomicAdd(n_vertices, 1u);
+        emit_vertex(h_index, h.position, h.rgba);
+    }
+    // Groups of tangent-plane slots joined across shared grid edges (labels = least slot).
+    int label[4] = int[4](0, 1, 2, 3);
+    bool link[4];
+    for (int k = 0; k < 4; ++k) {
+        int m = (k + 1) & 3;
+        link[k] = u_join && tangent[k] && tangent[m] && same_surface(s[k], s[m], 1.0) && same_surface(s[m], s[k], 1.0);
+    }
+    for (int it = 0; it < 3; ++it) {
+        for (int k = 0; k < 4; ++k) {
+            int m = (k + 1) & 3;
+            if (link[k]) label[k] = label[m] = min(label[k], label[m]);
+        }
+    }
+    uint index[4];
+    for (int g = 0; g < 4; ++g) {
+        if (!tangent[g] || label[g] != g) continue;
+        vec3 x = vec3(0.0), sp = vec3(0.0);
+        vec4 rgba = vec4(0.0);
+        float n = 0.0;
+        for (int k = 0; k < 4; ++k) {
+            if (!tangent[k] || label[k] != g) continue;
+            x += tangent_plane_corner(s[k], c);
+            sp += s[k].position;
+            rgba += unpackUnorm4x8(s[k].rgba);
+            n += 1.0;
+        }
+        x /= n;
+        sp /= n;
+        if (u_n_evidence > 0) x = mix(sp, x, evidence_keep(sp, x));
+        index[g] = atomicAdd(n_vertices, 1u);
+        emit_vertex(index[g], x, packUnorm4x8(rgba / n));
+    }
+    for (int k = 0; k < 4; ++k) {
+        if (!s[k].valid) continue;
+        uint v = tangent[k] ? index[label[k]] : h_index;
+        imageStore(u_sample_corner, 2 * pix[k] + CORNER[k], uvec4(v));
+    }
 }
