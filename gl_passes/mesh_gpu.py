@@ -56,8 +56,13 @@ class MeshGPU(IndexedBuffers):
     def from_arrays(cls, gl: GLContext, positions: np.ndarray, triangles: np.ndarray,
                     colors: np.ndarray | None = None) -> MeshGPU:
         """Upload (N,3) positions, (M,3) vertex indices and optional (N,3) colours."""
+        return cls.from_records(gl, pack_vertices(np.asarray(positions, np.float32), colors), triangles)
+
+    @classmethod
+    def from_records(cls, gl: GLContext, records: np.ndarray, triangles: np.ndarray) -> MeshGPU:
+        """Upload (N,4) float32 vertex records (`pack_vertices`) and (M,3) vertex indices."""
         gl.check_thread()
-        rec = pack_vertices(np.asarray(positions, np.float32), colors)
+        rec = np.ascontiguousarray(records, np.float32).reshape(-1, 4)
         tri = np.ascontiguousarray(triangles, np.uint32).reshape(-1, 3)
         vbo = gl.ctx.buffer(rec.tobytes() or b"\0" * VERTEX_BYTES)
         ibo = gl.ctx.buffer(tri.tobytes() or b"\0" * 12)

@@ -55,7 +55,9 @@
 
 Meshes are `MeshGPU`s (positions in world units, linear vertex colours
 quantised to RGBA8), triangles counter-clockwise as seen from the capturing
-camera. `export_glb` writes one node per source image.
+camera, vertices in first-use order (`fetch_order`: the compute passes append
+in whatever order their invocations run, which a vertex-bound rasteriser pays
+for). `export_glb` writes one node per source image.
 """
 
 from __future__ import annotations
@@ -73,7 +75,7 @@ import numpy as np
 from gl_passes.bindings import Units
 from gl_passes.context import GLContext
 from gl_passes.depth_images import DepthImageRenderer, prepare_cameras
-from gl_passes.mesh_gpu import VERTEX_BYTES, MeshGPU, pack_colors
+from gl_passes.mesh_gpu import VERTEX_BYTES, MeshGPU, pack_colors, pack_vertices
 from gl_passes.releasable import Releasable
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
@@ -109,7 +111,8 @@ class ReconstructionSettings:
     are pulled in where an earlier image of the set saw past them, judged with
     evidence_tolerance of that image's pixel footprints (see the module docstring).
     compact_error: the compact mesh's absolute error bound, in pixel footprints at
-    the image's median depth."""
+    the image's median depth. fetch_order: vertices in first-use order (`fetch_order`;
+    the same mesh, drawn faster)."""
 
     kind: Reconstruction = "hybrid"
     plane_tolerance: float = 1.0
@@ -118,7 +121,8 @@ class ReconstructionSettings:
     join_corners: bool = True
     evidence: bool = True
     evidence_tolerance: float = 2.0
-    compact_error: float = 0.5
+    compact_error: float = 0.4
+    fetch_order: bool = True
 
     def __post_init__(self) -> None:
         if self.kind not in RECONSTRUCTIONS:
@@ -185,14 +189,23 @@ class Reconstructor(Releasable):
         set_uniform(prog, "u_plane_tol", float(settings.plane_tolerance))
         set_uniform(prog, "u_max_extent", float(settings.max_corner_extent))
         set_uniform(prog, "u_depth_gate", bool(settings.depth_gate))
+        set_uniform(prog, "u_join", bool(settings.join_corners))
 
     def _mesh(self, vbo: moderngl.Buffer, ibo: moderngl.Buffer, counters: moderngl.Buffer,
-              n_vertices: int | None = None) -> MeshGPU:
-        """A MeshGPU from the output buffers, trimmed to the counted size."""
+              settings: ReconstructionSettings, n_vertices: int | None = None) -> MeshGPU:
+        """A MeshGPU from the output buffers, trimmed to the counted size; with
+        settings.fetch_order its vertices in first-use order (`fetch_order`)."""
         nv, ni = (int(x) for x in np.frombuffer(counters.read(), np.uint32))
         counters.release()
         nv = nv if n_vertices is None else n_vertices
         ctx = self.gl.ctx
+        if settings.fetch_order and ni:
+            records = np.frombuffer(vbo.read(size=nv * VERTEX_BYTES), np.float32).reshape(-1, 4)
+            records, indices = fetch_order(records, np.frombuffer(ibo.read(size=ni * 4), np.uint32))
+            vbo.release()
+            ibo.release()
+            return MeshGPU(self.gl, ctx.buffer(records.tobytes()), ctx.buffer(indices.tobytes()), len(records),
+                           ni // 3)
         out = []
         for buf, used in ((vbo, nv * VERTEX_BYTES), (ibo, ni * 4)):
             if used == buf.size:
@@ -256,13 +269,12 @@ class Reconstructor(Releasable):
         finally:
             for t in (ia, ib, ha, hb, flags, sample_corner, ev):
                 t.release()
-        return self._mesh(vbo, ibo, counters)
+        return self._mesh(vbo, ibo, counters, settings)
 
     @staticmethod
     def _set_evidence(prog: moderngl.ComputeShader, evidence: Sequence[DepthImage], complete: Sequence[bool],
                       settings: ReconstructionSettings) -> None:
         set_uniform(prog, "u_n_evidence", len(evidence))
-        set_uniform(prog, "u_join", bool(settings.join_corners))
         if not evidence:
             return
         set_uniform(prog, "u_e_tol", float(settings.evidence_tolerance))
@@ -305,7 +317,7 @@ class Reconstructor(Releasable):
         finally:
             ia.release()
             ib.release()
-        return self._mesh(vbo, ibo, counters, n_vertices=w * h)
+        return self._mesh(vbo, ibo, counters, settings, n_vertices=w * h)
 
     def compact(self, mesh: MeshGPU, image: DepthImage, settings: ReconstructionSettings) -> MeshGPU:
         """`mesh` (a hybrid reconstruction of `image`) simplified with an absolute
@@ -318,9 +330,13 @@ class Reconstructor(Releasable):
         depth = float(np.median(image.depth[image.mask]))
         bound = settings.compact_error * depth * 2 * np.tan(np.radians(cam.fov) / 2) / cam.height
         simplified = simplify(pos, tri, bound)
-        used, remap = np.unique(simplified, return_inverse=True)
-        colors = rgba[used, :3].astype(np.float32) / 255
-        return MeshGPU.from_arrays(self.gl, pos[used], remap.reshape(-1, 3), colors)
+        records = pack_vertices(pos, rgba[:, :3].astype(np.float32) / 255)
+        if settings.fetch_order:
+            records, indices = fetch_order(records, simplified)
+        else:
+            used, indices = np.unique(simplified, return_inverse=True)
+            records = records[used]
+        return MeshGPU.from_records(self.gl, records, indices.reshape(-1, 3))
 
     def reconstruct(self, image: DepthImage, offset: DepthImage | None, settings: ReconstructionSettings,
                     evidence: Sequence[DepthImage] = (), complete: Sequence[bool] = ()) -> MeshGPU:
@@ -336,6 +352,20 @@ class Reconstructor(Releasable):
             return self.compact(mesh, image, settings)
         finally:
             mesh.release()
+
+
+def fetch_order(records: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Vertex records (N,4) float32 and triangle indices (any shape, uint32) with the
+    vertices put in first-use order and unused ones dropped (meshoptimizer's
+    vertex-fetch optimisation): (N',4) records and the remapped indices, flat.
+    The compute passes append vertices and triangles in whatever order their
+    invocations run, and llvmpipe shades an indexed draw's vertices in batches of
+    nearby indices (bench/results/soft_shadows.md, Fig. 20)."""
+    idx = np.array(indices, np.uint32).ravel()  # a copy: remapped in place
+    src = np.ascontiguousarray(records, np.float32)
+    out = np.empty_like(src)
+    n = meshoptimizer.optimize_vertex_fetch(out, idx, src, vertex_count=len(src), vertex_size=VERTEX_BYTES)
+    return out[:n], idx
 
 
 def simplify(positions: np.ndarray, triangles: np.ndarray, max_error: float) -> np.ndarray:

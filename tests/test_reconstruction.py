@@ -17,6 +17,7 @@ from gl_passes.reconstruction import (
     ReconstructionSettings,
     Reconstructor,
     export_glb,
+    fetch_order,
     mesh_arrays,
     offset_camera,
     reconstruct_set,
@@ -362,6 +363,26 @@ def test_compact_keeps_the_surface_within_its_bound(gl):
     assert both.sum() > 0.9 * img.n_samples
     err = np.abs(tc[both] - th[both]) * np.abs(d[both] @ cam.basis()[2])
     assert np.quantile(err, 0.99) <= 3 * bound  # distance along a ray ≥ the normal distance
+
+
+def test_fetch_order_puts_vertices_in_first_use_order_and_drops_unused():
+    records = np.arange(20, dtype=np.float32).reshape(5, 4)  # vertex k = (4k, 4k+1, 4k+2, 4k+3)
+    out, idx = fetch_order(records, np.array([[3, 1, 3], [4, 1, 3]], np.uint32))
+    assert idx.tolist() == [0, 1, 0, 2, 1, 0]
+    assert out[:, 0].tolist() == [12, 4, 16]  # vertices 3, 1, 4; 0 and 2 are unused
+
+
+def test_fetch_order_leaves_the_mesh_unchanged(gl):
+    sphere = make_object("sphere", uv_sphere((0, 0, 0), 1.2, 16, 32), Material((0.8, 0.2, 0.2)))
+    cam = Camera((0.5, 1.5, 5.0), (0, 0, 0), fov=45.0, width=64, height=64)
+    for kind in ("hybrid", "grid", "compact"):
+        tris = []
+        for order in (True, False):
+            _, [(pos, tri)] = reconstruct(gl, Scene([sphere]), [cam],
+                                          settings=ReconstructionSettings(kind=kind, fetch_order=order))
+            tris.append(pos[tri].reshape(len(tri), 9))
+        a, b = (t[np.lexsort(t.T[::-1])] for t in tris)
+        assert len(a) > 100 and np.array_equal(a, b), kind
 
 
 def test_glb_has_one_node_per_image_with_vertex_colours(gl):
