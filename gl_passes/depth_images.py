@@ -101,12 +101,22 @@ class DepthImageRenderer(Releasable):
     cull_back_faces: False draws both sides of every triangle — not a method of
     the thesis (every image of §2.3 culls back faces); it exists only for the
     benchmark's two-sided peeling variant, which measures what the thesis's
-    peeling numbers suggest (bench/peeling_sides.py)."""
+    peeling numbers suggest (bench/peeling_sides.py).
+    footprint: 0 (default) is Alg. 3's test at the fragment's pixel centre; f > 0
+    (at most ½) also requires the points ±f pixel from the centre along both screen
+    axes (the pixel's corners at ½) to land on texels of the same earlier image
+    holding the fragment's triangle — a pixel straddling an earlier image's outline
+    of its surface then keeps that surface, which a reconstruction needs: its quad
+    covers the whole pixel. A diagnostic of the soft-shadow benchmark's gap part,
+    not a method of the thesis."""
 
     def __init__(self, gl: GLContext, vs_project: bool | None = None, tri_from_geom: bool = False,
-                 cull_back_faces: bool = True) -> None:
+                 cull_back_faces: bool = True, footprint: float = 0.0) -> None:
         gl.check_thread()
+        if not 0.0 <= footprint <= 0.5:
+            raise ValueError(f"footprint must be in [0, 0.5] pixels, got {footprint!r}")
         self.gl = gl
+        self.footprint = float(footprint)
         self.cull_back_faces = cull_back_faces
         self.vs_project = vs_project
         self.tri_from_geom = tri_from_geom
@@ -136,6 +146,8 @@ class DepthImageRenderer(Releasable):
         defines = {"NON_REDUNDANT": "1", "N_PREV": str(n_prev)}
         if vs:
             defines["VS_PROJECT"] = "1"
+        if self.footprint:
+            defines["FOOTPRINT"] = repr(float(self.footprint))
         prog = self._program(**defines)
         set_uniform(prog, "u_prev_id", tuple(range(n_prev)) if n_prev > 1 else 0)  # sampler j ↔ unit j
         return prog

@@ -468,3 +468,62 @@ def test_intermediate_views_are_uniform_in_the_simplex():
     t = (seg - eyes[0]) @ (eyes[1] - eyes[0]) / np.sum((eyes[1] - eyes[0]) ** 2)
     np.testing.assert_allclose(eyes[0] + t[:, None] * (eyes[1] - eyes[0]), seg, atol=1e-9)
     assert t.min() >= 0 and t.max() <= 1 and abs(t.mean() - 0.5) < 0.03
+
+
+def pixel_corner_points(image: DepthImage, du: float, dv: float) -> np.ndarray:
+    """(n,3) points where the rays through each sample's pixel centre offset by
+    (du, dv) pixels meet the sample's tangent plane (row 0 = top)."""
+    cam = image.camera
+    rows, cols = np.nonzero(image.mask)
+    r, up, f = cam.basis()
+    t = np.tan(np.radians(cam.fov) / 2)
+    x = (2 * (cols + 0.5 + du) / cam.width - 1) * t * cam.aspect
+    y = (1 - 2 * (rows + 0.5 + dv) / cam.height) * t
+    d = f + x[:, None] * r + y[:, None] * up
+    p, n = image.position[image.mask].astype(np.float64), image.normal[image.mask].astype(np.float64)
+    eye = np.asarray(cam.eye, np.float64)
+    s = np.einsum("ij,ij->i", p - eye, n) / np.einsum("ij,ij->i", d, n)
+    return eye + s[:, None] * d
+
+
+def footprint_held(images: list[DepthImage], target: DepthImage, margin: float = 1e-2) -> tuple[np.ndarray, ...]:
+    """Per sample of `target`: (centre held by some image, centre and 4 pixel corners
+    held by one image, every point ≥ margin px from a texel edge) — held: the image's
+    texel at the point holds the sample's triangle."""
+    offsets = [(0.0, 0.0), (-0.5, -0.5), (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5)]
+    points = [pixel_corner_points(target, du, dv) for du, dv in offsets]
+    tris = target.tri_id[target.mask]
+    centre, whole, sure = np.zeros(len(tris), bool), np.zeros(len(tris), bool), np.ones(len(tris), bool)
+    for prev in images:
+        all_held = np.ones(len(tris), bool)
+        for k, pts in enumerate(points):
+            inside, t = lookup(prev, pts)
+            held = inside & (t == tris)
+            all_held &= held
+            if k == 0:
+                centre |= held
+            sure &= lookup(prev, pts, margin)[0] | ~inside
+        whole |= all_held
+    return centre, whole, sure
+
+
+def test_footprint_redundancy_keeps_pixels_that_straddle_an_earlier_outline(gl, clutter):
+    """With footprint = ½, a fragment is redundant only when its pixel's centre and
+    four corners all land on texels of one earlier image holding its triangle: the
+    nearest surface of a pixel that straddles an earlier image's outline of it stays
+    in the image, where Alg. 3 (centre only) drops it."""
+    sg, cams, ref, conv = clutter["sg"], clutter["cams"], clutter["nr"], clutter["conv"]
+    with di.DepthImageRenderer(gl, footprint=0.5) as r:
+        out = di.non_redundant(gl, sg, cams, renderer=r)
+    assert_images_equal(out[0].depth, ref[0].depth, "depth")
+    straddling = 0
+    for i in range(1, len(out)):
+        centre, whole, sure = footprint_held(out[:i], conv[i])
+        kept = out[i].tri_id[conv[i].mask] == conv[i].tri_id[conv[i].mask]  # the first hit survived
+        assert (kept[sure & whole]).sum() <= 2  # redundant by the footprint rule: dropped
+        assert (~kept[sure & ~whole]).sum() <= max(2, conv[i].n_samples // 1000)  # otherwise kept
+        straddling += int((sure & centre & ~whole).sum())
+        centre_ref, _, sure_ref = footprint_held(ref[:i], conv[i])  # Alg. 3: the centre alone decides
+        kept_ref = ref[i].tri_id[conv[i].mask] == conv[i].tri_id[conv[i].mask]
+        assert kept_ref[sure_ref & centre_ref].sum() <= 2
+    assert straddling > 50  # pixels Alg. 3 drops and the footprint rule keeps

@@ -3,7 +3,7 @@
 // redundancy test (Alg. 1 + Alg. 3), or one depth-peeling layer (§2.3.1).
 // Mode by #define: (none) = conventional; NON_REDUNDANT with N_PREV = i for
 // image i (a constant, so the test loop unrolls and sampler indices are
-// constant); PEEL. The triangle id comes from gl_PrimitiveID (no geometry
+// constant), and FOOTPRINT = f for the footprint diagnostic (DepthImageRenderer); PEEL. The triangle id comes from gl_PrimitiveID (no geometry
 // shader) unless TRI_FROM_GEOM (depth_image.geom). A discarded fragment writes
 // no depth, so the depth test keeps the nearest fragment that passed the test
 // (Alg. 1: "if s is not redundant write s").
@@ -53,21 +53,40 @@ void main() {
     uint tri = TRIANGLE_ID;
 #ifdef NON_REDUNDANT
     // Alg. 3 against every previous image: reproject into I_j, fetch, compare.
+    bool redundant = false;
     for (int j = 0; j < N_PREV; ++j) {
 #ifdef VS_PROJECT
         vec4 c = f.prev[j];
 #else
         vec4 c = u_prev_texel[j] * vec4(f.position, 1.0);
 #endif
+#ifdef FOOTPRINT
+        // Beyond Alg. 3 (FOOTPRINT = f pixels, ½ = the pixel's corners): the points
+        // ±f px from the centre along both screen axes must land on texels of I_j
+        // holding the triangle too (reprojected with the screen-space derivatives,
+        // taken here in uniform control flow).
+        vec2 qxy = c.xy / c.w;
+        vec2 hx = FOOTPRINT * dFdx(qxy), hy = FOOTPRINT * dFdy(qxy);
+#endif
         if (c.w > 0.0) {  // in front of V_j
             vec3 q = c.xyz / c.w;  // (texel x, texel y, NDC z) in I_j
-            if (all(greaterThanEqual(q.xy, vec2(0.0))) && all(lessThanEqual(q.xy, u_prev_size[j]))
+            vec2 size = u_prev_size[j];
+            if (all(greaterThanEqual(q.xy, vec2(0.0))) && all(lessThanEqual(q.xy, size))
                 && abs(q.z) <= 1.0) {  // inside I_j's frustum
-                ivec2 texel = min(ivec2(q.xy), ivec2(u_prev_size[j]) - 1);
-                if (texelFetch(u_prev_id[j], texel, 0).r == tri) discard;  // pixel-redundant
+                ivec2 texel = min(ivec2(q.xy), ivec2(size) - 1);
+                bool held = texelFetch(u_prev_id[j], texel, 0).r == tri;  // pixel-redundant
+#ifdef FOOTPRINT
+                for (int k = 0; k < 4 && held; ++k) {
+                    vec2 p = q.xy + ((k & 1) == 0 ? -hx : hx) + (k < 2 ? -hy : hy);
+                    held = all(greaterThanEqual(p, vec2(0.0))) && all(lessThan(p, size))
+                           && texelFetch(u_prev_id[j], ivec2(p), 0).r == tri;
+                }
+#endif
+                redundant = redundant || held;
             }
         }
     }
+    if (redundant) discard;
 #endif
 #ifdef PEEL
     ivec2 px = ivec2(gl_FragCoord.xy);
