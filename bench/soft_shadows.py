@@ -38,6 +38,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import subprocess
+import sys
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -410,48 +412,57 @@ FIG20_ROUNDS = 3
 
 def part_fig20(gl: GLContext, args: argparse.Namespace) -> dict[str, Any]:
     """Grass at increasing detail: seconds per shadow map of the original geometry
-    and of the NR hybrid / compact reconstructions (reference images at ref_res),
-    the three timed in turn FIG20_ROUNDS times, each kind's fastest round kept."""
+    and of the NR hybrid / compact reconstructions (reference images at ref_res).
+    Each level runs in a process of its own (`fig20_level`): in one process, the
+    levels measured before a large one left llvmpipe slower for every draw of it."""
+    levels = []
+    for detail in progress(args.fig20_details, args.progress, desc="fig20", leave=False):
+        cmd = [sys.executable, "-m", "bench.soft_shadows", "--fig20-level", repr(detail),
+               "--ref-res", str(args.ref_res), "--shadow-res", str(args.shadow_res)]
+        done = subprocess.run(cmd, capture_output=True, text=True, check=True, cwd=Path(__file__).parent.parent)
+        levels.append(json.loads(done.stdout.strip().splitlines()[-1]))
+    return {"levels": levels, "k": FIG20_K, "rounds": FIG20_ROUNDS, "process_per_level": True}
+
+
+def fig20_level(gl: GLContext, detail: float, ref_res: int, shadow_res: int) -> dict[str, Any]:
+    """One Fig. 20 level: the original and the reconstructions (hybrid, compact, and
+    hybrid with its vertices in generation order) timed in turn FIG20_ROUNDS times,
+    each kind's fastest round kept."""
     from scenes.builtin import make_builtin
 
     k = FIG20_K
-    levels = []
-    with SoftShadowPass(gl, ShadowSettings(samples=k, shadow_map_resolution=args.shadow_res)) as sp:
-        for detail in progress(args.fig20_details, args.progress, desc="fig20", leave=False):
-            scene = make_builtin("grass", detail=detail)
-            st = stage_scene(gl, scene)
-            light = default_area_light(scene.bounds, scene.sun_direction)
-            sampled = render_set(gl, st.gpu, "non_redundant",
-                                 reference_cameras(light, scene.bounds, "non_redundant", args.ref_res))
-            occluders: dict[str, list] = {"geometry": [st.gpu]}
-            rec_seconds = {}
-            try:
-                for kind in ("hybrid", "compact"):
-                    t0 = time.perf_counter()
-                    occluders[kind] = reconstruct_set(gl, sampled, ReconstructionSettings(kind=kind))
-                    gl.ctx.finish()
-                    rec_seconds[kind] = time.perf_counter() - t0
-                # the same hybrid meshes with their vertices in the order the compute passes wrote them
-                occluders["hybrid_generation_order"] = reconstruct_set(gl, sampled,
-                                                                       ReconstructionSettings(fetch_order=False))
-                sp.visibility([st.gpu], scene.bounds, st.points, st.normals, st.mask, light)  # warm-up
-                best = dict.fromkeys(occluders, np.inf)
-                for _ in range(FIG20_ROUNDS):
-                    for kind, occ in occluders.items():
-                        best[kind] = min(best[kind], _shadow_seconds(sp, occ, st, light))
-                rec = {kind: {"triangles": sum(m.n_triangles for m in occluders[kind]),
-                              "seconds_per_map": best[kind] / k**2, "reconstruction_seconds": rec_seconds[kind]}
-                       for kind in ("hybrid", "compact")}
-                levels.append({"detail": detail, "triangles": scene.n_triangles,
-                               "geometry_seconds_per_map": best["geometry"] / k**2,
-                               "hybrid_generation_order_seconds_per_map": best["hybrid_generation_order"] / k**2,
-                               **rec})
-            finally:
-                for kind in ("hybrid", "compact", "hybrid_generation_order"):
-                    for m in occluders.get(kind, []):
-                        m.release()
-                st.gpu.release()
-    return {"levels": levels, "k": k, "rounds": FIG20_ROUNDS}
+    scene = make_builtin("grass", detail=detail)
+    st = stage_scene(gl, scene)
+    light = default_area_light(scene.bounds, scene.sun_direction)
+    sampled = render_set(gl, st.gpu, "non_redundant", reference_cameras(light, scene.bounds, "non_redundant", ref_res))
+    occluders: dict[str, list] = {"geometry": [st.gpu]}
+    rec_seconds = {}
+    try:
+        with SoftShadowPass(gl, ShadowSettings(samples=k, shadow_map_resolution=shadow_res)) as sp:
+            for kind in ("hybrid", "compact"):
+                t0 = time.perf_counter()
+                occluders[kind] = reconstruct_set(gl, sampled, ReconstructionSettings(kind=kind))
+                gl.ctx.finish()
+                rec_seconds[kind] = time.perf_counter() - t0
+            # the same hybrid meshes with their vertices in the order the compute passes wrote them
+            occluders["hybrid_generation_order"] = reconstruct_set(gl, sampled,
+                                                                   ReconstructionSettings(fetch_order=False))
+            sp.visibility([st.gpu], scene.bounds, st.points, st.normals, st.mask, light)  # warm-up
+            best = dict.fromkeys(occluders, np.inf)
+            for _ in range(FIG20_ROUNDS):
+                for kind, occ in occluders.items():
+                    best[kind] = min(best[kind], _shadow_seconds(sp, occ, st, light))
+        rec = {kind: {"triangles": sum(m.n_triangles for m in occluders[kind]),
+                      "seconds_per_map": best[kind] / k**2, "reconstruction_seconds": rec_seconds[kind]}
+               for kind in ("hybrid", "compact")}
+        return {"detail": detail, "triangles": scene.n_triangles,
+                "geometry_seconds_per_map": best["geometry"] / k**2,
+                "hybrid_generation_order_seconds_per_map": best["hybrid_generation_order"] / k**2, **rec}
+    finally:
+        for kind in ("hybrid", "compact", "hybrid_generation_order"):
+            for m in occluders.get(kind, []):
+                m.release()
+        st.gpu.release()
 
 
 def _shadow_seconds(sp: SoftShadowPass, occluders: list, st: Stage, light: AreaLight) -> float:
@@ -974,7 +985,11 @@ def write_report(data: dict[str, dict[str, Any]], info: dict[str, Any] | None) -
                             "ms hybrid, generation order", "compact triangles", "ms compact"], rows), "",
                   "Vertices of the reconstructions are put in first-use order (`fetch_order`, meshoptimizer's "
                   "vertex-fetch optimisation, as the models' own vertices already are); \"generation order\" is "
-                  "the same hybrid meshes as the compute passes wrote them.", ""]
+                  "the same hybrid meshes as the compute passes wrote them."
+                  + (" Each level is measured in a process of its own: measured in one process after the "
+                     "smaller levels, detail 60 drew every mesh, original and reconstructions alike, markedly "
+                     "slower than on its own, so the sweep's order rather than the meshes set its times."
+                     if f20["runs"].get("process_per_level") else ""), ""]
         for kind in ("hybrid", "compact"):
             c = crossover(lv, kind)
             lines.append(f"- Crossover, NR {kind}: " + (f"{c:,.0f} original triangles." if c else
@@ -996,9 +1011,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--shadow-res", type=int, default=1024, help="shadow-map resolution (square)")
     ap.add_argument("--fig20-details", type=lambda s: [float(x) for x in s.split(",")],
                     default=[1, 5, 10, 20, 40, 60])
+    ap.add_argument("--fig20-level", type=float, help=argparse.SUPPRESS)  # one Fig. 20 level, JSON on stdout
     ap.add_argument("--report-only", action="store_true")
     ap.add_argument("--no-progress", dest="progress", action="store_false")
     args = ap.parse_args(argv)
+    if args.fig20_level is not None:
+        gl = create_gl_context()
+        try:
+            print(json.dumps(fig20_level(gl, args.fig20_level, args.ref_res, args.shadow_res)))
+        finally:
+            gl.release()
+        return 0
     info = None
     if not args.report_only:
         from scenes.builtin import make_builtin
