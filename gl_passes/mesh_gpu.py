@@ -77,11 +77,16 @@ class MeshGPU(IndexedBuffers):
         if self.n_triangles:
             self.vao(prog).render(moderngl.TRIANGLES, vertices=3 * self.n_triangles, instances=instances)
 
-    def read(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(positions (N,3) float32, colours (N,4) uint8 RGBA, triangles (M,3) uint32)."""
+    def read_records(self) -> tuple[np.ndarray, np.ndarray]:
+        """(vertex records (N,4) float32 as `pack_vertices` makes them, triangles (M,3) uint32)."""
         self.gl.check_thread()
         nv, nt = self.n_vertices, self.n_triangles
         rec = np.frombuffer(self.vbo.read(size=nv * VERTEX_BYTES) if nv else b"", np.float32).reshape(-1, 4)
         tri = np.frombuffer(self.ibo.read(size=nt * 12) if nt else b"", np.uint32).reshape(-1, 3)
+        return rec, tri.copy()
+
+    def read(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(positions (N,3) float32, colours (N,4) uint8 RGBA, triangles (M,3) uint32)."""
+        rec, tri = self.read_records()
         pos, rgba = unpack_vertices(rec)
-        return pos, rgba, tri.copy()
+        return pos, rgba, tri

@@ -75,7 +75,7 @@ import numpy as np
 from gl_passes.bindings import Units
 from gl_passes.context import GLContext
 from gl_passes.depth_images import DepthImageRenderer, prepare_cameras
-from gl_passes.mesh_gpu import VERTEX_BYTES, MeshGPU, pack_colors, pack_vertices
+from gl_passes.mesh_gpu import VERTEX_BYTES, MeshGPU, pack_colors
 from gl_passes.releasable import Releasable
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
@@ -204,8 +204,7 @@ class Reconstructor(Releasable):
             records, indices = fetch_order(records, np.frombuffer(ibo.read(size=ni * 4), np.uint32))
             vbo.release()
             ibo.release()
-            return MeshGPU(self.gl, ctx.buffer(records.tobytes()), ctx.buffer(indices.tobytes()), len(records),
-                           ni // 3)
+            return MeshGPU.from_records(self.gl, records, indices)
         out = []
         for buf, used in ((vbo, nv * VERTEX_BYTES), (ibo, ni * 4)):
             if used == buf.size:
@@ -323,14 +322,13 @@ class Reconstructor(Releasable):
         """`mesh` (a hybrid reconstruction of `image`) simplified with an absolute
         error ≤ compact_error pixel footprints at the image's median sample depth."""
         self.gl.check_thread()
-        pos, rgba, tri = mesh.read()
+        records, tri = mesh.read_records()
         if len(tri) == 0:
-            return MeshGPU.from_arrays(self.gl, pos, tri)
+            return MeshGPU.from_records(self.gl, records, tri)
         cam = image.camera
         depth = float(np.median(image.depth[image.mask]))
         bound = settings.compact_error * depth * 2 * np.tan(np.radians(cam.fov) / 2) / cam.height
-        simplified = simplify(pos, tri, bound)
-        records = pack_vertices(pos, rgba[:, :3].astype(np.float32) / 255)
+        simplified = simplify(records[:, :3], tri, bound)
         if settings.fetch_order:
             records, indices = fetch_order(records, simplified)
         else:

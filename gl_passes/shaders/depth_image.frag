@@ -3,8 +3,9 @@
 // redundancy test (Alg. 1 + Alg. 3), or one depth-peeling layer (§2.3.1).
 // Mode by #define: (none) = conventional; NON_REDUNDANT with N_PREV = i for
 // image i (a constant, so the test loop unrolls and sampler indices are
-// constant), and FOOTPRINT = f for the footprint diagnostic (DepthImageRenderer); PEEL. The triangle id comes from gl_PrimitiveID (no geometry
-// shader) unless TRI_FROM_GEOM (depth_image.geom). A discarded fragment writes
+// constant), optionally FOOTPRINT = f (the footprint diagnostic of
+// DepthImageRenderer); PEEL. The triangle id comes from gl_PrimitiveID (no
+// geometry shader) unless TRI_FROM_GEOM (depth_image.geom). A discarded fragment writes
 // no depth, so the depth test keeps the nearest fragment that passed the test
 // (Alg. 1: "if s is not redundant write s").
 #include "common.glsl"
