@@ -430,8 +430,8 @@ class ClusterReflections(Releasable):
         frames = np.asarray([c.frame() for c in cams], np.float32).reshape(-1, cc.FRAME_FLOATS)
         self.extent.upload_frames(frames if len(frames) else np.zeros((1, cc.FRAME_FLOATS), np.float32))
         samples = self._texture("samples", size)
-        UNITS.bind_image("u_out", samples, read=False, write=True)
         pack, block_min, block_max = self._pack_layers(layers, atlas_size)
+        UNITS.bind_image("u_out", samples, read=False, write=True)  # after the packing passes (shared unit)
         self._bind_gbuffer(bins, tex)
         self._bind_layers(layers)
         for name, blocks in (("u_pack", pack), ("u_block_min", block_min), ("u_block_max", block_max)):
