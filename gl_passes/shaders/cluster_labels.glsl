@@ -7,18 +7,8 @@
 layout(std430, binding = UNIT_Labels) coherent volatile buffer Labels { uint labels[]; };
 #define NONE 0xFFFFFFFFu
 
-// Path halving: every node passed on the way points on to its grandparent (an
-// ancestor, so a smaller index in the same component; unions only atomicMin roots,
-// and one that finds its root moved on retries). Run in parallel, a row's unions
-// link each sample below its left neighbour, a chain as long as the row; without
-// halving every find walks it (seconds a frame on an H200 at 1024², 2 × 2 samples).
 uint find_root(uint x) {
     uint y = labels[x];
-    while (y != x) {
-        uint z = labels[y];
-        if (z != y) labels[x] = z;
-        x = z;
-        y = labels[x];
-    }
+    while (y != x) { x = y; y = labels[x]; }
     return x;
 }
