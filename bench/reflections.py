@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -47,6 +48,7 @@ import numpy as np
 
 from bench.common import (
     RESULTS_DIR,
+    git_revision,
     load_named_scene,
     machine_info,
     machine_markdown,
@@ -426,14 +428,104 @@ def sweeps_markdown(sweeps: list[dict]) -> list[str]:
     return md
 
 
+def _f(x: float, d: int = 1) -> str:
+    return f"{x:.{d}f}"
+
+
+def _pct(x: float | None, d: int = 2) -> str:
+    return "—" if x is None else f"{x:.{d}f} %"
+
+
+def quality_table(quality: list[dict]) -> str:
+    """Markdown table of the quality rows (Table 12 / Fig. 26)."""
+    f, pct = _f, _pct
+    return md_table(["scene", "triangles", "reflective px", "clusters", "ours MAE R,G,B (0–255)", "envmap MAE R,G,B",
+                     "ours MAE on reflective px", "envmap MAE on reflective px", "occlusion error thesis, per ray",
+                     "thesis, per output px", "occlusion-error px strict", "strict: not captured / captured"],
+                    [[q["scene"], q.get("triangles", "—"), f(q["reflective_pct"]) + " %", q["clusters"],
+                      ", ".join(f(x, 2) for x in q["mae_ours_255"]), ", ".join(f(x, 2) for x in q["mae_envmap_255"]),
+                      ", ".join(f(x, 2) for x in q["mae_ours_reflective_255"]),
+                      ", ".join(f(x, 2) for x in q["mae_envmap_reflective_255"]),
+                      pct(q.get("occlusion_thesis_ray_pct")), pct(q.get("occlusion_thesis_pct")),
+                      pct(q["occlusion_pct"]),
+                      f"{pct(q.get('strict_not_captured_pct'))} / {pct(q.get('strict_captured_pct'))}"]
+                     for q in quality])
+
+
+def timing_table(timings: list[dict]) -> str:
+    """Markdown table of the timing rows (Tables 13, 14) with each row's quality."""
+    f = _f
+    return md_table(["scene", "res", "clusters", *STEPS, "total", "Embree BVH", "Embree trace", "fps ours",
+                     "fps Embree", "ours / Embree speed", "ours / Embree trace time", "MAE R,G,B (0–255)",
+                     "occlusion error thesis, per ray"],
+                    [[t["scene"], t["res"], t["clusters"], *(f(t["ours_ms"].get(k, float("nan"))) for k in STEPS),
+                      f(t["ours_ms"]["total"]), f(t["embree_build_ms"]), f(t["embree_trace_ms"]),
+                      f(t["fps_ours"], 2), f(t["fps_embree"], 2), f(t["speedup"], 2) + "×",
+                      f(t.get("trace_ratio", float("nan")), 2),
+                      ", ".join(f"{x:.2f}" for x in t["mae_255"]) if "mae_255" in t else "–",
+                      _pct(t.get("occlusion_thesis_ray_pct"))] for t in timings])
+
+
+def gpu_json(out: Path) -> Path:
+    """Where the same benchmark run on a GPU machine keeps its data (`--out <out>_gpu`)."""
+    return out.with_name(out.name + "_gpu").with_suffix(".json")
+
+
+def _growth(rows: dict[int, dict], key: str) -> str:
+    """'a → b → c ms' of ours_ms[key] over the resolutions of `rows`."""
+    return " → ".join(f"{rows[r]['ours_ms'][key]:.0f}" for r in sorted(rows)) + " ms"
+
+
+def gpu_section(out: Path, cpu_timings: list[dict]) -> list[str]:
+    """Markdown: issue 17 item 4's "same table on a GPU machine", from gpu_json(out)
+    when it exists: machine, provenance, quality and timing tables, issue 17's
+    criteria on those rows, and what sets them apart from this machine's rows."""
+    path = gpu_json(out)
+    if not path.exists():
+        return []
+    data = json.loads(path.read_text())
+    timings, measured = data["timings"], data.get("measured", {})
+    lines = ["## The same tables on a GPU machine (issue 17 item 4)", "", machine_markdown(data["machine"]), "",
+             f"Measured {measured.get('date', '(date not stamped)')} at commit {measured.get('commit', '?')}: "
+             f"`{measured.get('command', 'python -m bench.reflections')}`; data in `{path.name}`. "
+             + measured.get("where", ""), "",
+             quality_table(data["quality"]), "", timing_table(timings), "",
+             *done_when_issue17(data["quality"], timings), ""]
+    reading = []
+    cpu = {(t["scene"], t["res"]): t for t in cpu_timings}
+    for name in sorted({t["scene"] for t in timings}):
+        rows = {t["res"]: t for t in timings if t["scene"] == name}
+        cpu_rows = {r: cpu[name, r] for r in rows if (name, r) in cpu}
+        top = {r: max(STEPS, key=lambda k, t=t: t["ours_ms"].get(k, 0.0)) for r, t in rows.items()}
+        text = (f"{name}: the largest step is " + ", ".join(f"{top[r]} at {r}²" for r in sorted(rows))
+                + f"; clustering {_growth(rows, 'clustering')} on the GPU machine")
+        if cpu_rows:
+            text += f" against {_growth(cpu_rows, 'clustering')} on the CPU machine"
+            hi = max(cpu_rows)
+            text += (f"; Embree's trace at {hi}² takes {rows[hi]['embree_trace_ms']:.0f} ms there with "
+                     f"{data['machine'].get('cpus_usable')} cores against {cpu_rows[hi]['embree_trace_ms']:.0f} ms "
+                     "here (the reference's per-ray shading in numpy, one thread, does not shrink with the cores)")
+        broken = [t for t in rows.values()
+                  if np.mean(t["mae_255"]) > 1.0
+                  or t["occlusion_thesis_ray_pct"] > OCCLUSION_BASELINE_PCT.get(name, np.inf) + 0.3]
+        for t in broken:
+            c = cpu.get((name, t["res"]))
+            text += (f"; at {t['res']}² the frame is wrong there (MAE {np.mean(t['mae_255']):.2f}/255, occlusion "
+                     f"error {t['occlusion_thesis_ray_pct']:.2f} % per ray"
+                     + (f", against {np.mean(c['mae_255']):.2f}/255 and {c['occlusion_thesis_ray_pct']:.2f} % on "
+                        "the CPU machine)" if c else ")"))
+        reading.append(f"- {text}.")
+    lines += ["What the GPU rows say (computed from the rows above and this machine's):", "", *reading, ""]
+    if data.get("notes"):
+        lines += [*(f"- {n}" for n in data["notes"]), ""]
+    return lines
+
+
 def write_report(out: Path, info: dict, quality: list[dict], timings: list[dict], paths: list[dict],
                  res: int, frames: int, path_res: int, sweeps: list[dict] | None = None) -> None:
-    """reflections.md; sweeps: Tables 15–18, 20 from bench/reflection_sweeps.py."""
-    def f(x, d=1):
-        return f"{x:.{d}f}"
-
-    def pct(x, d=2):
-        return "—" if x is None else f"{x:.{d}f} %"
+    """reflections.md; sweeps: Tables 15–18, 20 from bench/reflection_sweeps.py; the
+    GPU machine's tables from gpu_json(out) when present."""
+    f = _f
 
     def mm(p, key):
         return "—" if f"{key}_max" not in p else f"{f(p[key + '_max'], 2)} / {f(p[key + '_mean'], 2)} %"
@@ -447,30 +539,12 @@ def write_report(out: Path, info: dict, quality: list[dict], timings: list[dict]
           "`reflections_<scene>_occlusion.png` (grey: reflective; red: not captured and strict error; yellow: "
           "strict only (captured, our march disagrees); blue: thesis only (not captured, our length agrees)).", "",
           OCCLUSION_METRICS_TEXT, "",
-          md_table(["scene", "triangles", "reflective px", "clusters", "ours MAE R,G,B (0–255)", "envmap MAE R,G,B",
-                    "ours MAE on reflective px", "envmap MAE on reflective px", "occlusion error thesis, per ray",
-                    "thesis, per output px", "occlusion-error px strict", "strict: not captured / captured"],
-                   [[q["scene"], q.get("triangles", "—"), f(q["reflective_pct"]) + " %", q["clusters"],
-                     ", ".join(f(x, 2) for x in q["mae_ours_255"]), ", ".join(f(x, 2) for x in q["mae_envmap_255"]),
-                     ", ".join(f(x, 2) for x in q["mae_ours_reflective_255"]),
-                     ", ".join(f(x, 2) for x in q["mae_envmap_reflective_255"]),
-                     pct(q.get("occlusion_thesis_ray_pct")), pct(q.get("occlusion_thesis_pct")),
-                     pct(q["occlusion_pct"]),
-                     f"{pct(q.get('strict_not_captured_pct'))} / {pct(q.get('strict_captured_pct'))}"]
-                    for q in quality]), "",
+          quality_table(quality), "",
           "## Frame time per step (Tables 13, 14; ms, median; 2048² single run)", "",
           "Shared 2-core machine (other jobs may run at the same time): repeated runs of the same code "
           "differ by up to ±20 % per step, more for the single 2048² runs.", "",
-          md_table(["scene", "res", "clusters", *STEPS, "total", "Embree BVH", "Embree trace", "fps ours",
-                    "fps Embree", "ours / Embree speed", "ours / Embree trace time", "MAE R,G,B (0–255)",
-                    "occlusion error thesis, per ray"],
-                   [[t["scene"], t["res"], t["clusters"], *(f(t["ours_ms"].get(k, float("nan"))) for k in STEPS),
-                     f(t["ours_ms"]["total"]), f(t["embree_build_ms"]), f(t["embree_trace_ms"]),
-                     f(t["fps_ours"], 2), f(t["fps_embree"], 2), f(t["speedup"], 2) + "×",
-                     f(t.get("trace_ratio", float("nan")), 2),
-                     ", ".join(f"{x:.2f}" for x in t["mae_255"]) if "mae_255" in t else "–",
-                     pct(t.get("occlusion_thesis_ray_pct"))] for t in timings]), "",
-          step_breakdown(timings), ""]
+          timing_table(timings), "",
+          step_breakdown(timings), "", *gpu_section(out, timings)]
     if paths:
         md += [f"## Occlusion error and clusters along camera paths ({frames} frames per path at "
                f"{path_res}²; §4.7.1, Table 19)", "",
@@ -538,8 +612,10 @@ def main(argv: list[str] | None = None) -> None:
     info = machine_info(gl)
     old = json.loads(out.with_suffix(".json").read_text()) if out.with_suffix(".json").exists() else {}
     sweeps = old.get("sweeps")  # Tables 15–18, 20 come from bench/reflection_sweeps.py
-    write_json(out.with_suffix(".json"), {"machine": info, "quality": quality, "timings": timings, "paths": paths,
-                                          **({"sweeps": sweeps} if sweeps else {})})
+    measured = {"date": time.strftime("%Y-%m-%d", time.gmtime()), "commit": git_revision(),
+                "command": "python -m bench.reflections " + " ".join(argv if argv is not None else sys.argv[1:])}
+    write_json(out.with_suffix(".json"), {"machine": info, "measured": measured, "quality": quality,
+                                          "timings": timings, "paths": paths, **({"sweeps": sweeps} if sweeps else {})})
     write_report(out, info, quality, timings, paths, args.res, args.frames, args.path_res, sweeps)
     refl.release()
     print(out.with_suffix(".md").read_text())
