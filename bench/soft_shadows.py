@@ -245,6 +245,8 @@ def part_peeling(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str
 GAP_CLAMPS = (8.0, 2.0)
 #: Later-image redundancy rules the gap part tries on top of Alg. 3 (see `drop_redundant`).
 GAP_RULES = ("same_surface", "visible")
+#: Half sizes (pixels) of the offset-sample quads the gap part tries (ReconstructionSettings.offset_quads).
+GAP_OFFSET_QUADS = (0.125, 0.25, 0.5)
 #: The reconstruction's rules beyond Alg. 4, added one at a time (gap part; the last is the default).
 RECONSTRUCTION_STEPS: tuple[tuple[str, dict[str, bool]], ...] = (
     ("Alg. 4 as printed", {"depth_gate": False, "join_corners": False, "evidence": False}),
@@ -309,7 +311,7 @@ def part_gap(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str, An
     light = default_area_light(bounds, st.scene.sun_direction)
     rec = Reconstructor(gl)
     out: dict[str, Any] = {"aim_clamp": {}, "steps": {}, "union": {}, "per_sample": {}, "rules": {},
-                           "full_evidence": {}, "footprint": {}}
+                           "full_evidence": {}, "footprint": {}, "offset_quads": {}}
     try:
         with SoftShadowPass(gl, ShadowSettings(samples=k, shadow_map_resolution=args.shadow_res)) as sp:
             geo, exact, _ = truths(st, sp, light, k)
@@ -352,6 +354,11 @@ def part_gap(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str, An
                         out["steps"][method][name] = {**errors(bits, geo, exact, st.mask), "triangles": tris}
                     out["union"][method] = [errors(occlusion(sampled, settings, n)[0], geo, exact, st.mask)
                                             for n in range(1, len(sampled.images) + 1)]
+                    out["offset_quads"][method] = {}
+                    for half in GAP_OFFSET_QUADS:
+                        bits, tris = occlusion(sampled, ReconstructionSettings(offset_quads=half))
+                        out["offset_quads"][method][str(half)] = {**errors(bits, geo, exact, st.mask),
+                                                                  "triangles": tris}
                     if method == "non_redundant":
                         # the conventional images of its views as evidence
                         conv = render_set(gl, st.gpu, "conventional", cams, offsets=False)
@@ -690,6 +697,7 @@ def gap_report(gap: dict[str, Any]) -> list[str]:
             rules = r["runs"]["rules"][method]
             rows.append([scene, method, _iv(base), *(f"{_iv(rules[rule])} ({rules[rule]['samples']:,})"
                                                        for rule in GAP_RULES)])
+    lines += offset_quads_report(gap)
     lines += ["### Later-image redundancy rules (tried, not kept)", "",
               "`drop_redundant`: samples of image i > 0 dropped before the reconstruction when an earlier image's "
               "texel at their projection holds their surface (same_surface: same triangle or within 1 footprint "
@@ -698,6 +706,42 @@ def gap_report(gap: dict[str, Any]) -> list[str]:
               "geometry truth (samples kept); the first column is the default (no rule beyond Alg. 3).", "",
               md_table(["scene", "images", "Alg. 3 only", *GAP_RULES], rows), ""]
     return lines
+
+
+def offset_quads_report(gap: dict[str, Any]) -> list[str]:
+    """The gap part's offset-sample quads table ([] for runs from before it)."""
+    rows = []
+    for scene, r in gap.items():
+        oq = r["runs"].get("offset_quads", {})
+        for method, runs in oq.items():
+            base = r["runs"]["aim_clamp"]["scene"][method]["runs"][str(GAP_CLAMPS[-1])]
+            rows.append([scene, method, *(f"{_iv(e)} ({e['too_dark_mean']:.3f} / {e['too_bright_mean']:.3f})"
+                                          for e in (base, *(runs[str(h)] for h in GAP_OFFSET_QUADS)))])
+    if not rows:
+        return []
+    return ["### Offset-sample quads (tried, not kept)", "",
+            "`ReconstructionSettings(offset_quads=e)`: an offset-image sample that no sample of I takes as a corner "
+            "(a surface seen at a pixel corner but at none of the four pixel centres around it: a blade thinner "
+            "than a pixel, or the part of one that an earlier NR image's texel left out) becomes a quad of its own "
+            "over the square ± e pixels around the corner, on its tangent plane. Cells: mean intensity · "
+            "visibility error against the geometry truth (too dark / too bright).", "",
+            md_table(["scene", "images", "default (none)", *(f"e = {h:g} px" for h in GAP_OFFSET_QUADS)], rows), ""]
+
+
+def _offset_quads_sentence(gap: dict[str, Any], scenes: list[str]) -> str:
+    """What the offset-sample quads did on `scenes` ('' for runs from before them)."""
+    oq = {s: gap[s]["runs"].get("offset_quads") for s in scenes}
+    if not all(oq.values()):
+        return ""
+    base = {s: gap[s]["runs"]["aim_clamp"]["scene"] for s in scenes}
+
+    def cells(s: str, method: str) -> str:
+        e0 = base[s][method]["runs"][str(GAP_CLAMPS[-1])]
+        return " → ".join([_iv(e0), *(_iv(oq[s][method][str(h)]) for h in GAP_OFFSET_QUADS)])
+    return (" Quads of their own for the offset-image samples no pixel centre takes (gap table, half size "
+            + " / ".join(f"{h:g}" for h in GAP_OFFSET_QUADS) + " px) move " + "; ".join(
+                f"{s}'s NR {cells(s, 'non_redundant')} and conventional {cells(s, 'conventional')}" for s in scenes)
+            + ": small quads help both a little, large ones add too dark; not kept.")
 
 
 def reading(data: dict[str, dict[str, Any]]) -> list[str]:
@@ -798,7 +842,7 @@ def reading(data: dict[str, dict[str, Any]]) -> list[str]:
                     "visibility " + ", ".join(f"{s} {_iv(nr_st[s])} → {_iv(wide[s])}, conventional "
                                               f"{_iv(cv_st[s])}" for s in lost)
                     + "): on blades about a pixel wide, NR and conventional images trade one error for the "
-                    "other; not kept.")
+                    "other; not kept." + _offset_quads_sentence(gap, lost))
         ps = {s: r["runs"]["per_sample"] for s, r in gap.items()}
         one = ", ".join(f"{s} {p['non_redundant']['mean_error']:.2f} vs {p['peeling']['mean_error']:.2f}"
                         for s, p in ps.items())

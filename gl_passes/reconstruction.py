@@ -112,7 +112,9 @@ class ReconstructionSettings:
     evidence_tolerance of that image's pixel footprints (see the module docstring).
     compact_error: the compact mesh's absolute error bound, in pixel footprints at
     the image's median depth. fetch_order: vertices in first-use order (`fetch_order`;
-    the same mesh, drawn faster)."""
+    the same mesh, drawn faster). offset_quads: a diagnostic (tried, not kept; the
+    soft-shadow report's gap tables): > 0, an H sample that no sample of I takes as a
+    corner becomes a quad of its own, ± offset_quads pixels around its pixel corner."""
 
     kind: Reconstruction = "hybrid"
     plane_tolerance: float = 1.0
@@ -123,6 +125,7 @@ class ReconstructionSettings:
     evidence_tolerance: float = 2.0
     compact_error: float = 0.4
     fetch_order: bool = True
+    offset_quads: float = 0.0
 
     def __post_init__(self) -> None:
         if self.kind not in RECONSTRUCTIONS:
@@ -131,6 +134,8 @@ class ReconstructionSettings:
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a positive number, got {v!r}")
+        if not 0.0 <= self.offset_quads <= 0.5:
+            raise ValueError(f"offset_quads must be within [0, 0.5] pixels, got {self.offset_quads!r}")
 
 
 def offset_camera(camera: Camera) -> Camera:
@@ -190,6 +195,7 @@ class Reconstructor(Releasable):
         set_uniform(prog, "u_max_extent", float(settings.max_corner_extent))
         set_uniform(prog, "u_depth_gate", bool(settings.depth_gate))
         set_uniform(prog, "u_join", bool(settings.join_corners))
+        set_uniform(prog, "u_offset_quads", float(settings.offset_quads))
 
     def _mesh(self, vbo: moderngl.Buffer, ibo: moderngl.Buffer, counters: moderngl.Buffer,
               settings: ReconstructionSettings, n_vertices: int | None = None) -> MeshGPU:
@@ -252,8 +258,9 @@ class Reconstructor(Releasable):
             ev = ctx.texture_array((w, h, len(evidence)), 4, words.tobytes(), dtype="u4")
         else:
             ev = ctx.texture_array((1, 1, 1), 4, dtype="u4")
-        vbo = ctx.buffer(reserve=max(4 * n * VERTEX_BYTES, 16))  # ≤ 4 distinct corners per sample
-        ibo = ctx.buffer(reserve=max(6 * n * 4, 16))
+        quads = n + (offset.n_samples if settings.offset_quads else 0)  # samples' quads, H samples' own
+        vbo = ctx.buffer(reserve=max(4 * quads * VERTEX_BYTES, 16))  # ≤ 4 distinct corners per quad
+        ibo = ctx.buffer(reserve=max(6 * quads * 4, 16))
         counters = ctx.buffer(np.zeros(2, np.uint32).tobytes())
         for name, tex in (("u_i_a", ia), ("u_i_b", ib), ("u_h_a", ha), ("u_h_b", hb), ("u_flags", flags),
                           ("u_sample_corner", sample_corner), ("u_evidence", ev)):

@@ -154,6 +154,21 @@ def test_isolated_sample_gives_exactly_one_quad(gl):
     assert len(gtri) == 0  # the grid baseline drops it
 
 
+def test_offset_quads_give_an_untaken_offset_sample_a_quad_of_its_own(gl):
+    # A patch around pixel corner (10, 12): no pixel centre sees it, H's sample there does.
+    patch = screen_rects([(9.8, 10.2, 11.8, 12.2)], 4.0)
+    ss, [(_, tri)] = reconstruct(gl, Scene([patch]), [FRONT])
+    assert ss.images[0].n_samples == 0 and ss.offsets[0].n_samples == 1 and len(tri) == 0
+    _, [(pos, tri)] = reconstruct(gl, Scene([patch]), [FRONT], settings=replace(HYBRID, offset_quads=0.25))
+    assert len(tri) == 2 and len(np.unique(tri)) == 4
+    px, depth = FRONT.project(pos.astype(np.float64))
+    np.testing.assert_allclose(np.sort(px[:, 0]), [9.75, 9.75, 10.25, 10.25], atol=1e-3)
+    np.testing.assert_allclose(np.sort(px[:, 1]), [11.75, 11.75, 12.25, 12.25], atol=1e-3)
+    np.testing.assert_allclose(depth, 4.0 * FRONT.basis()[2] @ [0, 0, -1], rtol=1e-5)
+    with pytest.raises(ValueError, match="offset_quads"):
+        ReconstructionSettings(offset_quads=0.75)
+
+
 def test_fig17_corner_cases(gl):
     """S_0: all four corners from H (shared); S_2: one corner missing (tangent
     plane); S_5: isolated (four tangent-plane corners). An L-shaped patch: pixel

@@ -10,6 +10,10 @@
 // pulled toward its samples where an earlier image of the set saw past it
 // (reconstruct_evidence.glsl). Writes each sample's corner vertex index to
 // u_sample_corner at (2x + cx, 2y + cy) for its corner (x + cx, y + cy).
+// With u_offset_quads = e > 0 (a diagnostic, tried and not kept), an H sample that
+// no sample around c takes (a surface seen at the corner but at none of the four
+// pixel centres) becomes a quad of its own, on its tangent plane over the square
+// c ± e pixels.
 #include "reconstruct_common.glsl"
 #include "reconstruct_evidence.glsl"
 
@@ -20,9 +24,12 @@ layout(r32ui, binding = UNIT_u_sample_corner) uniform writeonly uimage2D u_sampl
 uniform vec3 u_right;   // camera right × tan(fov/2)·aspect
 uniform vec3 u_up;      // camera up × tan(fov/2)
 uniform bool u_join;    // share tangent-plane corners between same-surface neighbours
+uniform float u_offset_quads;  // half size (pixels) of an untaken H sample's own quad; 0: none
 
-vec3 tangent_plane_corner(Sample s, ivec2 c) {
-    vec2 ndc = vec2(2.0 * float(c.x) / float(u_size.x) - 1.0, 1.0 - 2.0 * float(c.y) / float(u_size.y));
+// The point of s's tangent plane on the camera ray through screen point c (pixels
+// of I, corner (0, 0) at the top left), its depth clamped for grazing planes.
+vec3 tangent_plane_corner(Sample s, vec2 c) {
+    vec2 ndc = vec2(2.0 * c.x / float(u_size.x) - 1.0, 1.0 - 2.0 * c.y / float(u_size.y));
     vec3 d = u_forward + ndc.x * u_right + ndc.y * u_up;  // ray direction with dot(d, forward) = 1
     float zs = dot(s.position - u_eye, u_forward);
     float denom = dot(s.normal, d);
@@ -54,10 +61,18 @@ void main() {
         else tangent[k] = true;
     }
     uint h_index = 0u;
+    Sample h = load_sample(imageLoad(u_h_a, c), imageLoad(u_h_b, c));
     if (from_h) {
-        Sample h = load_sample(imageLoad(u_h_a, c), imageLoad(u_h_b, c));
         h_index = atomicAdd(n_vertices, 1u);
         emit_vertex(h_index, h.position, h.rgba);
+    } else if (u_offset_quads > 0.0 && h.valid) {
+        uint base = atomicAdd(n_vertices, 4u);  // corners ordered as CORNER: c0 c3 c2, c2 c1 c0 counter-clockwise
+        for (int k = 0; k < 4; ++k)
+            emit_vertex(base + uint(k), tangent_plane_corner(h, vec2(c) + (2.0 * vec2(CORNER[k]) - 1.0) * u_offset_quads),
+                        h.rgba);
+        uint i = atomicAdd(n_indices, 6u);
+        indices[i] = base; indices[i + 1u] = base + 3u; indices[i + 2u] = base + 2u;
+        indices[i + 3u] = base + 2u; indices[i + 4u] = base + 1u; indices[i + 5u] = base;
     }
     // Groups of tangent-plane slots joined across shared grid edges (labels = least slot).
     int label[4] = int[4](0, 1, 2, 3);
@@ -80,7 +95,7 @@ void main() {
         float n = 0.0;
         for (int k = 0; k < 4; ++k) {
             if (!tangent[k] || label[k] != g) continue;
-            x += tangent_plane_corner(s[k], c);
+            x += tangent_plane_corner(s[k], vec2(c));
             sp += s[k].position;
             rgba += unpackUnorm4x8(s[k].rgba);
             n += 1.0;
