@@ -245,6 +245,8 @@ def part_peeling(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str
 GAP_CLAMPS = (8.0, 2.0)
 #: Later-image redundancy rules the gap part tries on top of Alg. 3 (see `drop_redundant`).
 GAP_RULES = ("same_surface", "visible")
+#: Reaches f (pixels) of footprint redundancy the gap part sweeps for NR (0.5 is its "footprint" row).
+GAP_FOOTPRINTS = (0.15, 0.25, 0.35)
 #: Half sizes (pixels) of the offset-sample quads the gap part tries (ReconstructionSettings.offset_quads).
 GAP_OFFSET_QUADS = (0.125, 0.25, 0.5)
 #: The reconstruction's rules beyond Alg. 4, added one at a time (gap part; the last is the default).
@@ -311,7 +313,7 @@ def part_gap(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str, An
     light = default_area_light(bounds, st.scene.sun_direction)
     rec = Reconstructor(gl)
     out: dict[str, Any] = {"aim_clamp": {}, "steps": {}, "union": {}, "per_sample": {}, "rules": {},
-                           "full_evidence": {}, "footprint": {}, "offset_quads": {}}
+                           "full_evidence": {}, "footprint": {}, "footprint_sweep": {}, "offset_quads": {}}
     try:
         with SoftShadowPass(gl, ShadowSettings(samples=k, shadow_map_resolution=args.shadow_res)) as sp:
             geo, exact, _ = truths(st, sp, light, k)
@@ -365,10 +367,15 @@ def part_gap(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str, An
                         bits, tris = occlusion(sampled, settings, evidence=conv.images)
                         out["full_evidence"] = {**errors(bits, geo, exact, st.mask), "triangles": tris}
                         # footprint redundancy: a pixel straddling an earlier outline keeps its surface
-                        with DepthImageRenderer(gl, footprint=0.5) as fp:
-                            wide = render_set(gl, st.gpu, method, cams, renderer=fp)
-                        bits, tris = occlusion(wide, settings)
-                        out["footprint"] = {**errors(bits, geo, exact, st.mask), "triangles": tris}
+                        for reach in (*GAP_FOOTPRINTS, 0.5):
+                            with DepthImageRenderer(gl, footprint=reach) as fp:
+                                wide = render_set(gl, st.gpu, method, cams, renderer=fp)
+                            bits, tris = occlusion(wide, settings)
+                            e = {**errors(bits, geo, exact, st.mask), "triangles": tris}
+                            if reach == 0.5:
+                                out["footprint"] = e
+                            else:
+                                out["footprint_sweep"][str(reach)] = e
                     first, _ = occlusion(sampled, settings, 1)
                     dist = np.linalg.norm(light.samples(k) - np.asarray(cams[0].eye), axis=1) / light_diagonal(light)
                     err = per_sample_errors(first, geo, st.mask, k) * k * k
@@ -697,6 +704,7 @@ def gap_report(gap: dict[str, Any]) -> list[str]:
             rules = r["runs"]["rules"][method]
             rows.append([scene, method, _iv(base), *(f"{_iv(rules[rule])} ({rules[rule]['samples']:,})"
                                                        for rule in GAP_RULES)])
+    lines += footprint_sweep_report(gap)
     lines += offset_quads_report(gap)
     lines += ["### Later-image redundancy rules (tried, not kept)", "",
               "`drop_redundant`: samples of image i > 0 dropped before the reconstruction when an earlier image's "
@@ -706,6 +714,27 @@ def gap_report(gap: dict[str, Any]) -> list[str]:
               "geometry truth (samples kept); the first column is the default (no rule beyond Alg. 3).", "",
               md_table(["scene", "images", "Alg. 3 only", *GAP_RULES], rows), ""]
     return lines
+
+
+def footprint_sweep_report(gap: dict[str, Any]) -> list[str]:
+    """NR with footprint redundancy of every reach measured ([] for runs from before the sweep)."""
+    last = RECONSTRUCTION_STEPS[-1][0]
+    rows = []
+    for scene, r in gap.items():
+        sweep = r["runs"].get("footprint_sweep")
+        if not sweep:
+            continue
+        runs = (r["runs"]["steps"]["non_redundant"][last], *(sweep[str(f)] for f in GAP_FOOTPRINTS),
+                r["runs"]["footprint"], r["runs"]["steps"]["conventional"][last])
+        rows.append([scene, *(f"{_iv(e)} ({e['triangles'] / 1e6:.2f} M)" for e in runs)])
+    if not rows:
+        return []
+    return ["### NR with footprint redundancy, by its reach", "",
+            "`DepthImageRenderer(footprint=f)`: a fragment is redundant only when its pixel centre and the points "
+            "± f px along both screen axes land on texels of one earlier image holding its triangle (f = 0 is "
+            "Alg. 3). Cells: mean intensity · visibility error against the geometry truth (triangles).", "",
+            md_table(["scene", "f = 0 (Alg. 3)", *(f"f = {f:g}" for f in (*GAP_FOOTPRINTS, 0.5)), "conventional"],
+                     rows), ""]
 
 
 def offset_quads_report(gap: dict[str, Any]) -> list[str]:
@@ -726,6 +755,24 @@ def offset_quads_report(gap: dict[str, Any]) -> list[str]:
             "over the square ± e pixels around the corner, on its tangent plane. Cells: mean intensity · "
             "visibility error against the geometry truth (too dark / too bright).", "",
             md_table(["scene", "images", "default (none)", *(f"e = {h:g} px" for h in GAP_OFFSET_QUADS)], rows), ""]
+
+
+def _footprint_sweep_sentence(gap: dict[str, Any], scenes: list[str], conventional: dict[str, Any]) -> str:
+    """Whether any footprint reach puts NR below conventional on both errors on `scenes`."""
+    parts = []
+    for s in scenes:
+        sweep = gap[s]["runs"].get("footprint_sweep")
+        if not sweep:
+            return ""
+        runs = {**{f: sweep[str(f)] for f in GAP_FOOTPRINTS}, 0.5: gap[s]["runs"]["footprint"]}
+        cv = conventional[s]
+        below = [f for f, e in runs.items() if all(e["vs_geometry"][k] < cv["vs_geometry"][k]
+                                                   for k in ("intensity_mean", "visibility_mean"))]
+        parts.append(f"{s}: " + " → ".join(_iv(e) for e in runs.values()) + ", conventional " + _iv(cv)
+                     + (f"; below it on both at f = {', '.join(f'{f:g}' for f in below)}" if below else
+                        "; below it on both at no reach"))
+    return (" Between the two, footprint reaches f = " + " / ".join(f"{f:g}" for f in (*GAP_FOOTPRINTS, 0.5))
+            + " px move NR along one trade-off (" + "; ".join(parts) + ").")
 
 
 def _offset_quads_sentence(gap: dict[str, Any], scenes: list[str]) -> str:
@@ -842,7 +889,8 @@ def reading(data: dict[str, dict[str, Any]]) -> list[str]:
                     "visibility " + ", ".join(f"{s} {_iv(nr_st[s])} → {_iv(wide[s])}, conventional "
                                               f"{_iv(cv_st[s])}" for s in lost)
                     + "): on blades about a pixel wide, NR and conventional images trade one error for the "
-                    "other; not kept." + _offset_quads_sentence(gap, lost))
+                    "other; not kept." + _footprint_sweep_sentence(gap, lost, cv_st)
+                    + _offset_quads_sentence(gap, lost))
         ps = {s: r["runs"]["per_sample"] for s, r in gap.items()}
         one = ", ".join(f"{s} {p['non_redundant']['mean_error']:.2f} vs {p['peeling']['mean_error']:.2f}"
                         for s, p in ps.items())
