@@ -99,10 +99,12 @@ def machine_info(gl: Any = None) -> dict[str, Any]:
     return info
 
 
-def machine_markdown(info: Mapping[str, Any]) -> str:
-    """A short bullet list describing the machine (from `machine_info`)."""
+def machine_markdown(info: Mapping[str, Any], shared: bool = True) -> str:
+    """A short bullet list describing the machine (from `machine_info`); shared: other
+    jobs may run on it (this development machine; a GPU machine lent for a session is not)."""
     lines = [f"- CPU: {info.get('cpu')} ({info.get('cpus_usable')} usable of {info.get('cpus_total')} logical "
-             f"CPUs, shared with other jobs), {info.get('memory_gib')} GiB RAM, {info.get('system')} "
+             f"CPUs{', shared with other jobs' if shared else ', lent for one session'}), "
+             f"{info.get('memory_gib')} GiB RAM, {info.get('system')} "
              f"{info.get('machine')}"]
     if info.get("gl_renderer"):
         lines.append(f"- GL: {info.get('gl_renderer')} ({info.get('gl_version')}, backend "

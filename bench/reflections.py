@@ -485,7 +485,8 @@ def gpu_section(out: Path, cpu_timings: list[dict]) -> list[str]:
         return []
     data = json.loads(path.read_text())
     timings, measured = data["timings"], data.get("measured", {})
-    lines = ["## The same tables on a GPU machine (issue 17 item 4)", "", machine_markdown(data["machine"]), "",
+    lines = ["## The same tables on a GPU machine (issue 17 item 4)", "",
+             machine_markdown(data["machine"], shared=False), "",
              f"Measured {measured.get('date', '(date not stamped)')} at commit {measured.get('commit', '?')}: "
              f"`{measured.get('command', 'python -m bench.reflections')}`; data in `{path.name}`. "
              + measured.get("where", ""), "",

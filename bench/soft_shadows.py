@@ -991,7 +991,8 @@ def gpu_section(cpu_t8: dict[str, Any]) -> list[str]:
         return []
     t8 = {f.stem.partition("_")[2]: json.loads(f.read_text()) for f in sorted(OUT_GPU.glob("table8_*.json"))}
     measured = json.loads((OUT_GPU / "measured.json").read_text())
-    lines = ["## On a GPU machine", "", machine_markdown(json.loads((OUT_GPU / "machine.json").read_text())), "",
+    machine = json.loads((OUT_GPU / "machine.json").read_text())
+    lines = ["## On a GPU machine", "", machine_markdown(machine, shared=False), "",
              *(f"- {part}: measured {m['date']} at commit {m['commit']}: `{m['command']}`"
                for part, m in measured.items()), ""]
     if t8:
