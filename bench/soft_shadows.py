@@ -424,7 +424,7 @@ FIG20_K = 4
 FIG20_ROUNDS = 3
 
 
-def part_fig20(gl: GLContext, args: argparse.Namespace) -> dict[str, Any]:
+def part_fig20(args: argparse.Namespace) -> dict[str, Any]:
     """Grass at increasing detail: seconds per shadow map of the original geometry
     and of the NR hybrid / compact reconstructions (reference images at ref_res).
     Each level runs in a process of its own (`fig20_level`): in one process, the
@@ -1172,7 +1172,7 @@ def main(argv: list[str] | None = None) -> int:
             for part in args.part or []:
                 if part in ("fig20", "layered"):
                     t0 = time.perf_counter()
-                    runs = (part_fig20 if part == "fig20" else part_layered)(gl, args)
+                    runs = part_fig20(args) if part == "fig20" else part_layered(gl, args)
                     _save(part, "grass", args, info, runs, time.perf_counter() - t0)
                     continue
                 fn = {"table8": part_table8, "table9": part_table9, "table10": part_table10,
