@@ -247,6 +247,9 @@ GAP_CLAMPS = (8.0, 2.0)
 GAP_RULES = ("same_surface", "visible")
 #: Reaches f (pixels) of footprint redundancy the gap part sweeps for NR (0.5 is its "footprint" row).
 GAP_FOOTPRINTS = (0.15, 0.25, 0.35)
+#: Evidence pulls the gap part tries (ReconstructionSettings.evidence_pull; 0 and 1 are its steps table's
+#: "+ joined corners" and default columns).
+GAP_EVIDENCE_PULLS = (0.5, 0.7, 0.85)
 #: Half sizes (pixels) of the offset-sample quads the gap part tries (ReconstructionSettings.offset_quads).
 GAP_OFFSET_QUADS = (0.125, 0.25, 0.5)
 #: The reconstruction's rules beyond Alg. 4, added one at a time (gap part; the last is the default).
@@ -313,7 +316,8 @@ def part_gap(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str, An
     light = default_area_light(bounds, st.scene.sun_direction)
     rec = Reconstructor(gl)
     out: dict[str, Any] = {"aim_clamp": {}, "steps": {}, "union": {}, "per_sample": {}, "rules": {},
-                           "full_evidence": {}, "footprint": {}, "footprint_sweep": {}, "offset_quads": {}}
+                           "full_evidence": {}, "footprint": {}, "footprint_sweep": {}, "offset_quads": {},
+                           "evidence_pull": {}}
     try:
         with SoftShadowPass(gl, ShadowSettings(samples=k, shadow_map_resolution=args.shadow_res)) as sp:
             geo, exact, _ = truths(st, sp, light, k)
@@ -356,6 +360,11 @@ def part_gap(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str, An
                         out["steps"][method][name] = {**errors(bits, geo, exact, st.mask), "triangles": tris}
                     out["union"][method] = [errors(occlusion(sampled, settings, n)[0], geo, exact, st.mask)
                                             for n in range(1, len(sampled.images) + 1)]
+                    out["evidence_pull"][method] = {}
+                    for pull in GAP_EVIDENCE_PULLS:
+                        bits, tris = occlusion(sampled, ReconstructionSettings(evidence_pull=pull))
+                        out["evidence_pull"][method][str(pull)] = {**errors(bits, geo, exact, st.mask),
+                                                                   "triangles": tris}
                     out["offset_quads"][method] = {}
                     for half in GAP_OFFSET_QUADS:
                         bits, tris = occlusion(sampled, ReconstructionSettings(offset_quads=half))
@@ -705,6 +714,7 @@ def gap_report(gap: dict[str, Any]) -> list[str]:
             rows.append([scene, method, _iv(base), *(f"{_iv(rules[rule])} ({rules[rule]['samples']:,})"
                                                        for rule in GAP_RULES)])
     lines += footprint_sweep_report(gap)
+    lines += evidence_pull_report(gap)
     lines += offset_quads_report(gap)
     lines += ["### Later-image redundancy rules (tried, not kept)", "",
               "`drop_redundant`: samples of image i > 0 dropped before the reconstruction when an earlier image's "
@@ -714,6 +724,68 @@ def gap_report(gap: dict[str, Any]) -> list[str]:
               "geometry truth (samples kept); the first column is the default (no rule beyond Alg. 3).", "",
               md_table(["scene", "images", "Alg. 3 only", *GAP_RULES], rows), ""]
     return lines
+
+
+def _pull_runs(r: dict[str, Any]) -> dict[float, dict[str, dict[str, Any]]]:
+    """Per evidence pull (0, GAP_EVIDENCE_PULLS, 1) each method's errors in one gap run ({} before the sweep)."""
+    ep = r["runs"].get("evidence_pull")
+    if not ep:
+        return {}
+    steps = r["runs"]["steps"]
+    off, default = RECONSTRUCTION_STEPS[-2][0], RECONSTRUCTION_STEPS[-1][0]
+    return {0.0: {m: steps[m][off] for m in SAMPLING_METHODS},
+            **{p: {m: ep[m][str(p)] for m in SAMPLING_METHODS} for p in GAP_EVIDENCE_PULLS},
+            1.0: {m: steps[m][default] for m in SAMPLING_METHODS}}
+
+
+def _below(a: dict[str, Any], b: dict[str, Any], strict: bool) -> bool:
+    """Both mean errors of a below (strict) or not above b's, against the geometry truth."""
+    keys = ("intensity_mean", "visibility_mean")
+    return all(a["vs_geometry"][k] < b["vs_geometry"][k] if strict else a["vs_geometry"][k] <= b["vs_geometry"][k]
+               for k in keys)
+
+
+def evidence_pull_report(gap: dict[str, Any]) -> list[str]:
+    """The evidence-pull table: each method's errors and the issue's two comparisons per pull."""
+    rows = []
+    for scene, r in gap.items():
+        for pull, runs in _pull_runs(r).items():
+            nr, cv, pl = (runs[m] for m in SAMPLING_METHODS)
+            rows.append([scene, f"{pull:g}" + (" (default)" if pull == 1.0 else " (evidence off)" if pull == 0 else ""),
+                         _iv(nr), _iv(cv), _iv(pl), "yes" if _below(nr, cv, True) else "no",
+                         "yes" if _below(nr, pl, False) else "no"])
+    if not rows:
+        return []
+    return ["### Evidence pull (tried, not kept)", "",
+            "`ReconstructionSettings(evidence_pull=p)`: a corner makes the share p of the evidence rule's move "
+            "(1: to the expected edge; 0: the rule off). Cells: mean intensity · visibility error against the "
+            "geometry truth, and the issue's two comparisons at this k.", "",
+            md_table(["scene", "pull", "non_redundant", "conventional", "peeling", "NR below conventional (both)",
+                      "NR no higher than peeling (both)"], rows), ""]
+
+
+def _evidence_pull_sentence(gap: dict[str, Any]) -> str:
+    """Which pulls make both of the issue's comparisons hold at the gap part's k, and at what cost."""
+    pulls = {s: _pull_runs(r) for s, r in gap.items()}
+    if not all(pulls.values()):
+        return ""
+    both = []
+    for p in next(iter(pulls.values())):
+        c1 = all(_below(runs[p]["non_redundant"], runs[p]["conventional"], True) for runs in pulls.values())
+        c2 = sum(_below(runs[p]["non_redundant"], runs[p]["peeling"], False) for runs in pulls.values())
+        if c1 and c2 >= 3:
+            both.append(p)
+    if not both:
+        return " No evidence pull makes both of the issue's comparisons hold at this k (evidence-pull table)."
+    p = both[0]
+
+    def nr_vis(runs: dict[float, dict[str, Any]], pull: float) -> float:
+        return runs[pull]["non_redundant"]["vs_geometry"]["visibility_mean"]
+    return (" A weaker evidence pull makes both of the issue's comparisons hold at this k (pull "
+            + ", ".join(f"{x:g}" for x in both) + "; evidence-pull table), by raising conventional images' error "
+            f"more than NR's: at pull {p:g} NR's visibility error is "
+            + ", ".join(f"{s} {nr_vis(runs, p):.3f} (default {nr_vis(runs, 1.0):.3f})" for s, runs in pulls.items())
+            + ": it would buy the criterion with worse shadows from NR and conventional images alike; not kept.")
 
 
 def footprint_sweep_report(gap: dict[str, Any]) -> list[str]:
@@ -890,7 +962,7 @@ def reading(data: dict[str, dict[str, Any]]) -> list[str]:
                                               f"{_iv(cv_st[s])}" for s in lost)
                     + "): on blades about a pixel wide, NR and conventional images trade one error for the "
                     "other; not kept." + _footprint_sweep_sentence(gap, lost, cv_st)
-                    + _offset_quads_sentence(gap, lost))
+                    + _offset_quads_sentence(gap, lost) + _evidence_pull_sentence(gap))
         ps = {s: r["runs"]["per_sample"] for s, r in gap.items()}
         one = ", ".join(f"{s} {p['non_redundant']['mean_error']:.2f} vs {p['peeling']['mean_error']:.2f}"
                         for s, p in ps.items())

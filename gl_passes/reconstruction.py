@@ -112,7 +112,9 @@ class ReconstructionSettings:
     evidence_tolerance of that image's pixel footprints (see the module docstring).
     compact_error: the compact mesh's absolute error bound, in pixel footprints at
     the image's median depth. fetch_order: vertices in first-use order (`fetch_order`;
-    the same mesh, drawn faster). offset_quads: a diagnostic (tried, not kept; the
+    the same mesh, drawn faster). evidence_pull: the share of the evidence rule's
+    move a corner makes (1: to the expected edge, 0: none; a diagnostic, the gap
+    tables). offset_quads: a diagnostic (tried, not kept; the
     soft-shadow report's gap tables): > 0, an H sample that no sample of I takes as a
     corner becomes a quad of its own, ± offset_quads pixels around its pixel corner."""
 
@@ -125,6 +127,7 @@ class ReconstructionSettings:
     evidence_tolerance: float = 2.0
     compact_error: float = 0.4
     fetch_order: bool = True
+    evidence_pull: float = 1.0
     offset_quads: float = 0.0
 
     def __post_init__(self) -> None:
@@ -134,6 +137,8 @@ class ReconstructionSettings:
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a positive number, got {v!r}")
+        if not 0.0 <= self.evidence_pull <= 1.0:
+            raise ValueError(f"evidence_pull must be within [0, 1], got {self.evidence_pull!r}")
         if not 0.0 <= self.offset_quads <= 0.5:
             raise ValueError(f"offset_quads must be within [0, 0.5] pixels, got {self.offset_quads!r}")
 
@@ -284,6 +289,7 @@ class Reconstructor(Releasable):
         if not evidence:
             return
         set_uniform(prog, "u_e_tol", float(settings.evidence_tolerance))
+        set_uniform(prog, "u_e_pull", float(settings.evidence_pull))
         arrays = {name: np.zeros((MAX_EVIDENCE, 3), np.float32) for name in ("u_e_eye", "u_e_forward",
                                                                                 "u_e_right", "u_e_up")}
         footprint = np.zeros(MAX_EVIDENCE, np.float32)

@@ -290,7 +290,8 @@ def test_evidence_pulls_a_later_images_fringe_to_the_expected_edge(gl):
     it the whole pixel, [8.7, 9.7]; with evidence, the outer corners (seen past by
     I_0's centre ray at 9.5) go to the middle of the sample and that ray, (9.2 +
     9.5) / 2 = 9.35, the inner ones (held by I_0) stay at 8.7: the union's edge errs
-    by 0.05 px instead of 0.4. I_0, with no earlier image, is unchanged."""
+    by 0.05 px instead of 0.4 (evidence_pull = 1/2: half the move, 9.525). I_0, with
+    no earlier image, is unchanged."""
     foot = 4.0 * 2 * np.tan(np.radians(FRONT.fov) / 2) / H
     shift = 0.7 * foot * FRONT.basis()[0]
     cam1 = replace(FRONT, eye=tuple(EYE + shift), target=tuple(np.asarray(FRONT.target) + shift))
@@ -298,18 +299,19 @@ def test_evidence_pulls_a_later_images_fringe_to_the_expected_edge(gl):
     verts = np.array([pixel_point(u, v, 4.0) for u, v in ((9.3, 3.0 * H), (9.3, -2.0 * H), (-4.0 * W, 0.5 * H))])
     band = SceneObject("band", verts, np.array([[0, 1, 2]]), material=Material((0.5, 0.6, 0.7)))
     edges = {}
-    for evidence in (True, False):
-        ss, meshes = reconstruct(gl, Scene([band]), [FRONT, cam1], "non_redundant",
-                                 ReconstructionSettings(evidence=evidence))
+    for key, settings in (("evidence", HYBRID), ("off", replace(HYBRID, evidence=False)),
+                          ("half pull", replace(HYBRID, evidence_pull=0.5))):
+        ss, meshes = reconstruct(gl, Scene([band]), [FRONT, cam1], "non_redundant", settings)
         assert ss.images[1].n_samples == H and ss.images[1].mask[:, 8].all()  # one column, u = 9.2 in I_0
         pos, tri = meshes[1]
         uv = FRONT.project(pos[np.unique(tri)].astype(np.float64))[0]
         inner = (uv[:, 1] > 0.5) & (uv[:, 1] < H - 0.5)  # corners on the image's border have half the neighbours
-        edges[evidence] = np.unique(np.round(uv[inner, 0], 3))
+        edges[key] = np.unique(np.round(uv[inner, 0], 3))
         i0_u = FRONT.project(meshes[0][0].astype(np.float64))[0][:, 0]
         assert np.isclose(i0_u.max(), 9.0, atol=1e-3)
-    np.testing.assert_allclose(edges[True], [8.7, 9.35], atol=2e-3)
-    np.testing.assert_allclose(edges[False], [8.7, 9.7], atol=2e-3)
+    np.testing.assert_allclose(edges["evidence"], [8.7, 9.35], atol=2e-3)
+    np.testing.assert_allclose(edges["off"], [8.7, 9.7], atol=2e-3)
+    np.testing.assert_allclose(edges["half pull"], [8.7, 9.525], atol=2e-3)  # half way from 9.7 to 9.35
 
 
 # --- NR: no surface covered twice -------------------------------------------------------

@@ -24,6 +24,7 @@ layout(r32ui, binding = UNIT_u_sample_corner) uniform writeonly uimage2D u_sampl
 uniform vec3 u_right;   // camera right × tan(fov/2)·aspect
 uniform vec3 u_up;      // camera up × tan(fov/2)
 uniform bool u_join;    // share tangent-plane corners between same-surface neighbours
+uniform float u_e_pull; // share of the evidence rule's move applied (1: to the expected edge)
 uniform float u_offset_quads;  // half size (pixels) of an untaken H sample's own quad; 0: none
 
 // The point of s's tangent plane on the camera ray through screen point c (pixels
@@ -102,7 +103,7 @@ void main() {
         }
         x /= n;
         sp /= n;
-        if (u_n_evidence > 0) x = mix(sp, x, evidence_keep(sp, x));
+        if (u_n_evidence > 0) x = mix(sp, x, mix(1.0, evidence_keep(sp, x), u_e_pull));
         index[g] = atomicAdd(n_vertices, 1u);
         emit_vertex(index[g], x, packUnorm4x8(rgba / n));
     }
