@@ -390,9 +390,13 @@ def test_fetch_order_puts_vertices_in_first_use_order_and_drops_unused():
 
 
 def test_fetch_order_leaves_the_mesh_unchanged(gl):
+    """The same triangles in another order. Not for the compact mesh: the simplifier's
+    collapses depend on the order its input comes in, which the compute passes' atomics
+    make vary from run to run with fetch_order or without (its error bound is tested
+    above)."""
     sphere = make_object("sphere", uv_sphere((0, 0, 0), 1.2, 16, 32), Material((0.8, 0.2, 0.2)))
     cam = Camera((0.5, 1.5, 5.0), (0, 0, 0), fov=45.0, width=64, height=64)
-    for kind in ("hybrid", "grid", "compact"):
+    for kind in ("hybrid", "grid"):
         tris = []
         for order in (True, False):
             _, [(pos, tri)] = reconstruct(gl, Scene([sphere]), [cam],
