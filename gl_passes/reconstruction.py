@@ -341,6 +341,7 @@ class Reconstructor(Releasable):
         cam = image.camera
         depth = float(np.median(image.depth[image.mask]))
         bound = settings.compact_error * depth * 2 * np.tan(np.radians(cam.fov) / 2) / cam.height
+        records, tri = canonical_order(records, tri)  # the same mesh gives the same simplification
         simplified = simplify(records[:, :3], tri, bound)
         if settings.fetch_order:
             records, indices = fetch_order(records, simplified)
@@ -377,6 +378,21 @@ def fetch_order(records: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, n
     out = np.empty_like(src)
     n = meshoptimizer.optimize_vertex_fetch(out, idx, src, vertex_count=len(src), vertex_size=VERTEX_BYTES)
     return out[:n], idx
+
+
+def canonical_order(records: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Vertex records (N,4) sorted by position then colour, and triangles (F,3)
+    renumbered, each rotated to start at its least vertex (winding kept) and sorted:
+    an order that depends on the mesh alone, not on the order the compute passes'
+    atomics appended it in (the simplifier's collapses depend on its input's order)."""
+    order = np.lexsort(records.T[::-1])
+    rank = np.empty(len(order), np.int64)
+    rank[order] = np.arange(len(order))
+    t = rank[np.asarray(triangles, np.int64).reshape(-1, 3)]
+    first = np.argmin(t, axis=1)
+    t = np.take_along_axis(t, (first[:, None] + np.arange(3)) % 3, axis=1)
+    t = t[np.lexsort(t.T[::-1])]
+    return records[order], t.astype(np.uint32)
 
 
 def simplify(positions: np.ndarray, triangles: np.ndarray, max_error: float) -> np.ndarray:
