@@ -341,7 +341,7 @@ class Reconstructor(Releasable):
         cam = image.camera
         depth = float(np.median(image.depth[image.mask]))
         bound = settings.compact_error * depth * 2 * np.tan(np.radians(cam.fov) / 2) / cam.height
-        records, tri = canonical_order(records, tri)  # the same mesh gives the same simplification
+        records, tri = canonical_order(records, tri, cam)  # the same mesh gives the same simplification
         simplified = simplify(records[:, :3], tri, bound)
         if settings.fetch_order:
             records, indices = fetch_order(records, simplified)
@@ -380,18 +380,41 @@ def fetch_order(records: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, n
     return out[:n], idx
 
 
-def canonical_order(records: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Vertex records (N,4) sorted by position then colour, and triangles (F,3)
-    renumbered, each rotated to start at its least vertex (winding kept) and sorted:
-    an order that depends on the mesh alone, not on the order the compute passes'
-    atomics appended it in (the simplifier's collapses depend on its input's order)."""
-    order = np.lexsort(records.T[::-1])
-    rank = np.empty(len(order), np.int64)
-    rank[order] = np.arange(len(order))
+def _morton(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Z-order codes (uint64) of non-negative integer coordinates below 2^16."""
+    def spread(v: np.ndarray) -> np.ndarray:
+        v = v.astype(np.uint64) & np.uint64(0xFFFF)
+        for shift, mask in ((8, 0x00FF00FF), (4, 0x0F0F0F0F), (2, 0x33333333), (1, 0x55555555)):
+            v = (v | (v << np.uint64(shift))) & np.uint64(mask)
+        return v
+    return spread(x) | (spread(y) << np.uint64(1))
+
+
+def canonical_order(records: np.ndarray, triangles: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """Vertex records (N,4) sorted along a Z-order curve over `camera`'s image (¼ px
+    cells; within one, by a hash of the record), and triangles (F,3) renumbered, each rotated
+    to start at its least vertex (winding kept) and sorted: an order that depends on
+    the mesh alone, not on the order the compute passes' atomics appended it in (the
+    simplifier's collapses depend on its input's order), and keeps neighbours on the
+    image together as those passes' tiles did (a rasteriser pays for scattered ones)."""
+    px, _ = camera.project(records[:, :3].astype(np.float64))
+    cell = np.clip(np.floor(np.nan_to_num(px) * 4), 0, 0xFFFF)
+    # within a cell (vertices meet at pixel corners) by a hash of the record's bits
+    bits = np.ascontiguousarray(records, np.float32).view(np.uint32).astype(np.uint64)
+    mixed = np.zeros(len(bits), np.uint64)
+    for k, prime in enumerate((0x9E3779B97F4A7C15, 0xC2B2AE3D27D4EB4F, 0x165667B19E3779F9, 0xD6E8FEB86659FD93)):
+        mixed ^= (bits[:, k] + np.uint64(k)) * np.uint64(prime)
+    order = np.argsort((_morton(cell[:, 0], cell[:, 1]) << np.uint64(32)) | (mixed >> np.uint64(32)))
+    n = len(order)
+    rank = np.empty(n, np.int64)
+    rank[order] = np.arange(n)
     t = rank[np.asarray(triangles, np.int64).reshape(-1, 3)]
     first = np.argmin(t, axis=1)
     t = np.take_along_axis(t, (first[:, None] + np.arange(3)) % 3, axis=1)
-    t = t[np.lexsort(t.T[::-1])]
+    if n < 2_000_000:  # (t0·n + t1)·n + t2 fits in int64
+        t = t[np.argsort((t[:, 0] * n + t[:, 1]) * n + t[:, 2])]
+    else:
+        t = t[np.lexsort(t.T[::-1])]
     return records[order], t.astype(np.uint32)
 
 

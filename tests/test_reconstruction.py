@@ -386,21 +386,25 @@ def test_compact_keeps_the_surface_within_its_bound(gl):
 def test_canonical_order_depends_on_the_mesh_alone():
     rng = np.random.default_rng(3)
     records = rng.random((40, 4)).astype(np.float32)
+    records[1, :3] = records[0, :3]  # two vertices at one point (a pixel corner), colours apart
     tri = np.array([rng.choice(40, 3, replace=False) for _ in range(60)], np.uint32)
-    ref_rec, ref_tri = canonical_order(records, tri)
+    ref_rec, ref_tri = canonical_order(records, tri, FRONT)
     perm = rng.permutation(40)  # the same mesh: vertices shuffled, triangles shuffled and rotated
     inv = np.argsort(perm)
     shuffled = inv[tri][rng.permutation(60)]
     shuffled = np.take_along_axis(shuffled, (rng.integers(0, 3, 60)[:, None] + np.arange(3)) % 3, axis=1)
-    rec, t = canonical_order(records[perm], shuffled.astype(np.uint32))
+    rec, t = canonical_order(records[perm], shuffled.astype(np.uint32), FRONT)
     np.testing.assert_array_equal(rec, ref_rec)
     np.testing.assert_array_equal(t, ref_tri)
 
-    def triangles(r: np.ndarray, f: np.ndarray) -> list:  # each triangle's vertex records, rotated to its least
-        return sorted(tuple(map(tuple, np.roll(r[x], -int(np.argmin(x)), axis=0))) for x in f.astype(np.int64))
-    rank = np.argsort(np.lexsort(records.T[::-1]))  # canonical vertex numbers of the original records
-    assert triangles(rec, t) == sorted(tuple(map(tuple, np.roll(records[x], -int(np.argmin(rank[x])), axis=0)))
-                                       for x in tri.astype(np.int64))
+    def triangles(r: np.ndarray, f: np.ndarray) -> list:  # vertex records, rotated to the least (winding kept)
+        out = []
+        for x in f.astype(np.int64):
+            v = [tuple(r[i]) for i in x]
+            k = v.index(min(v))
+            out.append(tuple(v[k:] + v[:k]))
+        return sorted(out)
+    assert triangles(rec, t) == triangles(records, tri)
 
 
 def test_compact_reconstruction_is_the_same_every_run(gl):
