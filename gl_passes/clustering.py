@@ -89,7 +89,6 @@ PLANAR_LENGTH = 1.0 - 1e-6
 PLANAR_SPAN = 1e-5
 FIXED = float(1 << 24)
 GROUP = 16
-MERGE_GROUP = 64  # cluster_merge.comp: one invocation per row or column
 
 
 @dataclass
@@ -293,10 +292,8 @@ class ClusteringPass:
         if components and n_reflective:
             UNITS.bind_texture("u_bins", self.bins_tex)
             set_uniform(self.merge_prog, "u_cos_break", float(np.cos(np.radians(normal_break))))
-            for columns, lines in ((False, size[1]), (True, size[0])):  # rows, then columns
-                set_uniform(self.merge_prog, "u_columns", columns)
-                self.merge_prog.run((lines + MERGE_GROUP - 1) // MERGE_GROUP, 1, 1)
-                ctx.memory_barrier()
+            self.merge_prog.run(*groups)
+            ctx.memory_barrier()
             set_uniform(self.compress_prog, "u_size", tuple(int(x) for x in size))
             self.compress_prog.run(*groups)
             ctx.memory_barrier()
