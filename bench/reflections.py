@@ -160,7 +160,8 @@ def timing(name, scene, sg, refl, res, repeat) -> dict:
             "fps_ours": 1e3 / steps["total"], "fps_embree": 1e3 / (build + trace),
             "speedup": (build + trace) / steps["total"], "trace_ratio": steps["total"] / trace,
             "mae_255": [float(x) * 255 for x in mean_abs_error(ours.color, ref.color, per_channel=True)],
-            "occlusion_thesis_ray_pct": occ["occlusion_thesis_ray_pct"]}
+            "occlusion_thesis_ray_pct": occ["occlusion_thesis_ray_pct"],
+            "clustering_passes_ms": ours.clustering_ms}
 
 
 def path_stats(name, scene, sg, refl, caster, frames, res) -> list[dict]:
@@ -506,6 +507,11 @@ def gpu_section(out: Path, cpu_timings: list[dict]) -> list[str]:
             text += (f"; Embree's trace at {hi}² takes {rows[hi]['embree_trace_ms']:.0f} ms there with "
                      f"{data['machine'].get('cpus_usable')} cores against {cpu_rows[hi]['embree_trace_ms']:.0f} ms "
                      "here (the reference's per-ray shading in numpy, one thread, does not shrink with the cores)")
+        passes = rows[max(rows)].get("clustering_passes_ms")
+        if passes:  # runs from before the per-pass times have none
+            top = max(passes, key=passes.get)
+            text += (f"; its passes at {max(rows)}² (each waited for): " + ", ".join(
+                f"{k} {v:.0f}" for k, v in passes.items()) + f" ms, {top} the largest")
         broken = [t for t in rows.values()
                   if np.mean(t["mae_255"]) > 1.0
                   or t["occlusion_thesis_ray_pct"] > OCCLUSION_BASELINE_PCT.get(name, np.inf) + 0.3]

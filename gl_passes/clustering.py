@@ -69,6 +69,7 @@ SSBO, segment → cluster, used by later passes).
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import moderngl
@@ -200,6 +201,7 @@ class ClusteringPass:
         units = {**UNITS.defines(), "STATS_STRIDE": str(STATS_STRIDE),
                  **({"SHADING_NORMAL_BINS": "1"} if bin_normal == "shading" else {})}
         self.count_prog = compute_program(gl, "cluster_count.comp", units)
+        self.pass_ms: dict[str, float] = {}  # run(timed=True): milliseconds per pass
         self.assign_prog = compute_program(gl, "cluster_assign.comp", units)
         self.merge_prog = compute_program(gl, "cluster_merge.comp", units)
         self.compress_prog = compute_program(gl, "cluster_compress.comp", units)
@@ -237,15 +239,28 @@ class ClusteringPass:
 
     def run(self, textures: dict[str, moderngl.Texture], bounds: tuple[np.ndarray, np.ndarray],
             n_objects: int, eye: np.ndarray, bin_scale: float = 1.0, rule: str = "relative",
-            normal_break: float = 0.0, min_samples: int = 1, curved: bool = False) -> ClusterStats:
+            normal_break: float = 0.0, min_samples: int = 1, curved: bool = False,
+            timed: bool = False) -> ClusterStats:
         """Cluster the reflective samples of a G-buffer (its textures on the GPU) seen
         from `eye`; the scene's mesh storage buffers (MeshVerts, MeshFaces) must be
         bound by the caller. normal_break > 0 (degrees) splits every raw bin into the
         connected components of its samples whose mirror normals differ by at most
         that much between neighbours; components of at least `min_samples` samples
-        become clusters of their own (module docstring)."""
+        become clusters of their own (module docstring). timed: wait for each pass
+        and keep its milliseconds in `pass_ms` (count, assign, merge, compress,
+        split, accumulate; "grouping": the CPU's part after them)."""
         self.gl.check_thread()
         ctx = self.gl.ctx
+        self.pass_ms = {}
+        last = time.perf_counter()
+
+        def mark(name: str) -> None:
+            nonlocal last
+            if timed:
+                ctx.finish()
+                now = time.perf_counter()
+                self.pass_ms[name] = (now - last) * 1e3
+                last = now
         size = textures["obj_id"].size
         n_samples = size[0] * size[1]
         self._images(size)
@@ -260,6 +275,7 @@ class ClusteringPass:
         self.count_prog.run(*groups)
         ctx.memory_barrier()
         obj_samples = np.frombuffer(counts_buf.read(size=4 * (n_objects + 1)), np.uint32).copy()
+        mark("count")
 
         bins = bins_per_reflector(obj_samples, bin_scale, rule)
         per_obj = bins[:, 0] * bins[:, 1]
@@ -280,6 +296,7 @@ class ClusteringPass:
         set_uniform(self.assign_prog, "u_components", components)
         self.assign_prog.run(*groups)
         ctx.memory_barrier()
+        mark("assign")
 
         # Passes 3-5: components of continuous normal field, the large ones split off.
         n_reflective = int(obj_samples[1:].sum())
@@ -294,14 +311,17 @@ class ClusteringPass:
             set_uniform(self.merge_prog, "u_cos_break", float(np.cos(np.radians(normal_break))))
             self.merge_prog.run(*groups)
             ctx.memory_barrier()
+            mark("merge")
             set_uniform(self.compress_prog, "u_size", tuple(int(x) for x in size))
             self.compress_prog.run(*groups)
             ctx.memory_barrier()
+            mark("compress")
             set_uniform(self.split_prog, "u_min_samples", min_samples)
             set_uniform(self.split_prog, "u_capacity", capacity)
             self.split_prog.run(*groups)
             ctx.memory_barrier()
             n_split = min(int(np.frombuffer(split_buf.read(size=4), np.uint32)[0]), capacity)
+            mark("split")
         else:  # every sample stays in its raw bin (cluster_assign.comp marked no component)
             n_split = 0
         split = np.frombuffer(split_buf.read(size=4 * 3 * n_split, offset=4), np.uint32).reshape(n_split, 3) \
@@ -325,6 +345,7 @@ class ClusteringPass:
         prog.run(*groups)
         ctx.memory_barrier()
         raw = np.frombuffer(stats_buf.read(size=4 * max(n_seg, 1) * STATS_STRIDE), np.uint32)
+        mark("accumulate")
         raw = raw[: n_seg * STATS_STRIDE].reshape(n_seg, STATS_STRIDE)
         seg_bin = np.concatenate([np.arange(n_bins), split[:, 1].astype(np.int64)])
         seg_root = np.concatenate([np.full(n_bins, -1), split[:, 0].astype(np.int64)])
@@ -349,6 +370,7 @@ class ClusteringPass:
         remap = cluster.astype(np.int32) if n_seg else np.full(1, -1, np.int32)
         self._remap = remap
         UNITS.bind_storage("Remap", self.buffer("remap", remap.tobytes()))
+        mark("grouping")
         return ClusterStats(object_id=owner, bin=seg_bin[first], component=seg_root[first], count=count_c,
                             mean_position=mean_pos, mean_normal=unit_n, normal_sum_length=length,
                             bins_per_object=bins, object_samples=obj_samples)

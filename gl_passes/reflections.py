@@ -136,7 +136,9 @@ class ClusterReflectionResult(ReflectionBuffers):
     (after culling); diagnostics: ClusterDiagnostics when render(diagnostics=True),
     else None; cache_hits: per cached step whether it hit its cache ("scene_setup":
     the scene's camera-independent records, chunk bounds and normal cones, came
-    from the per-scene cache; callers may add theirs, e.g. the service's "upload")."""
+    from the per-scene cache; callers may add theirs, e.g. the service's "upload");
+    clustering_ms: with diagnostics, the clustering step's passes (each waited for,
+    so their sum exceeds the untimed step)."""
 
     method: str = "clusters"
     supersample: int = 2
@@ -147,6 +149,7 @@ class ClusterReflectionResult(ReflectionBuffers):
     drawn_chunks: int = 0
     diagnostics: ClusterDiagnostics | None = None
     cache_hits: dict[str, bool] = field(default_factory=dict)
+    clustering_ms: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -404,7 +407,7 @@ class ClusterReflections(Releasable):
         UNITS.bind_storage("MeshFaces", scene_gpu.ibo)
         min_samples = max(1, round(st.min_component * ss_cam.width * ss_cam.height))
         stats = self.clustering.run(tex, scene.bounds, len(scene.objects), eye, st.bin_scale, st.bin_rule,
-                                    st.normal_break, min_samples, st.split_curved)
+                                    st.normal_break, min_samples, st.split_curved, timed=diagnostics)
         lap("clustering")
         # 3. cluster cameras
         bins = self.clustering.bins_tex
@@ -472,7 +475,8 @@ class ClusterReflections(Releasable):
             color=col[..., :3].copy(), reflected=ref[..., :3].copy(), diffuse=dif[..., :3].copy(),
             specular=col[..., 3].copy(), reflective=dif[..., 3] > 0, ray_length=ref[..., 3].astype(np.float64),
             method=method, supersample=ss, n_clusters=len(cams), cameras=cams, timings_ms=timings,
-            atlas_size=atlas_size, drawn_chunks=drawn, diagnostics=diag, cache_hits={"scene_setup": cache_hit})
+            atlas_size=atlas_size, drawn_chunks=drawn, diagnostics=diag, cache_hits={"scene_setup": cache_hit},
+            clustering_ms=dict(self.clustering.pass_ms) if diagnostics else {})
 
     def _diagnostics(self, cams: list[ClusterCamera], layers: list,
                      atlas_size: tuple[int, int]) -> ClusterDiagnostics:

@@ -472,3 +472,16 @@ def test_cluster_reflections_release_what_they_create():
     before, after = gl_object_growth(State, lambda s, i: s.frame(i), frames)
     assert max(cached) <= CHUNK_CACHE
     assert after == before
+
+
+def test_clustering_pass_times_come_with_diagnostics_only(gl, refl):
+    """render(diagnostics=True) waits for each clustering pass and reports it
+    (bench.reflections keeps them per resolution); a plain frame does not wait."""
+    scene = planar_mirror_scene()
+    cam = mirror_camera(48).fit_clip(scene.bounds)
+    with SceneGPU(gl, scene) as sg:
+        timed = refl.render(sg, cam, diagnostics=True)
+        plain = refl.render(sg, cam)
+    assert list(timed.clustering_ms) == ["count", "assign", "merge", "compress", "split", "accumulate", "grouping"]
+    assert all(v >= 0 for v in timed.clustering_ms.values())
+    assert plain.clustering_ms == {}
