@@ -357,9 +357,10 @@ class Reconstructor(Releasable):
             return self.grid(image, settings)
         if offset is None:
             raise ValueError(f"the {settings.kind} reconstruction needs the offset image")
-        mesh = self.hybrid(image, offset, settings, evidence, complete)
         if settings.kind == "hybrid":
-            return mesh
+            return self.hybrid(image, offset, settings, evidence, complete)
+        # compact: its input's vertex order is replaced by canonical_order, so none is made here
+        mesh = self.hybrid(image, offset, replace(settings, fetch_order=False), evidence, complete)
         try:
             return self.compact(mesh, image, settings)
         finally:
@@ -392,8 +393,9 @@ def _morton(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 def canonical_order(records: np.ndarray, triangles: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     """Vertex records (N,4) sorted along a Z-order curve over `camera`'s image (¼ px
-    cells; within one, by a hash of the record), and triangles (F,3) renumbered, each rotated
-    to start at its least vertex (winding kept) and sorted: an order that depends on
+    cells; within one, by a hash of the record; identical records welded), and
+    triangles (F,3) renumbered, each rotated to start at its least vertex (winding
+    kept) and sorted: an order that depends on
     the mesh alone, not on the order the compute passes' atomics appended it in (the
     simplifier's collapses depend on its input's order), and keeps neighbours on the
     image together as those passes' tiles did (a rasteriser pays for scattered ones)."""
@@ -406,8 +408,13 @@ def canonical_order(records: np.ndarray, triangles: np.ndarray, camera: Camera) 
         mixed ^= (bits[:, k] + np.uint64(k)) * np.uint64(prime)
     order = np.argsort((_morton(cell[:, 0], cell[:, 1]) << np.uint64(32)) | (mixed >> np.uint64(32)))
     n = len(order)
+    # identical records (the hybrid emits a few) sort side by side in an order the input sets:
+    # every copy takes the first one's number, so the triangles weld them and no order remains
+    ordered = records[order]
+    same = np.concatenate([[False], np.all(ordered[1:] == ordered[:-1], axis=1)])
+    first_of_run = np.maximum.accumulate(np.where(same, 0, np.arange(n)))
     rank = np.empty(n, np.int64)
-    rank[order] = np.arange(n)
+    rank[order] = first_of_run
     t = rank[np.asarray(triangles, np.int64).reshape(-1, 3)]
     first = np.argmin(t, axis=1)
     t = np.take_along_axis(t, (first[:, None] + np.arange(3)) % 3, axis=1)
@@ -415,7 +422,7 @@ def canonical_order(records: np.ndarray, triangles: np.ndarray, camera: Camera) 
         t = t[np.argsort((t[:, 0] * n + t[:, 1]) * n + t[:, 2])]
     else:
         t = t[np.lexsort(t.T[::-1])]
-    return records[order], t.astype(np.uint32)
+    return ordered, t.astype(np.uint32)
 
 
 def simplify(positions: np.ndarray, triangles: np.ndarray, max_error: float) -> np.ndarray:

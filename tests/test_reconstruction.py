@@ -387,15 +387,18 @@ def test_canonical_order_depends_on_the_mesh_alone():
     rng = np.random.default_rng(3)
     records = rng.random((40, 4)).astype(np.float32)
     records[1, :3] = records[0, :3]  # two vertices at one point (a pixel corner), colours apart
+    records[3] = records[2]  # and two identical ones, each in triangles of its own
     tri = np.array([rng.choice(40, 3, replace=False) for _ in range(60)], np.uint32)
+    tri[0], tri[1] = (2, 10, 11), (3, 12, 13)
     ref_rec, ref_tri = canonical_order(records, tri, FRONT)
-    perm = rng.permutation(40)  # the same mesh: vertices shuffled, triangles shuffled and rotated
-    inv = np.argsort(perm)
-    shuffled = inv[tri][rng.permutation(60)]
-    shuffled = np.take_along_axis(shuffled, (rng.integers(0, 3, 60)[:, None] + np.arange(3)) % 3, axis=1)
-    rec, t = canonical_order(records[perm], shuffled.astype(np.uint32), FRONT)
-    np.testing.assert_array_equal(rec, ref_rec)
-    np.testing.assert_array_equal(t, ref_tri)
+    for _ in range(10):  # the same mesh: vertices shuffled, triangles shuffled and rotated
+        perm = rng.permutation(40)
+        inv = np.argsort(perm)
+        shuffled = inv[tri][rng.permutation(60)]
+        shuffled = np.take_along_axis(shuffled, (rng.integers(0, 3, 60)[:, None] + np.arange(3)) % 3, axis=1)
+        rec, t = canonical_order(records[perm], shuffled.astype(np.uint32), FRONT)
+        np.testing.assert_array_equal(rec, ref_rec)
+        np.testing.assert_array_equal(t, ref_tri)
 
     def triangles(r: np.ndarray, f: np.ndarray) -> list:  # vertex records, rotated to the least (winding kept)
         out = []
