@@ -201,12 +201,12 @@ class ClusteringPass:
         units = {**UNITS.defines(), "STATS_STRIDE": str(STATS_STRIDE),
                  **({"SHADING_NORMAL_BINS": "1"} if bin_normal == "shading" else {})}
         self.count_prog = compute_program(gl, "cluster_count.comp", units)
-        self.pass_ms: dict[str, float] = {}  # run(timed=True): milliseconds per pass
         self.assign_prog = compute_program(gl, "cluster_assign.comp", units)
         self.merge_prog = compute_program(gl, "cluster_merge.comp", units)
         self.compress_prog = compute_program(gl, "cluster_compress.comp", units)
         self.split_prog = compute_program(gl, "cluster_split.comp", units)
         self.accumulate_prog = compute_program(gl, "cluster_accumulate.comp", units)
+        self.pass_ms: dict[str, float] = {}  # run(timed=True): milliseconds per pass
         self.bins_tex: moderngl.Texture | None = None
         self.mnormal_tex: moderngl.Texture | None = None
         self._remap = np.full(1, -1, np.int32)  # segment → cluster index of the last run (−1: empty segment)

@@ -52,3 +52,11 @@ bool same_surface(Sample s, Sample q, float reach) {
 void emit_vertex(uint index, vec3 position, uint rgba) {
     vertices[index] = Vertex(position, rgba);
 }
+
+// The two triangles of a quad with vertices v[k] at CORNER[k]: c0 c3 c2 and c2 c1
+// c0, counter-clockwise as seen from I's camera.
+void emit_quad(uint v[4]) {
+    uint i = atomicAdd(n_indices, 6u);
+    indices[i] = v[0]; indices[i + 1u] = v[3]; indices[i + 2u] = v[2];
+    indices[i + 3u] = v[2]; indices[i + 4u] = v[1]; indices[i + 5u] = v[0];
+}

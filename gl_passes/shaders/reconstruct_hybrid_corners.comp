@@ -67,13 +67,14 @@ void main() {
         h_index = atomicAdd(n_vertices, 1u);
         emit_vertex(h_index, h.position, h.rgba);
     } else if (u_offset_quads > 0.0 && h.valid) {
-        uint base = atomicAdd(n_vertices, 4u);  // corners ordered as CORNER: c0 c3 c2, c2 c1 c0 counter-clockwise
-        for (int k = 0; k < 4; ++k)
-            emit_vertex(base + uint(k), tangent_plane_corner(h, vec2(c) + (2.0 * vec2(CORNER[k]) - 1.0) * u_offset_quads),
+        uint base = atomicAdd(n_vertices, 4u);
+        uint v[4];
+        for (int k = 0; k < 4; ++k) {
+            v[k] = base + uint(k);
+            emit_vertex(v[k], tangent_plane_corner(h, vec2(c) + (2.0 * vec2(CORNER[k]) - 1.0) * u_offset_quads),
                         h.rgba);
-        uint i = atomicAdd(n_indices, 6u);
-        indices[i] = base; indices[i + 1u] = base + 3u; indices[i + 2u] = base + 2u;
-        indices[i + 3u] = base + 2u; indices[i + 4u] = base + 1u; indices[i + 5u] = base;
+        }
+        emit_quad(v);
     }
     // Groups of tangent-plane slots joined across shared grid edges (labels = least slot).
     int label[4] = int[4](0, 1, 2, 3);

@@ -13,7 +13,5 @@ void main() {
     if ((imageLoad(u_flags, p).r & 16u) == 0u) return;
     uint v[4];
     for (int k = 0; k < 4; ++k) v[k] = imageLoad(u_sample_corner, 2 * p + CORNER[k]).r;
-    uint i = atomicAdd(n_indices, 6u);
-    indices[i] = v[0]; indices[i + 1u] = v[3]; indices[i + 2u] = v[2];
-    indices[i + 3u] = v[2]; indices[i + 4u] = v[1]; indices[i + 5u] = v[0];
+    emit_quad(v);
 }
