@@ -439,7 +439,7 @@ def _pct(x: float | None, d: int = 2) -> str:
 
 def quality_table(quality: list[dict]) -> str:
     """Markdown table of the quality rows (Table 12 / Fig. 26)."""
-    f, pct = _f, _pct
+    f = _f
     return md_table(["scene", "triangles", "reflective px", "clusters", "ours MAE R,G,B (0–255)", "envmap MAE R,G,B",
                      "ours MAE on reflective px", "envmap MAE on reflective px", "occlusion error thesis, per ray",
                      "thesis, per output px", "occlusion-error px strict", "strict: not captured / captured"],
@@ -447,9 +447,9 @@ def quality_table(quality: list[dict]) -> str:
                       ", ".join(f(x, 2) for x in q["mae_ours_255"]), ", ".join(f(x, 2) for x in q["mae_envmap_255"]),
                       ", ".join(f(x, 2) for x in q["mae_ours_reflective_255"]),
                       ", ".join(f(x, 2) for x in q["mae_envmap_reflective_255"]),
-                      pct(q.get("occlusion_thesis_ray_pct")), pct(q.get("occlusion_thesis_pct")),
-                      pct(q["occlusion_pct"]),
-                      f"{pct(q.get('strict_not_captured_pct'))} / {pct(q.get('strict_captured_pct'))}"]
+                      _pct(q.get("occlusion_thesis_ray_pct")), _pct(q.get("occlusion_thesis_pct")),
+                      _pct(q["occlusion_pct"]),
+                      f"{_pct(q.get('strict_not_captured_pct'))} / {_pct(q.get('strict_captured_pct'))}"]
                      for q in quality])
 
 
@@ -509,9 +509,8 @@ def gpu_section(out: Path, cpu_timings: list[dict]) -> list[str]:
                      "here (the reference's per-ray shading in numpy, one thread, does not shrink with the cores)")
         passes = rows[max(rows)].get("clustering_passes_ms")
         if passes:  # runs from before the per-pass times have none
-            top = max(passes, key=passes.get)
             text += (f"; its passes at {max(rows)}² (each waited for): " + ", ".join(
-                f"{k} {v:.0f}" for k, v in passes.items()) + f" ms, {top} the largest")
+                f"{k} {v:.0f}" for k, v in passes.items()) + f" ms, {max(passes, key=passes.get)} the largest")
         broken = [t for t in rows.values()
                   if np.mean(t["mae_255"]) > 1.0
                   or t["occlusion_thesis_ray_pct"] > OCCLUSION_BASELINE_PCT.get(name, np.inf) + 0.3]

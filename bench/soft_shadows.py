@@ -838,8 +838,7 @@ def _footprint_sweep_sentence(gap: dict[str, Any], scenes: list[str], convention
             return ""
         runs = {**{f: sweep[str(f)] for f in GAP_FOOTPRINTS}, 0.5: gap[s]["runs"]["footprint"]}
         cv = conventional[s]
-        below = [f for f, e in runs.items() if all(e["vs_geometry"][k] < cv["vs_geometry"][k]
-                                                   for k in ("intensity_mean", "visibility_mean"))]
+        below = [f for f, e in runs.items() if _below(e, cv, strict=True)]
         parts.append(f"{s}: " + " → ".join(_iv(e) for e in runs.values()) + ", conventional " + _iv(cv)
                      + (f"; below it on both at f = {', '.join(f'{f:g}' for f in below)}" if below else
                         "; below it on both at no reach"))
