@@ -55,9 +55,12 @@ object keeps the exact e0 camera (cluster_camera.place_centers).
 Passes (cluster_*.comp): `count` counts reflective samples per object (a tiny
 readback gives a_R and n_v); `assign` writes each sample's raw bin (r32ui image)
 and mirror normal (rgba32f image) and, for components, initialises the union-find
-labels; `merge` unites each sample with its left and upper neighbour when
-connected, `compress` points every sample at its component's root (the least
-sample index) and counts the component, `split` lists the components of at least
+labels; then a block union-find (cluster_labels.glsl): `merge` unites each
+sample with its left and upper neighbour when connected inside its 16×16 tile, in
+shared memory, and labels it with its tile-local root; `border` unites the local
+roots' sets across tile borders; `roots` points every local root at its
+component's root (the least sample index); `compress` does the same for every
+sample and counts the component; `split` lists the components of at least
 min_samples samples (a readback of their number, root, bin and count);
 `accumulate` writes each sample's segment (raw bin, or n_bins + its component's
 list index) into the bin image and accumulates the per-segment statistics with
@@ -70,6 +73,7 @@ SSBO, segment → cluster, used by later passes).
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import moderngl
@@ -89,7 +93,7 @@ STATS_STRIDE = 15
 PLANAR_LENGTH = 1.0 - 1e-6
 PLANAR_SPAN = 1e-5
 FIXED = float(1 << 24)
-GROUP = 16
+GROUP = 16  # work-group side of the passes, and the union-find's tile (TILE in the shaders)
 
 
 @dataclass
@@ -199,10 +203,13 @@ class ClusteringPass:
             raise ValueError(f"bin_normal must be 'mirror' or 'shading', got {bin_normal!r}")
         self.gl = gl
         units = {**UNITS.defines(), "STATS_STRIDE": str(STATS_STRIDE),
+                 "TILE": str(GROUP), "TILE_SIDES": str(2 * GROUP),
                  **({"SHADING_NORMAL_BINS": "1"} if bin_normal == "shading" else {})}
         self.count_prog = compute_program(gl, "cluster_count.comp", units)
         self.assign_prog = compute_program(gl, "cluster_assign.comp", units)
         self.merge_prog = compute_program(gl, "cluster_merge.comp", units)
+        self.border_prog = compute_program(gl, "cluster_border.comp", units)
+        self.roots_prog = compute_program(gl, "cluster_roots.comp", units)
         self.compress_prog = compute_program(gl, "cluster_compress.comp", units)
         self.split_prog = compute_program(gl, "cluster_split.comp", units)
         self.accumulate_prog = compute_program(gl, "cluster_accumulate.comp", units)
@@ -247,8 +254,8 @@ class ClusteringPass:
         connected components of its samples whose mirror normals differ by at most
         that much between neighbours; components of at least `min_samples` samples
         become clusters of their own (module docstring). timed: wait for each pass
-        and keep its milliseconds in `pass_ms` (count, assign, merge, compress,
-        split, accumulate; "grouping": the CPU's part after them)."""
+        and keep its milliseconds in `pass_ms` (count, assign, merge, border,
+        roots, compress, split, accumulate; "grouping": the CPU's part after them)."""
         self.gl.check_thread()
         ctx = self.gl.ctx
         self.pass_ms = {}
@@ -307,15 +314,7 @@ class ClusteringPass:
         UNITS.bind_storage("SplitList", split_buf)
         UNITS.bind_texture("u_mnormal", self.mnormal_tex)
         if components and n_reflective:
-            UNITS.bind_texture("u_bins", self.bins_tex)
-            set_uniform(self.merge_prog, "u_cos_break", float(np.cos(np.radians(normal_break))))
-            self.merge_prog.run(*groups)
-            ctx.memory_barrier()
-            mark("merge")
-            set_uniform(self.compress_prog, "u_size", tuple(int(x) for x in size))
-            self.compress_prog.run(*groups)
-            ctx.memory_barrier()
-            mark("compress")
+            self.label_components(self.bins_tex, self.mnormal_tex, normal_break, mark)
             set_uniform(self.split_prog, "u_min_samples", min_samples)
             set_uniform(self.split_prog, "u_capacity", capacity)
             self.split_prog.run(*groups)
@@ -374,6 +373,32 @@ class ClusteringPass:
         return ClusterStats(object_id=owner, bin=seg_bin[first], component=seg_root[first], count=count_c,
                             mean_position=mean_pos, mean_normal=unit_n, normal_sum_length=length,
                             bins_per_object=bins, object_samples=obj_samples)
+
+    def label_components(self, bins: moderngl.Texture, mnormal: moderngl.Texture, normal_break: float,
+                         mark: Callable[[str], None] = lambda name: None) -> None:
+        """The block union-find (module docstring): passes merge, border, roots and
+        compress over a raw-bin image (r32ui, bin + 1, 0 = not reflective) and a
+        mirror-normal image of the same size. On entry the "labels" SSBO holds each
+        sample's own linear index (NONE where not reflective) and "comp_count" zeros
+        (cluster_assign.comp's initialisation); on return every reflective sample's
+        label is its component's root (the least linear index in it) and comp_count
+        at a root the component's size. mark(name) is called after each pass."""
+        ctx = self.gl.ctx
+        size = bins.size
+        groups = ((size[0] + GROUP - 1) // GROUP, (size[1] + GROUP - 1) // GROUP, 1)  # one per tile
+        UNITS.bind_storage("Labels", self.buffer("labels", size=4 * size[0] * size[1]))
+        UNITS.bind_storage("CompCount", self.buffer("comp_count", size=4 * size[0] * size[1]))
+        UNITS.bind_texture("u_bins", bins)
+        UNITS.bind_texture("u_mnormal", mnormal)
+        for prog in (self.merge_prog, self.border_prog):
+            set_uniform(prog, "u_cos_break", float(np.cos(np.radians(normal_break))))
+        for prog in (self.roots_prog, self.compress_prog):
+            set_uniform(prog, "u_size", tuple(int(x) for x in size))
+        for name, prog in (("merge", self.merge_prog), ("border", self.border_prog), ("roots", self.roots_prog),
+                           ("compress", self.compress_prog)):
+            prog.run(*groups)
+            ctx.memory_barrier()
+            mark(name)
 
     def cluster_of_samples(self) -> np.ndarray:
         """(H,W) int32 cluster index (into the last run's ClusterStats) of each

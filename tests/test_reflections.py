@@ -21,7 +21,7 @@ import pytest
 import trimesh
 
 from gl_passes.cluster_camera import mirror_point
-from gl_passes.clustering import MAX_PHI_BINS, MAX_THETA_BINS, bins_per_reflector
+from gl_passes.clustering import MAX_PHI_BINS, MAX_THETA_BINS, ClusteringPass, bins_per_reflector
 from gl_passes.reflections import ClusterReflections, ClusterSettings
 from gl_passes.upload import SceneGPU
 from reference.image_metrics import mean_abs_error, occlusion_error_mask, occlusion_error_percentage
@@ -179,6 +179,54 @@ def test_clusters_are_the_components_of_continuous_normal_field(gl, case):
     if case == "bevel20":  # the face's two triangles are one cluster, no other sample in it
         face = np.isin(g.tri_id, (1, 2))
         assert len(np.unique(ours[face])) == 1 and int((ours == ours[face][0]).sum()) == int(face.sum())
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_block_union_find_labels_the_components_of_a_random_maze(gl, seed):
+    """The block union-find (cluster_merge/border/roots/compress.comp) on a raw-bin
+    image drawn at random above the percolation threshold (70 % reflective, two bins
+    in blocks that do not follow the 16×16 tiles, a mirror normal turned 20° beyond
+    a diagonal; 203 × 141 samples, so the last tiles are cut): components wind
+    across tile borders and back into a tile they left. Every reflective sample's
+    label is its component's least linear index and comp_count there its size, as
+    scipy's connected components (4-neighbours, same bin, normals within 10°)."""
+    from scipy.ndimage import label as nd_label
+
+    h, w = 141, 203
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:h, 0:w]
+    bins = np.where(rng.random((h, w)) < 0.7, 1 + (x // 70 + y // 50) % 2, 0).astype(np.uint32)  # bin + 1
+    turned = x + 2 * y > 250
+    t = np.radians(20.0)
+    normals = np.zeros((h, w, 4), np.float32)
+    normals[..., 2] = 1.0
+    normals[turned, 0], normals[turned, 2] = np.sin(t), np.cos(t)
+    key = np.where(bins > 0, bins.astype(np.int64) * 2 + turned, 0)  # connected: same bin, same side
+    truth = np.zeros((h, w), np.int64)
+    for k in np.unique(key[key > 0]):
+        lab, n = nd_label(key == k)
+        truth[lab > 0] = lab[lab > 0] + truth.max()
+    idx = np.arange(h * w).reshape(h, w)
+    cp = ClusteringPass(gl)
+    bins_tex = gl.ctx.texture((w, h), 1, bins.tobytes(), dtype="u4")  # numpy row = GL row: labels index the same
+    normal_tex = gl.ctx.texture((w, h), 4, normals.tobytes(), dtype="f4")
+    try:
+        cp.buffer("labels", np.where(bins > 0, idx, 0xFFFFFFFF).astype(np.uint32).tobytes())
+        cp.buffer("comp_count", np.zeros(h * w, np.uint32).tobytes())
+        cp.label_components(bins_tex, normal_tex, 10.0)
+        labels = np.frombuffer(cp.buffer("labels").read(size=4 * h * w), np.uint32).reshape(h, w).astype(np.int64)
+        count = np.frombuffer(cp.buffer("comp_count").read(size=4 * h * w), np.uint32)
+    finally:
+        for obj in (bins_tex, normal_tex, cp):
+            obj.release()
+    refl = bins > 0
+    assert np.all(labels[~refl] == 0xFFFFFFFF)
+    least = np.full(truth.max() + 1, h * w)
+    np.minimum.at(least, truth[refl], idx[refl])
+    assert np.array_equal(labels[refl], least[truth[refl]])
+    sizes = np.bincount(truth[refl])
+    assert np.array_equal(count[least[1:]], sizes[1:])
+    assert truth.max() > 100 and sizes.max() > 16 * 16 * 4  # many components, some spanning several tiles
 
 
 # --- planar mirror ----------------------------------------------------------------
@@ -482,6 +530,7 @@ def test_clustering_pass_times_come_with_diagnostics_only(gl, refl):
     with SceneGPU(gl, scene) as sg:
         timed = refl.render(sg, cam, diagnostics=True)
         plain = refl.render(sg, cam)
-    assert list(timed.clustering_ms) == ["count", "assign", "merge", "compress", "split", "accumulate", "grouping"]
+    assert list(timed.clustering_ms) == ["count", "assign", "merge", "border", "roots", "compress", "split",
+                                         "accumulate", "grouping"]
     assert all(v >= 0 for v in timed.clustering_ms.values())
     assert plain.clustering_ms == {}

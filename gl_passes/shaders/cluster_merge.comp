@@ -1,37 +1,45 @@
 #version 430 core
-// Union of every reflective sample with its left and upper neighbour when both
-// lie in the same raw bin and their mirror normals differ by at most the break
-// angle (cos u_cos_break): the normal field is continuous between them. Their
-// components are the clusters' candidates (cluster_split.comp).
-layout(local_size_x = 16, local_size_y = 16) in;
+// Block union-find, step 1 (cluster_labels.glsl): every 16×16 tile unites its
+// connected samples (cluster_edges.glsl) with their left and upper neighbour
+// inside the tile, in shared memory; each reflective sample's label becomes its
+// tile-local root, and the local roots are flagged (comp_count = 1) for
+// cluster_roots.comp.
 #include "cluster_labels.glsl"
-layout(binding = UNIT_u_bins) uniform usampler2D u_bins;      // raw bin + 1 (0 = not reflective)
-layout(binding = UNIT_u_mnormal) uniform sampler2D u_mnormal;  // mirror normal
-uniform float u_cos_break;
+#include "cluster_edges.glsl"
+layout(local_size_x = TILE, local_size_y = TILE) in;
+layout(std430, binding = UNIT_CompCount) buffer CompCount { uint comp_count[]; };
+shared uint s_parent[TILE * TILE];
+shared uint s_bin[TILE * TILE];     // the tile's raw bins + 1 and mirror normals, fetched once
+shared vec3 s_normal[TILE * TILE];
+UNION_FIND(local_find, local_find_halving, local_unite, s_parent)
 
-void unite(uint a, uint b) {
-    for (;;) {
-        a = find_root(a); b = find_root(b);
-        if (a == b) return;
-        uint hi = max(a, b), lo = min(a, b);
-        uint old = atomicMin(labels[hi], lo);
-        if (old == hi) return;  // linked
-        a = old; b = lo;        // hi was linked elsewhere meanwhile: unite its new parent
-    }
+// cluster_edges.glsl's connected() between two samples of the tile (local indices)
+bool local_connected(uint a, uint b) {
+    return s_bin[a] != 0u && s_bin[b] == s_bin[a] && dot(s_normal[a], s_normal[b]) >= u_cos_break;
 }
 
 void main() {
     ivec2 p = ivec2(gl_GlobalInvocationID.xy);
+    ivec2 l = ivec2(gl_LocalInvocationID.xy);
+    uint li = gl_LocalInvocationIndex;
     ivec2 size = textureSize(u_bins, 0);
-    if (any(greaterThanEqual(p, size))) return;
-    uint bin = texelFetch(u_bins, p, 0).r;
-    if (bin == 0u) return;
-    vec3 n = texelFetch(u_mnormal, p, 0).xyz;
-    uint idx = uint(p.y * size.x + p.x);
-    for (int k = 0; k < 2; ++k) {
-        ivec2 q = p - (k == 0 ? ivec2(1, 0) : ivec2(0, 1));
-        if (q.x < 0 || q.y < 0 || texelFetch(u_bins, q, 0).r != bin) continue;
-        if (dot(n, texelFetch(u_mnormal, q, 0).xyz) < u_cos_break) continue;
-        unite(idx, uint(q.y * size.x + q.x));
+    bool inside = all(lessThan(p, size));
+    uint bin = inside ? texelFetch(u_bins, p, 0).r : 0u;
+    s_parent[li] = li;
+    s_bin[li] = bin;
+    s_normal[li] = bin != 0u ? texelFetch(u_mnormal, p, 0).xyz : vec3(0.0);
+    memoryBarrierShared();
+    barrier();
+    if (bin != 0u) {
+        if (l.x > 0 && local_connected(li, li - 1u)) local_unite(li, li - 1u);
+        if (l.y > 0 && local_connected(li, li - uint(TILE))) local_unite(li, li - uint(TILE));
     }
+    memoryBarrierShared();
+    barrier();
+    if (bin == 0u) return;
+    uint r = local_find(li);
+    ivec2 rp = ivec2(gl_WorkGroupID.xy) * TILE + ivec2(r % uint(TILE), r / uint(TILE));
+    uint idx = uint(p.y * size.x + p.x);
+    labels[idx] = uint(rp.y * size.x + rp.x);
+    if (r == li) comp_count[idx] = 1u;
 }
