@@ -522,6 +522,35 @@ def test_cluster_reflections_release_what_they_create():
     assert after == before
 
 
+def test_clustering_refuses_a_frame_that_lost_samples(gl, monkeypatch):
+    """A reflective sample whose segment lies past the statistics (as on the lent GPU's
+    wrong 2048² frame: a bin index past the cluster table; here a label made to point
+    at a sample holding a split-list index past the list) is counted in no segment:
+    the clustering raises, naming the counts, instead of rendering a wrong frame."""
+    scene = planar_mirror_scene()
+    cam = mirror_camera(48).fit_clip(scene.bounds)
+    original = ClusteringPass.label_components
+
+    def corrupt(self, bins, mnormal, normal_break, mark=lambda name: None):
+        original(self, bins, mnormal, normal_break, mark)
+        n = bins.size[0] * bins.size[1]
+        labels = np.frombuffer(self.buffer("labels").read(size=4 * n), np.uint32).copy()
+        count = np.frombuffer(self.buffer("comp_count").read(size=4 * n), np.uint32).copy()
+        x, y = np.nonzero((labels != 0xFFFFFFFF) & (labels != np.arange(n)))[0][:2]  # two non-roots
+        labels[y] = x  # y's "root" x carries a split-list index far past the list
+        count[x] = 0x80000000 | 50000
+        self.buffer("labels", labels.tobytes())
+        self.buffer("comp_count", count.tobytes())
+
+    with ClusterReflections(gl) as r, SceneGPU(gl, scene) as sg:
+        r.render(sg, cam)
+        monkeypatch.setattr(ClusteringPass, "label_components", corrupt)
+        with pytest.raises(RuntimeError, match=r"clustering lost reflective samples: (\d+) of (\d+)"):
+            r.render(sg, cam)
+        monkeypatch.undo()
+        assert r.render(sg, cam).n_clusters == 1  # the pass recovers on the next frame
+
+
 def test_clustering_pass_times_come_with_diagnostics_only(gl, refl):
     """render(diagnostics=True) waits for each clustering pass and reports it
     (bench.reflections keeps them per resolution); a plain frame does not wait."""
