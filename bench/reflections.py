@@ -491,7 +491,7 @@ def gpu_section(out: Path, cpu_timings: list[dict]) -> list[str]:
              f"Measured {measured.get('date', '(date not stamped)')} at commit {measured.get('commit', '?')}: "
              f"`{measured.get('command', 'python -m bench.reflections')}`; data in `{path.name}`. "
              + measured.get("where", ""), "",
-             quality_table(data["quality"]), "", timing_table(timings), "",
+             quality_table(data["quality"]), "", timing_table(timings), "", *failed_lines(data.get("failed")),
              *done_when_issue17(data["quality"], timings), ""]
     reading = []
     cpu = {(t["scene"], t["res"]): t for t in cpu_timings}
@@ -527,10 +527,17 @@ def gpu_section(out: Path, cpu_timings: list[dict]) -> list[str]:
     return lines
 
 
+def failed_lines(failed: list[dict] | None) -> list[str]:
+    """Markdown lines for the timing frames that raised (scene, res, error), if any."""
+    return [*(f"- {t['scene']} {t['res']}²: the frame failed: {t['error']}" for t in failed), ""] if failed else []
+
+
 def write_report(out: Path, info: dict, quality: list[dict], timings: list[dict], paths: list[dict],
-                 res: int, frames: int, path_res: int, sweeps: list[dict] | None = None) -> None:
+                 res: int, frames: int, path_res: int, sweeps: list[dict] | None = None,
+                 failed: list[dict] | None = None) -> None:
     """reflections.md; sweeps: Tables 15–18, 20 from bench/reflection_sweeps.py; the
-    GPU machine's tables from gpu_json(out) when present."""
+    GPU machine's tables from gpu_json(out) when present; failed: timing frames that
+    raised."""
     f = _f
 
     def mm(p, key):
@@ -549,7 +556,7 @@ def write_report(out: Path, info: dict, quality: list[dict], timings: list[dict]
           "## Frame time per step (Tables 13, 14; ms, median; 2048² single run)", "",
           "Shared 2-core machine (other jobs may run at the same time): repeated runs of the same code "
           "differ by up to ±20 % per step, more for the single 2048² runs.", "",
-          timing_table(timings), "",
+          timing_table(timings), "", *failed_lines(failed),
           step_breakdown(timings), "", *gpu_section(out, timings)]
     if paths:
         md += [f"## Occlusion error and clusters along camera paths ({frames} frames per path at "
@@ -577,7 +584,8 @@ def report_from_json(out: Path, data: dict) -> None:
         q.setdefault("triangles", int(len(load_named_scene(q["scene"]).faces)))
     paths = data["paths"]
     write_report(out, data["machine"], data["quality"], data["timings"], paths, data["quality"][0]["res"],
-                 paths[0]["frames"] if paths else 0, paths[0]["res"] if paths else 0, data.get("sweeps"))
+                 paths[0]["frames"] if paths else 0, paths[0]["res"] if paths else 0, data.get("sweeps"),
+                 data.get("failed"))
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -600,7 +608,7 @@ def main(argv: list[str] | None = None) -> None:
 
     gl = create_gl_context()
     refl = ClusterReflections(gl, DEFAULT_SETTINGS)  # what the service renders with
-    quality, timings, paths = [], [], []
+    quality, timings, paths, failed = [], [], [], []
     for name in args.scenes:
         scene = load_named_scene(name)
         sg = SceneGPU(gl, scene)
@@ -609,7 +617,12 @@ def main(argv: list[str] | None = None) -> None:
         quality[-1]["triangles"] = int(len(scene.faces))
         print("quality", quality[-1], flush=True)
         for res in args.timing_res:
-            timings.append(timing(name, scene, sg, refl, res, args.repeat if res <= 1024 else 1))
+            try:
+                timings.append(timing(name, scene, sg, refl, res, args.repeat if res <= 1024 else 1))
+            except RuntimeError as exc:  # a refused frame (e.g. the clustering's sample check): keep the others
+                failed.append({"scene": name, "res": res, "error": str(exc)})
+                print("timing failed", failed[-1], flush=True)
+                continue
             print("timing", timings[-1], flush=True)
         if args.frames > 0:
             paths.extend(path_stats(name, scene, sg, refl, caster, args.frames, args.path_res))
@@ -621,8 +634,9 @@ def main(argv: list[str] | None = None) -> None:
     measured = {"date": time.strftime("%Y-%m-%d", time.gmtime()), "commit": git_revision(),
                 "command": "python -m bench.reflections " + " ".join(argv if argv is not None else sys.argv[1:])}
     write_json(out.with_suffix(".json"), {"machine": info, "measured": measured, "quality": quality,
-                                          "timings": timings, "paths": paths, **({"sweeps": sweeps} if sweeps else {})})
-    write_report(out, info, quality, timings, paths, args.res, args.frames, args.path_res, sweeps)
+                                          "timings": timings, "paths": paths, **({"sweeps": sweeps} if sweeps else {}),
+                                          **({"failed": failed} if failed else {})})
+    write_report(out, info, quality, timings, paths, args.res, args.frames, args.path_res, sweeps, failed)
     refl.release()
     print(out.with_suffix(".md").read_text())
 

@@ -338,3 +338,11 @@ def test_soft_shadow_criteria_against_both_truths():
     assert "| NR + hybrid: lower than conventional (against the exact Embree truth, reported beside) | 2/2 |" in text
     assert "| NR + hybrid: no higher than peeling (against the exact Embree truth, reported beside) | 1/2 | a; " \
            "not b: 1.00 vs 0.50 · 1.00 vs 1.00 |" in text
+
+
+def test_reflection_report_names_failed_frames():
+    from bench.reflections import failed_lines
+
+    assert failed_lines(None) == [] and failed_lines([]) == []
+    assert failed_lines([{"scene": "living_room", "res": 2048, "error": "clustering lost reflective samples"}]) == [
+        "- living_room 2048²: the frame failed: clustering lost reflective samples", ""]
