@@ -25,13 +25,15 @@ components (least linear index) on the same edges.
 
 The model ignores memory latency and atomic contention, so it does not predict
 milliseconds; it shows how the chained accesses grow. Beside each row: the GPU
-clustering time measured with the per-sample union (bench/results/reflections_gpu.json).
+clustering time measured with the per-sample union (bench/results/reflections_gpu.json,
+kept in this script's json when it is computed).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import subprocess
 import sys
 import time
 from collections.abc import Callable
@@ -290,15 +292,26 @@ def model_row(gl, name: str, res: int, model: GPUModel) -> dict:
     return row
 
 
-def gpu_clustering_ms() -> dict[tuple[str, int], float]:
+#: The commit that replaced the per-sample union by the block union-find.
+BLOCK_UNION_COMMIT = "e62a543"
+
+
+def per_sample_gpu_ms() -> dict[tuple[str, int], float]:
+    """The clustering step's GPU times (ms) per (scene, res) from
+    bench/results/reflections_gpu.json when that run predates the block union-find
+    (its stamped commit an ancestor of BLOCK_UNION_COMMIT's parent), else none."""
     path = RESULTS_DIR / "reflections_gpu.json"
     if not path.exists():
         return {}
-    return {(t["scene"], t["res"]): t["ours_ms"]["clustering"] for t in json.loads(path.read_text())["timings"]}
+    data = json.loads(path.read_text())
+    commit = data.get("measured", {}).get("commit", "").rstrip("+")
+    older = subprocess.run(["git", "merge-base", "--is-ancestor", commit, BLOCK_UNION_COMMIT + "^"],
+                           cwd=RESULTS_DIR, capture_output=True).returncode == 0 if commit else False
+    return {(t["scene"], t["res"]): t["ours_ms"]["clustering"] for t in data["timings"]} if older else {}
 
 
 def report(rows: list[dict], model: GPUModel, measured: dict) -> str:
-    gpu = gpu_clustering_ms()
+    gpu = {(r["scene"], r["res"]): r["gpu_per_sample_ms"] for r in rows if r.get("gpu_per_sample_ms") is not None}
 
     def cell(c: dict) -> str:
         return f"{c['accesses'] / 1e6:.2f} M ({c['rounds']})"
@@ -352,10 +365,11 @@ def main(argv: list[str] | None = None) -> None:
     model = GPUModel(args.resident_groups)
     gl = create_gl_context()
     rows = []
+    gpu = per_sample_gpu_ms()
     for name in args.scenes:
         for res in args.res:
             t0 = time.perf_counter()
-            rows.append(model_row(gl, name, res, model))
+            rows.append({**model_row(gl, name, res, model), "gpu_per_sample_ms": gpu.get((name, res))})
             print(rows[-1], f"{time.perf_counter() - t0:.0f} s", flush=True)
     measured = {"date": time.strftime("%Y-%m-%d", time.gmtime()), "commit": git_revision(),
                 "command": "python -m bench.union_find_model " + " ".join(argv if argv is not None else sys.argv[1:])}
