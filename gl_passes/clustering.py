@@ -351,7 +351,7 @@ class ClusteringPass:
         count = raw[:, 0].astype(np.int64)
         if int(count.sum()) != n_reflective:  # a sample went to no segment: every later pass would be wrong
             raise RuntimeError(f"clustering lost reflective samples: {int(count.sum())} of {n_reflective} are in "
-                               f"its {n_seg} segments (GL renderer {self.gl.ctx.info['GL_RENDERER']})")
+                               f"its {n_seg} segments (GL renderer {self.gl.renderer})")
         pos = np.stack([decode64(raw[:, 1 + 2 * k], raw[:, 2 + 2 * k]) for k in range(3)], axis=1)
         nrm = np.stack([decode64(raw[:, 7 + 2 * k], raw[:, 8 + 2 * k]) for k in range(3)], axis=1)
         offsets = decode_ordered(raw[:, 13:15])
