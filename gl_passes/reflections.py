@@ -598,6 +598,7 @@ class ClusterReflections(Releasable):
         used = (0, 0, max(c.atlas[0] + c.atlas[2] for c in cams), max(c.atlas[1] + c.atlas[3] for c in cams))
         for fbo in fbos:  # one clear of the used atlas area (tri id clears to 0)
             fbo.clear(0.0, 0.0, 0.0, BACKGROUND_DEPTH, depth=1.0, viewport=used)
+        visible = []  # per valid cluster: {level: visible chunks}
         for c in cams:
             if not c.valid:
                 continue
@@ -612,17 +613,22 @@ class ClusterReflections(Releasable):
                 if self.settings.backface_chunks:
                     v &= ~cc.backfacing_chunks(c, t.cones)
                 vis[int(lv)] = v
-            for prog in (self.depth_prog, self.peel_prog):
+            visible.append((c, vis))
+        # Layer by layer, so that each layer's framebuffer is bound once (a software
+        # rasteriser flushes its binned triangles at every framebuffer change); the peel
+        # layers read finished layers 0 and 1.
+        for layer, fbo in enumerate(fbos):
+            prog = self.peel_prog if layer >= 2 else self.depth_prog
+            if layer >= 2:
+                UNITS.bind_texture("u_prev", self._atlas[1 if layer == 2 else 0][0])
+            fbo.use()
+            for c, vis in visible:
+                if layer == 3 and (c.planar or not self.settings.others_peel):
+                    continue  # from a planar cluster's e0 nothing on its rays is hidden
+                own = c.object_id - 1
                 for name, value in (("u_view", c.view_matrix()), ("u_view_proj", c.view_projection()),
                                     ("u_clip_plane", np.array([*c.plane_normal, c.clip_offset])), ("u_sun", sun)):
                     set_uniform(prog, name, value)
-            for layer, fbo in enumerate(fbos):
-                if layer == 3 and (c.planar or not self.settings.others_peel):
-                    continue  # from a planar cluster's e0 nothing on its rays is hidden
-                prog = self.peel_prog if layer >= 2 else self.depth_prog
-                if layer >= 2:
-                    UNITS.bind_texture("u_prev", self._atlas[1 if layer == 2 else 0][0])
-                fbo.use()
                 fbo.viewport = c.atlas
                 for lv, v in vis.items():
                     t = tables[lv]
