@@ -13,9 +13,9 @@ shared uint s_bin[TILE * TILE];     // the tile's raw bins + 1 and mirror normal
 shared vec3 s_normal[TILE * TILE];
 UNION_FIND(local_find, local_find_halving, local_unite, s_parent)
 
-// cluster_edges.glsl's connected() between two samples of the tile (local indices)
+// cluster_edges.glsl's rule between two samples of the tile (local indices)
 bool local_connected(uint a, uint b) {
-    return s_bin[a] != 0u && s_bin[b] == s_bin[a] && dot(s_normal[a], s_normal[b]) >= u_cos_break;
+    return joined(s_bin[a], s_normal[a], s_bin[b], s_normal[b]);
 }
 
 void main() {
