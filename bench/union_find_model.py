@@ -189,6 +189,14 @@ def launch(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
     return ((gy * TILE + ly) * w + gx * TILE + lx).reshape(-1), (gy * (w // TILE) + gx).reshape(-1)
 
 
+def in_group_order(p: np.ndarray, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """Samples p (linear indices, GL rows of width w) sorted by work group (stable),
+    and their groups."""
+    g = (p // w // TILE) * (w // TILE) + (p % w) // TILE
+    o = np.argsort(g, kind="stable")
+    return o, g[o]
+
+
 def components(n: int, pairs: np.ndarray) -> np.ndarray:
     """(n,) each node's least node index in its component of the (2, m) edge list."""
     _, lab = connected_components(coo_matrix((np.ones(pairs.shape[1]), (pairs[0], pairs[1])), shape=(n, n)),
@@ -242,13 +250,11 @@ def block_union(refl: np.ndarray, left: np.ndarray, up: np.ndarray, model: GPUMo
         pairs.append(pair[~same])
         where.append(p[~same])
     pair, p = np.concatenate(pairs), np.concatenate(where)
-    g = (p // w // TILE) * (w // TILE) + (p % w) // TILE
-    o = np.argsort(g, kind="stable")
-    cost["border"] = unite_pass(labels, pair[o][:, None, :], np.ones((len(p), 1), bool), g[o], True, model)
+    o, g = in_group_order(p, w)
+    cost["border"] = unite_pass(labels, pair[o][:, None, :], np.ones((len(p), 1), bool), g, True, model)
     roots = np.nonzero(flat & (local == np.arange(h * w)))[0]
-    g = (roots // w // TILE) * (w // TILE) + (roots % w) // TILE
-    o = np.argsort(g, kind="stable")
-    cost["roots"] = find_pass(labels, roots[o], g[o], True, model)
+    o, g = in_group_order(roots, w)
+    cost["roots"] = find_pass(labels, roots[o], g, True, model)
     r = flat[order]
     cost["compress"] = find_pass(labels, order[r], group[r], False, model)
     return cost, labels
