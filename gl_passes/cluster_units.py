@@ -15,10 +15,10 @@ from gl_passes.bindings import Units
 
 UNITS = Units(
     # images (write targets of compute passes), grouped by the shaders that bind them
-    # together (cluster_assign/accumulate, reflect_trace, reflect_resolve, cluster_pack,
-    # cluster_block_depth): nine images in all, more than the 8 units NVIDIA gives
+    # together (cluster_assign/accumulate, reflect_trace, reflect_resolve,
+    # cluster_block_depth)
     images=(("u_bin_image", "u_mnormal_image"), ("u_out",), ("u_out_color", "u_out_reflected", "u_out_diffuse"),
-            ("u_pack_image",), ("u_block_min_image", "u_block_max_image")),
+            ("u_block_min_image", "u_block_max_image")),
     # storage blocks
     storage=("ObjCount", "BinTable", "BinStats", "Remap", "Ext", "Frames", "MeshVerts", "MeshFaces", "Labels",
              "CompCount", "SplitList"),

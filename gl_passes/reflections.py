@@ -37,11 +37,16 @@ shaders comes from gl_passes.cluster_units.UNITS.
    per reflected ray) falls from 2.09 to 1.23 % (living_room) and from 3.23 to
    0.92 % (bathroom), per output pixel from 3.89 to 2.29 % and 5.33 to 1.75 %,
    for +60 % / +50 % depth-image time (planar clusters: e_c = e0 lies on every
-   ray, nothing on a ray is hidden from it, so they skip this layer);
+   ray, nothing on a ray is hidden from it, so they skip this layer). Each
+   layer's fragment shader also writes its depth into that layer's channel of one
+   pack texture (a colour mask per framebuffer); per frame only the pack (to the
+   background) and the depth attachments are cleared: a layer's colour and
+   triangle ids are read only where the pack says this frame drew them;
 5. intersection (Alg. 7, reflect_trace.comp) per sample: the reflected ray's
    projection is marched one texel per step with perspective-correct depth (1/z
    linear in the image) over all layers at once (their depths packed in one
-   texel, cluster_pack.comp); the first surface met along the ray wins. Hit rules:
+   texel, written by the layers' fragment shaders); the first surface met along
+   the ray wins. Hit rules:
    (a) thin surface: the step whose ray-depth span reaches the stored depth,
    unless the surface lies in front of the span by more than `thickness` spans
    (the ray passes behind it) or in front of the ray's entry point, refined inside
@@ -255,7 +260,7 @@ class ClusterReflections(Releasable):
         self.gbuffer = GBufferPass(gl)
         self.clustering = ClusteringPass(gl, settings.bin_normal)
         self.extent = ClusterExtentPass(gl)
-        units = UNITS.defines()
+        units = {**UNITS.defines(), "BACKGROUND_DEPTH": repr(BACKGROUND_DEPTH)}
         defines = {**units, "FADE_FRACTION": repr(float(FADE_FRACTION)), "MAX_RAYS": str(MAX_RAYS),
                    "BLOCK": str(BLOCK), "TRACE_GX": str(TRACE_GROUP[0]), "TRACE_GY": str(TRACE_GROUP[1])}
         if settings.continuity > 0:  # the crossing rule is compiled in only when enabled (it costs every step)
@@ -270,26 +275,31 @@ class ClusterReflections(Releasable):
         self.peel_prog = program(gl, "cluster_depth.vert", "cluster_peel.frag", defines=units)
         self.trace_prog = compute_program(gl, "reflect_trace.comp", defines)
         self.resolve_prog = compute_program(gl, "reflect_resolve.comp", units)
-        self.pack_prog = compute_program(gl, "cluster_pack.comp", units)
-        self.block_prog = compute_program(gl, "cluster_block_depth.comp",
-                                          {**units, "BLOCK": str(BLOCK), "BACKGROUND_DEPTH": repr(BACKGROUND_DEPTH)})
+        self.block_prog = compute_program(gl, "cluster_block_depth.comp", {**units, "BLOCK": str(BLOCK)})
         self._atlas: list = []
+        self._pack: moderngl.Texture | None = None  # the layers' depths, written with them
+        self._pack_fbo: moderngl.Framebuffer | None = None
         self._samples: moderngl.Texture | None = None
         self._outputs: dict[str, moderngl.Texture] = {}
         self._chunk_cache: dict = {}
 
     # --- GPU resources -------------------------------------------------------------
-    def _atlas_target(self, size: tuple[int, int]) -> list[tuple[moderngl.Texture, moderngl.Texture,
+    def _atlas_target(self, size: tuple[int, int]) -> list[tuple[moderngl.Texture, moderngl.Texture | None,
                                                                   moderngl.Framebuffer]]:
-        """Three atlas layers of the same layout, (colour+depth, triangle id or None,
-        framebuffer): the other objects, the cluster's own reflector, and the
-        reflector's second surface (one depth peel)."""
+        """The N_LAYERS atlas layers of the same layout, (colour+depth, triangle id or
+        None, framebuffer): the other objects, the cluster's own reflector, the
+        reflector's second surface and the others' second surface. Every layer's
+        framebuffer also writes its depth into its own channel of one shared pack
+        texture (self._pack: the layers' depths in one texel)."""
         need = (max(256, -(-size[0] // 256) * 256), max(256, -(-size[1] // 256) * 256))
         have = self._atlas[0][0].size if self._atlas else (0, 0)
         if not self._atlas or have[0] < need[0] or have[1] < need[1]:
             self._release_atlas()
             ctx = self.gl.ctx
             need = (max(need[0], have[0]), max(need[1], have[1]))
+            self._pack = ctx.texture(need, 4, dtype="f4")
+            self._pack.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            self._pack_fbo = ctx.framebuffer([self._pack])
             for layer in range(N_LAYERS):  # only the reflector layers need triangle ids
                 color = ctx.texture(need, 4, dtype="f4")
                 color.filter = (moderngl.NEAREST, moderngl.NEAREST)
@@ -297,7 +307,9 @@ class ClusterReflections(Releasable):
                 if tri is not None:
                     tri.filter = (moderngl.NEAREST, moderngl.NEAREST)
                 depth = ctx.depth_texture(need)
-                fbo = ctx.framebuffer([color] if tri is None else [color, tri], depth)
+                # Fragment outputs: 0 colour + depth, 1 the pack (this layer's channel), 2 triangle id.
+                fbo = ctx.framebuffer([color, self._pack] + ([tri] if tri is not None else []), depth)
+                fbo.color_mask = ((True,) * 4, tuple(c == layer for c in range(4)), *([(True,) * 4] if tri else []))
                 self._atlas.append((color, tri, fbo, depth))
         return [a[:3] for a in self._atlas]
 
@@ -308,32 +320,26 @@ class ClusterReflections(Releasable):
             if tri is not None:
                 tri.release()
             color.release()
+        if self._atlas:
+            self._pack_fbo.release()
+            self._pack.release()
         self._atlas = []
 
-    def _pack_layers(self, layers, used: tuple[int, int]) -> tuple[moderngl.Texture, moderngl.Texture,
-                                                                   moderngl.Texture]:
-        """The layers' depths in one texel, and per BLOCK×BLOCK block and layer their
-        minimum and their maximum stored (non-background) depth."""
-        pack = self._texture("pack", layers[0][0].size, components=4)
-        if used[0] > 0 and used[1] > 0:
-            UNITS.bind_image("u_pack_image", pack, read=False, write=True)
-            self._bind_layers(layers)
-            p = self.pack_prog
-            set_uniform(p, "u_size", tuple(int(x) for x in used))
-            p.run((used[0] + 15) // 16, (used[1] + 15) // 16, 1)
-            self.gl.ctx.memory_barrier()
-        csize = (-(-pack.size[0] // BLOCK), -(-pack.size[1] // BLOCK))
+    def _block_bounds(self, used: tuple[int, int]) -> tuple[moderngl.Texture, moderngl.Texture]:
+        """Per BLOCK×BLOCK block of the pack and per layer, the minimum and the
+        maximum stored (non-background) depth."""
+        csize = (-(-self._pack.size[0] // BLOCK), -(-self._pack.size[1] // BLOCK))
         block_min = self._texture("block_min", csize)
         block_max = self._texture("block_max", csize)
         if used[0] > 0 and used[1] > 0:
             UNITS.bind_image("u_block_min_image", block_min, read=False, write=True)
             UNITS.bind_image("u_block_max_image", block_max, read=False, write=True)
-            UNITS.bind_texture("u_pack", pack)
+            UNITS.bind_texture("u_pack", self._pack)
             p = self.block_prog
             set_uniform(p, "u_size", tuple(int(x) for x in used))
             p.run((-(-used[0] // BLOCK) + 7) // 8, (-(-used[1] // BLOCK) + 7) // 8, 1)
             self.gl.ctx.memory_barrier()
-        return pack, block_min, block_max
+        return block_min, block_max
 
     @staticmethod
     def _bind_gbuffer(bins: moderngl.Texture, tex: dict[str, moderngl.Texture]) -> None:
@@ -433,7 +439,8 @@ class ClusterReflections(Releasable):
         frames = np.asarray([c.frame() for c in cams], np.float32).reshape(-1, cc.FRAME_FLOATS)
         self.extent.upload_frames(frames if len(frames) else np.zeros((1, cc.FRAME_FLOATS), np.float32))
         samples = self._texture("samples", size)
-        pack, block_min, block_max = self._pack_layers(layers, atlas_size)
+        pack = self._pack
+        block_min, block_max = self._block_bounds(atlas_size)
         UNITS.bind_image("u_out", samples, read=False, write=True)  # after the packing passes (shared unit)
         self._bind_gbuffer(bins, tex)
         self._bind_layers(layers)
@@ -470,7 +477,7 @@ class ClusterReflections(Releasable):
         dif = read_texture(out["out_diffuse"])
         lap("resolve")
         timings["total"] = (time.perf_counter() - t_start) * 1e3
-        diag = self._diagnostics(cams, layers, atlas_size) if diagnostics else None
+        diag = self._diagnostics(cams, pack, atlas_size) if diagnostics else None
         return ClusterReflectionResult(
             color=col[..., :3].copy(), reflected=ref[..., :3].copy(), diffuse=dif[..., :3].copy(),
             specular=col[..., 3].copy(), reflective=dif[..., 3] > 0, ray_length=ref[..., 3].astype(np.float64),
@@ -478,13 +485,13 @@ class ClusterReflections(Releasable):
             atlas_size=atlas_size, drawn_chunks=drawn, diagnostics=diag, cache_hits={"scene_setup": cache_hit},
             clustering_ms=dict(self.clustering.pass_ms) if diagnostics else {})
 
-    def _diagnostics(self, cams: list[ClusterCamera], layers: list,
+    def _diagnostics(self, cams: list[ClusterCamera], pack: moderngl.Texture,
                      atlas_size: tuple[int, int]) -> ClusterDiagnostics:
         """Read back the sample → cluster map and the cluster images' stored depths
-        (ClusterDiagnostics) of the frame just rendered."""
+        (ClusterDiagnostics; from the packed layers) of the frame just rendered."""
         aw, ah = (int(atlas_size[0]), int(atlas_size[1])) if atlas_size[0] > 0 else (0, 0)
         if aw > 0 and ah > 0:
-            depths = np.stack([read_texture(layer[0], (0, 0, aw, ah))[..., 3] for layer in layers])
+            depths = np.moveaxis(read_texture(pack, (0, 0, aw, ah)), -1, 0)
         else:
             depths = np.full((N_LAYERS, 1, 1), BACKGROUND_DEPTH, np.float32)
         k = len(cams)
@@ -596,8 +603,15 @@ class ClusterReflections(Releasable):
         ctx.enable_direct(GL_CLIP_DISTANCE0)
         drawn = 0
         used = (0, 0, max(c.atlas[0] + c.atlas[2] for c in cams), max(c.atlas[1] + c.atlas[3] for c in cams))
-        for fbo in fbos:  # one clear of the used atlas area (tri id clears to 0)
-            fbo.clear(0.0, 0.0, 0.0, BACKGROUND_DEPTH, depth=1.0, viewport=used)
+        # One clear of the used atlas area: the pack to the background, the layers' depth
+        # attachments only (their colour and triangle ids are read only where the
+        # pack says this frame drew them).
+        self._pack_fbo.clear(BACKGROUND_DEPTH, BACKGROUND_DEPTH, BACKGROUND_DEPTH, BACKGROUND_DEPTH, viewport=used)
+        for fbo in fbos:
+            mask = fbo.color_mask
+            fbo.color_mask = tuple((False,) * 4 for _ in mask)
+            fbo.clear(depth=1.0, viewport=used)
+            fbo.color_mask = mask
         visible = []  # per valid cluster: {level: visible chunks}
         for c in cams:
             if not c.valid:

@@ -446,6 +446,24 @@ def test_block_skip_changes_no_hit(gl, refl):
             assert_images_equal(fast.ray_length, slow.ray_length, f"{name}_ray_length")  # NaN = NaN, inf = inf
 
 
+def test_frame_does_not_depend_on_the_frames_before(gl):
+    """The cluster layers' colour and triangle ids are not cleared between frames
+    (only the pack and the depth attachments are): a frame rendered after others of
+    other views and scenes, whose atlas layouts differ, is bit-identical to the same
+    frame from a fresh renderer, diagnostics (the stored depths) included."""
+    room, bath = make_builtin("living_room"), make_builtin("bathroom")
+    views = [flythrough_path(s.bounds, 8, width=48, height=48)[k] for s, k in ((room, 1), (bath, 3), (room, 5))]
+    with ClusterReflections(gl) as fresh, ClusterReflections(gl) as used:
+        _render(gl, used, room, views[0])
+        _render(gl, used, bath, views[1])
+        after = _render(gl, used, room, views[2], diagnostics=True)
+        alone = _render(gl, fresh, room, views[2], diagnostics=True)
+    assert after.reflective.mean() > 0.05
+    assert_images_equal(after.color, alone.color, "after_color")
+    assert_images_equal(after.ray_length, alone.ray_length, "after_ray_length")
+    assert_images_equal(after.diagnostics.layer_depths, alone.diagnostics.layer_depths, "after_layer_depths")
+
+
 def test_backfacing_chunks_are_all_back_faces_and_change_no_pixel(gl, refl):
     """Chunk back-face culling (cluster_camera.backfacing_chunks) is conservative:
     every triangle of a skipped chunk faces away from the cluster camera's e_c

@@ -6,9 +6,11 @@ uniform uint u_base;  // first global face of the drawn object
 in vec3 vs_normal;
 in float vs_depth;
 layout(location = 0) out vec4 out_color;
-layout(location = 1) out uint out_tri;  // triangle id (1-based)
+layout(location = 1) out vec4 out_pack;  // the layers' depths: the framebuffer keeps this layer's channel
+layout(location = 2) out uint out_tri;  // triangle id (1-based)
 
 void main() {
     out_color = vec4(local_shade(u_albedo, normalize(vs_normal)), vs_depth);
+    out_pack = vec4(vs_depth);
     out_tri = u_base + uint(gl_PrimitiveID) + 1u;
 }

@@ -9,11 +9,13 @@ layout(binding = UNIT_u_prev) uniform sampler2D u_prev;  // first reflector laye
 in vec3 vs_normal;
 in float vs_depth;
 layout(location = 0) out vec4 out_color;
-layout(location = 1) out uint out_tri;
+layout(location = 1) out vec4 out_pack;  // the layers' depths: the framebuffer keeps this layer's channel
+layout(location = 2) out uint out_tri;
 
 void main() {
     float first = texelFetch(u_prev, ivec2(gl_FragCoord.xy), 0).a;
     if (vs_depth <= first * (1.0 + 1e-5)) discard;
     out_color = vec4(local_shade(u_albedo, normalize(vs_normal)), vs_depth);
+    out_pack = vec4(vs_depth);
     out_tri = u_base + uint(gl_PrimitiveID) + 1u;
 }

@@ -41,7 +41,8 @@ layout(binding = UNIT_u_atlas_peel_tri) uniform usampler2D u_atlas_peel_tri;
 // Fourth layer: the other objects' second surface (depth peel; non-planar clusters),
 // what the first layer hides from e_c but the reflected rays may see.
 layout(binding = UNIT_u_atlas_peel_other) uniform sampler2D u_atlas_peel_other;
-// The layers' depths packed (cluster_pack.comp): one fetch per step; per
+// The layers' depths packed (written with the layers, BACKGROUND_DEPTH where a layer
+// holds nothing this frame): one fetch per step; per
 // BLOCK×BLOCK block and layer their min and max stored depth
 // (cluster_block_depth.comp) for skipping stretches without a possible hit.
 layout(binding = UNIT_u_pack) uniform sampler2D u_pack;
@@ -86,20 +87,25 @@ vec2 to_texel(vec3 X, ClusterFrame F, out float z) {
 // Layer test at one step: the hit rule above, against the stored depth D.
 bool layer_hit(float D, float zhi, float lower) { return D <= zhi * (1.0 + 1e-5) && D >= lower; }
 
-// Bilinear colour (rgb) and depth (a) of the surface at image point pix, over the
-// 2×2 texels whose depth is within dtol of D (the hit surface).
-vec4 surface_at(sampler2D atlas, ivec2 org, ivec2 top, vec2 pix, float D, float dtol) {
+// Bilinear colour (rgb) and depth (a) of layer l's surface at image point pix, over
+// the 2×2 texels whose depth is within dtol of D (the hit surface). Depths and
+// coverage come from u_pack: the layer's colour texture is not cleared, so a texel
+// it does not cover this frame holds an earlier frame's colour and is never read.
+vec4 surface_at(sampler2D atlas, int l, ivec2 org, ivec2 top, vec2 pix, float D, float dtol) {
     vec2 f = pix - 0.5;
     ivec2 b = ivec2(floor(f));
     vec2 w = f - floor(f);
     vec4 acc = vec4(0.0);
     float wsum = 0.0;
     for (int j = 0; j < 2; ++j) for (int i = 0; i < 2; ++i) {
-        vec4 tex = texelFetch(atlas, org + clamp(b + ivec2(i, j), ivec2(0), top), 0);
+        ivec2 q = org + clamp(b + ivec2(i, j), ivec2(0), top);
+        float dq = texelFetch(u_pack, q, 0)[l];
         float wt = (i == 1 ? w.x : 1.0 - w.x) * (j == 1 ? w.y : 1.0 - w.y);
-        if (abs(tex.a - D) <= dtol) { acc += wt * tex; wsum += wt; }
+        if (abs(dq - D) <= dtol) { acc += wt * vec4(texelFetch(atlas, q, 0).rgb, dq); wsum += wt; }
     }
-    return wsum > 1e-6 ? acc / wsum : vec4(texelFetch(atlas, org + clamp(ivec2(floor(pix)), ivec2(0), top), 0).rgb, D);
+    if (wsum > 1e-6) return acc / wsum;
+    ivec2 q = org + clamp(ivec2(floor(pix)), ivec2(0), top);  // black where the layer holds nothing
+    return vec4(texelFetch(u_pack, q, 0)[l] < 0.5 * BACKGROUND_DEPTH ? texelFetch(atlas, q, 0).rgb : vec3(0.0), D);
 }
 
 #ifdef SURFACE_CROSSING
@@ -126,10 +132,10 @@ vec4 surface_inv(ivec2 org, ivec2 top, vec2 pix, float rel, out bvec4 ok) {
 // surface_at on layer l's image (0 other objects, 1 reflector, 2 reflector 2nd,
 // 3 others 2nd).
 vec4 layer_surface(int l, ivec2 org, ivec2 top, vec2 pix, float D, float dtol) {
-    if (l == 0) return surface_at(u_atlas, org, top, pix, D, dtol);
-    if (l == 1) return surface_at(u_atlas_self, org, top, pix, D, dtol);
-    if (l == 2) return surface_at(u_atlas_peel, org, top, pix, D, dtol);
-    return surface_at(u_atlas_peel_other, org, top, pix, D, dtol);
+    if (l == 0) return surface_at(u_atlas, 0, org, top, pix, D, dtol);
+    if (l == 1) return surface_at(u_atlas_self, 1, org, top, pix, D, dtol);
+    if (l == 2) return surface_at(u_atlas_peel, 2, org, top, pix, D, dtol);
+    return surface_at(u_atlas_peel_other, 3, org, top, pix, D, dtol);
 }
 
 // Hit refinement inside the step [alo, ahi]: where the ray's depth crosses layer
