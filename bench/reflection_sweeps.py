@@ -8,7 +8,12 @@ at a time, everything else at its default:
   fps, and the thesis-defined occlusion error per reflected ray (Fig. 27: more
   clusters, fewer occlusion errors);
 * Table 16: output resolution 256²–2048² — fps;
-* Table 17: cluster image scale 1/2, 1, 2 (resolution_scale) — fps and occlusion error;
+* Table 17: cluster image scale 1/2, 1, 2 (resolution_scale) with the atlas budget
+  lifted (under the default budget the images shrink to it whatever the scale) —
+  fps, atlas texels and occlusion error;
+* budget (beyond the thesis): the atlas budget (ClusterSettings atlas_budget, texels
+  per G-buffer sample, non-planar images shrink to it) 4 / 8 / 16 / 32 — fps, atlas
+  texels, depth-image time, MAE and occlusion error;
 * Table 18: diffuse triangle count (built-in detail 0.25–1) — fps of ours and of
   Embree (BVH build + trace);
 * layers (beyond the thesis): the other objects' second surface in non-planar
@@ -49,6 +54,7 @@ from scenes.builtin import make_builtin
 BIN_SCALES = (2.0, 1.5, 1.0, 0.5, 0.25)
 OUTPUT_RES = (2048, 1024, 512, 256)
 IMAGE_SCALES = (0.5, 1.0, 2.0)
+ATLAS_BUDGETS = (4.0, 8.0, 16.0, 32.0)
 DETAILS = (1.0, 0.5, 0.25)
 GLOSSY_RAYS = (8, 49)
 OTHERS_PEEL = (False, True)
@@ -82,6 +88,7 @@ def _config_row(gl, sg: SceneGPU, cam, ref, repeat: int, **options) -> dict:
         refl.release()
     return {"clusters": r.n_clusters, "fps": 1e3 / total, "occlusion_thesis_ray_pct": occ,
             "depth_images_ms": r.timings_ms["depth_images"], "drawn_chunks": r.drawn_chunks,
+            "atlas_texels": int(r.atlas_size[0] * r.atlas_size[1]),
             "mae_255": float(mean_abs_error(r.color, ref.color) * 255)}
 
 
@@ -92,16 +99,19 @@ def sweep_scene(gl, name: str, res: int, repeat: int, tables: set[str]) -> dict:
     out: dict = {"scene": name, "res": res}
     try:
         ref, _ = _embree(scene, cam)
-        # Tables 15, 17 and layers: one ClusterSettings field swept (row key, option name, values).
-        for table, key, option, values in (("15", "bin_scale", "bin_scale", BIN_SCALES),
-                                           ("17", "scale", "resolution_scale", IMAGE_SCALES),
-                                           ("layers", "others_peel", "others_peel", OTHERS_PEEL),
-                                           ("lod", "lod_texels", "lod_texels", LOD_TEXELS)):
+        # Tables 15, 17, layers, lod and budget: one ClusterSettings field swept (row key,
+        # option name, values, other options of the table).
+        for table, key, option, values, fixed in (
+                ("15", "bin_scale", "bin_scale", BIN_SCALES, {}),
+                ("17", "scale", "resolution_scale", IMAGE_SCALES, {"atlas_budget": None}),
+                ("layers", "others_peel", "others_peel", OTHERS_PEEL, {}),
+                ("lod", "lod_texels", "lod_texels", LOD_TEXELS, {}),
+                ("budget", "atlas_budget", "atlas_budget", ATLAS_BUDGETS, {})):
             if table in tables:
                 out[f"table{table}"] = rows = []
                 for v in values:
                     opts = {"lod_errors": ()} if option == "lod_texels" and v == 0 else {option: v}
-                    rows.append({key: v, **_config_row(gl, sg, cam, ref, repeat, **opts)})
+                    rows.append({key: v, **_config_row(gl, sg, cam, ref, repeat, **fixed, **opts)})
                     print(name, f"T{table}", rows[-1], flush=True)
         refl = ClusterReflections(gl)
         try:
@@ -167,7 +177,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--scenes", nargs="+", default=["living_room", "bathroom"])
     ap.add_argument("--res", type=int, default=512)
     ap.add_argument("--repeat", type=int, default=2)
-    ap.add_argument("--tables", default="15,16,17,18,20,layers,lod",
+    ap.add_argument("--tables", default="15,16,17,18,20,layers,lod,budget",
                     help="comma list; 16 and 18 run on the first scene only")
     ap.add_argument("--out", default=str(RESULTS_DIR / "reflections"))
     args = ap.parse_args(argv)
