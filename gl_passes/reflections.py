@@ -178,8 +178,9 @@ class ClusterSettings:
     Cluster depth images (§4.5): atlas_max caps the atlas side (texels); atlas_budget
     caps the total image area at that many texels per G-buffer sample (None = no cap;
     the non-planar images shrink uniformly, planar ones keep their exact texel =
-    sample grid, cluster_camera.pack_atlas); others_peel adds the other objects'
-    second surface to non-planar images (module docstring, step 4).
+    sample grid, cluster_camera.pack_atlas; the default is chosen by the budget sweep
+    of bench/reflection_sweeps.py); others_peel adds the other objects' second surface
+    to non-planar images (module docstring, step 4).
     Intersection (Alg. 7): thickness is the hit tolerance in units of a step's depth
     span; continuity > 0 enables the crossing rule; slope > 0 the surface-crossing rule
     (continuous surfaces up to that tan of their angle to the view ray); near_steps > 0
@@ -209,7 +210,7 @@ class ClusterSettings:
     split_curved: bool = True
     thickness: float = 1.0
     atlas_max: int = 4096
-    atlas_budget: float | None = 16.0
+    atlas_budget: float | None = 8.0
     max_shift: float = cc.MAX_SHIFT
     continuity: float = CONTINUITY
     slope: float = SLOPE
