@@ -272,8 +272,13 @@ class ClusterReflections(Releasable):
             defines["NEAR_CROSSING"] = "1"
         if not settings.block_skip:  # exact either way (tests compare the two)
             defines["NO_BLOCK_SKIP"] = "1"
+        # Per cluster-image layer: the depth and peel programs, with triangle ids for the
+        # reflector's layers (1, 2) only (cluster_depth.frag: ids cost the draw on llvmpipe).
+        ids = {**units, "TRIANGLE_IDS": "1"}
         self.depth_prog = program(gl, "cluster_depth.vert", "cluster_depth.frag", defines=units)
         self.peel_prog = program(gl, "cluster_depth.vert", "cluster_peel.frag", defines=units)
+        self.layer_progs = (self.depth_prog, program(gl, "cluster_depth.vert", "cluster_depth.frag", defines=ids),
+                            program(gl, "cluster_depth.vert", "cluster_peel.frag", defines=ids), self.peel_prog)
         self.trace_prog = compute_program(gl, "reflect_trace.comp", defines)
         self.resolve_prog = compute_program(gl, "reflect_resolve.comp", units)
         self.block_prog = compute_program(gl, "cluster_block_depth.comp", {**units, "BLOCK": str(BLOCK)})
@@ -594,7 +599,6 @@ class ClusterReflections(Releasable):
         ch = self._chunks(scene_gpu)
         tables = [ch["table"], *(lod["table"] for lod in ch["lods"])]
         errors = [lod["error"] for lod in ch["lods"]]
-        vaos = [(scene_gpu.vao(self.depth_prog), scene_gpu.vao(self.peel_prog)), *(lod["vaos"] for lod in ch["lods"])]
         sun = np.asarray(scene_gpu.scene.sun_direction)
         materials = scene_gpu.scene.materials
         ctx.enable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
@@ -633,8 +637,9 @@ class ClusterReflections(Releasable):
         # rasteriser flushes its binned triangles at every framebuffer change); the peel
         # layers read finished layers 0 and 1.
         for layer, fbo in enumerate(fbos):
-            prog = self.peel_prog if layer >= 2 else self.depth_prog
-            if layer >= 2:
+            peel, ids = layer >= 2, layer in (1, 2)
+            prog = self.layer_progs[layer]
+            if peel:
                 UNITS.bind_texture("u_prev", self._atlas[1 if layer == 2 else 0][0])
             fbo.use()
             for c, vis in visible:
@@ -647,9 +652,11 @@ class ClusterReflections(Releasable):
                 fbo.viewport = c.atlas
                 for lv, v in vis.items():
                     t = tables[lv]
-                    sel = np.nonzero(v & ((t.obj == own) == (layer in (1, 2))))[0]
-                    drawn += len(sel)
-                    self._draw_runs(prog, vaos[lv][layer >= 2], t, sel, materials)
+                    sel = np.nonzero(v & ((t.obj == own) == ids))[0]
+                    if len(sel):  # levels > 0 hold only other objects (the reflector is at level 0)
+                        drawn += len(sel)
+                        vao = scene_gpu.vao(prog) if lv == 0 else ch["lods"][lv - 1]["vaos"][peel]
+                        self._draw_runs(prog, vao, t, sel, materials)
         ctx.disable_direct(GL_CLIP_DISTANCE0)
         ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         return drawn

@@ -10,12 +10,16 @@ in vec3 vs_normal;
 in float vs_depth;
 layout(location = 0) out vec4 out_color;
 layout(location = 1) out vec4 out_pack;  // the layers' depths: the framebuffer keeps this layer's channel
-layout(location = 2) out uint out_tri;
+#ifdef TRIANGLE_IDS
+layout(location = 2) out uint out_tri;  // triangle id (1-based): the reflector's layers only
+#endif
 
 void main() {
     float first = texelFetch(u_prev, ivec2(gl_FragCoord.xy), 0).a;
     if (vs_depth <= first * (1.0 + 1e-5)) discard;
     out_color = vec4(local_shade(u_albedo, normalize(vs_normal)), vs_depth);
     out_pack = vec4(vs_depth);
+#ifdef TRIANGLE_IDS
     out_tri = u_base + uint(gl_PrimitiveID) + 1u;
+#endif
 }
