@@ -397,18 +397,15 @@ def sweeps_markdown(sweeps: list[dict]) -> list[str]:
         md += ["### Table 16: output resolution (thesis: 2048² / 1024² / 512² / 256² → 7.5 / 15 / 23 / 29 fps)", "",
                md_table(["scene", "output", "fps ours"],
                         [[s["scene"], f"{r['res']}²", f(r["fps"], 3)] for s in t for r in s["table16"]]), ""]
-    t = [s for s in sweeps if "table17" in s]
-    if t:
-        lifted = all("atlas_texels" in r for s in t for r in s["table17"])
-        md += ["### Table 17: cluster image scale (thesis: 1/2 / 1 / 2 → 15 / 15 / 14 fps)", "",
-               *(["resolution_scale with the atlas budget lifted (atlas_budget None): the atlas still shrinks "
-                  "uniformly to atlas_max per side, so where that binds (atlas texels) the scale changes little. "
-                  "Occlusion error: the thesis's definition, per reflected ray.", ""] if lifted
-                 else ["Measured under the default atlas budget, which caps the images' total area whatever "
-                       "the scale.", ""]),
-               md_table(["scene", "image scale", "atlas texels", "fps ours", "occlusion error"],
-                        [[s["scene"], r["scale"], _mtexels(r), f(r["fps"], 3), f(r["occlusion_thesis_ray_pct"]) + " %"]
-                         for s in t for r in s["table17"]]), ""]
+    lifted = all("atlas_texels" in r for s in sweeps for r in s.get("table17", []))
+    md += _sweep_section(
+        sweeps, "table17", "### Table 17: cluster image scale (thesis: 1/2 / 1 / 2 → 15 / 15 / 14 fps)",
+        "resolution_scale with the atlas budget lifted (atlas_budget None): the atlas still shrinks uniformly to "
+        "atlas_max per side, so where that binds (atlas texels) the scale changes little. Occlusion error: the "
+        "thesis's definition, per reflected ray." if lifted
+        else "Measured under the default atlas budget, which caps the images' total area whatever the scale.",
+        ["image scale", "atlas texels", "fps ours", "occlusion error"],
+        lambda r: [r["scale"], _mtexels(r), f(r["fps"], 3), f(r["occlusion_thesis_ray_pct"]) + " %"])
     md += _sweep_section(
         sweeps, "tablelayers", "### Cluster-image layers (beyond the thesis): the other objects' second surface",
         "Non-planar clusters' images get a fourth layer, the second surface of the objects other than the "

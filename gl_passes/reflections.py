@@ -314,8 +314,10 @@ class ClusterReflections(Releasable):
                     tri.filter = (moderngl.NEAREST, moderngl.NEAREST)
                 depth = ctx.depth_texture(need)
                 # Fragment outputs: 0 colour + depth, 1 the pack (this layer's channel), 2 triangle id.
-                fbo = ctx.framebuffer([color, self._pack] + ([tri] if tri is not None else []), depth)
-                fbo.color_mask = ((True,) * 4, tuple(c == layer for c in range(4)), *([(True,) * 4] if tri else []))
+                attachments = [color, self._pack] + ([tri] if tri is not None else [])
+                fbo = ctx.framebuffer(attachments, depth)
+                fbo.color_mask = tuple(tuple(c == layer for c in range(4)) if a is self._pack else (True,) * 4
+                                       for a in attachments)
                 self._atlas.append((color, tri, fbo, depth))
         return [a[:3] for a in self._atlas]
 
@@ -447,7 +449,7 @@ class ClusterReflections(Releasable):
         samples = self._texture("samples", size)
         pack = self._pack
         block_min, block_max = self._block_bounds(atlas_size)
-        UNITS.bind_image("u_out", samples, read=False, write=True)  # after the packing passes (shared unit)
+        UNITS.bind_image("u_out", samples, read=False, write=True)  # after the block-bounds pass (shared unit)
         self._bind_gbuffer(bins, tex)
         self._bind_layers(layers)
         for name, blocks in (("u_pack", pack), ("u_block_min", block_min), ("u_block_max", block_max)):
