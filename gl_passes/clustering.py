@@ -65,9 +65,10 @@ min_samples samples (a readback of their number, root, bin and count);
 `accumulate` writes each sample's segment (raw bin, or n_bins + its component's
 list index) into the bin image and accumulates the per-segment statistics with
 atomics into an SSBO (count; position and normal sums in 64-bit fixed point; the
-plane-offset range). Only the per-segment statistics are read back (STATS_STRIDE
-uints each); empty segments are dropped and the clusters numbered 0..n−1 (the remap
-SSBO, segment → cluster, used by later passes).
+plane-offset range), on a GPU summed per work group in shared memory first. Only
+the per-segment statistics are read back (STATS_STRIDE uints each); empty
+segments are dropped and the clusters numbered 0..n−1 (the remap SSBO, segment →
+cluster, used by later passes).
 """
 
 from __future__ import annotations
@@ -197,7 +198,9 @@ class ClusteringPass:
     """Owns the clustering programs, the bin (segment) image, the mirror-normal image
     and the label, count and statistics SSBOs."""
 
-    def __init__(self, gl: GLContext, bin_normal: str = "mirror") -> None:
+    def __init__(self, gl: GLContext, bin_normal: str = "mirror", tile_sums: bool | None = None) -> None:
+        """tile_sums: the statistics summed per work group in shared memory first
+        (cluster_accumulate.comp); None: on a hardware renderer only (same sums)."""
         gl.check_thread()
         if bin_normal not in ("mirror", "shading"):
             raise ValueError(f"bin_normal must be 'mirror' or 'shading', got {bin_normal!r}")
@@ -205,6 +208,7 @@ class ClusteringPass:
         units = {**UNITS.defines(), "STATS_STRIDE": str(STATS_STRIDE),
                  "TILE": str(GROUP), "TILE_SIDES": str(2 * GROUP),
                  **({"SHADING_NORMAL_BINS": "1"} if bin_normal == "shading" else {})}
+        self.tile_sums = not gl.is_software if tile_sums is None else bool(tile_sums)
         self.count_prog = compute_program(gl, "cluster_count.comp", units)
         self.assign_prog = compute_program(gl, "cluster_assign.comp", units)
         self.merge_prog = compute_program(gl, "cluster_merge.comp", units)
@@ -212,7 +216,8 @@ class ClusteringPass:
         self.roots_prog = compute_program(gl, "cluster_roots.comp", units)
         self.compress_prog = compute_program(gl, "cluster_compress.comp", units)
         self.split_prog = compute_program(gl, "cluster_split.comp", units)
-        self.accumulate_prog = compute_program(gl, "cluster_accumulate.comp", units)
+        self.accumulate_prog = compute_program(gl, "cluster_accumulate.comp",
+                                               {**units, **({"TILE_SUMS": "1"} if self.tile_sums else {})})
         self.pass_ms: dict[str, float] = {}  # run(timed=True): milliseconds per pass
         self.bins_tex: moderngl.Texture | None = None
         self.mnormal_tex: moderngl.Texture | None = None

@@ -5,7 +5,13 @@
 // accumulated: count, position and mirror-normal sums in 64-bit fixed point
 // (32-bit atomics with carry), and the range of the samples' plane offsets n·P
 // (order-preserving uints: a component is planar when its normals agree and this
-// range is nil).
+// range is nil). With TILE_SUMS (a GPU: gl_passes.clustering), each work group
+// first sums its samples in shared memory (a tile's samples mostly share a few
+// segments: up to SLOTS of them, the rest straight to the SSBO) and adds each slot
+// to the SSBO once, instead of every sample contending for its segment's words (a
+// GPU runs the atomics on one address one after another); llvmpipe, whose
+// barriers and shared atomics cost more than its contention, adds every sample
+// directly. Integer sums: the totals are the same either way, in any order.
 layout(local_size_x = 16, local_size_y = 16) in;
 #include "cluster_sample.glsl"
 #include "cluster_labels.glsl"
@@ -20,34 +26,85 @@ uniform bool u_components;
 #define FIXED 16777216.0
 #define SPLIT 0x80000000u
 #define STRIDE uint(STATS_STRIDE)
-void add64(uint i, uint v) {
-    uint old = atomicAdd(stats[i], v);
-    if (old + v < old) atomicAdd(stats[i + 1u], 1u);
+#define SLOTS 8u
+// A slot's words in the SSBO's layout (STRIDE per segment): count, 3 position and
+// 3 normal sums as (low, high) pairs, offset minimum, offset maximum.
+shared uint s_seg[SLOTS];
+shared uint s_stats[SLOTS * STRIDE];
+
+void add64_global(uint i, uint lo, uint hi) {
+    uint old = atomicAdd(stats[i], lo);
+    if (old + lo < old) hi += 1u;
+    if (hi != 0u) atomicAdd(stats[i + 1u], hi);
+}
+void add64_shared(uint i, uint v) {
+    uint old = atomicAdd(s_stats[i], v);
+    if (old + v < old) atomicAdd(s_stats[i + 1u], 1u);
 }
 
 void main() {
+    uint t = gl_LocalInvocationIndex;
+#ifdef TILE_SUMS
+    if (t < SLOTS) s_seg[t] = NONE;
+    for (uint k = t; k < SLOTS * STRIDE; k += gl_WorkGroupSize.x * gl_WorkGroupSize.y)
+        s_stats[k] = k % STRIDE == 13u ? 0xFFFFFFFFu : 0u;
+    memoryBarrierShared();
+    barrier();
+#endif
+
     ivec2 p = ivec2(gl_GlobalInvocationID.xy);
     ivec2 size = textureSize(u_mnormal, 0);
-    if (any(greaterThanEqual(p, size))) return;
-    uint raw = imageLoad(u_bin_image, p).r;
-    if (raw == 0u) return;
-    uint seg = raw - 1u;
-    if (u_components) {
-        uint mark = comp_count[labels[uint(p.y * size.x + p.x)]];
-        if ((mark & SPLIT) != 0u) seg = u_n_bins + (mark & ~SPLIT);
-        imageStore(u_bin_image, p, uvec4(seg + 1u));
+    uint raw = all(lessThan(p, size)) ? imageLoad(u_bin_image, p).r : 0u;
+    if (raw != 0u) {
+        uint seg = raw - 1u;
+        if (u_components) {
+            uint mark = comp_count[labels[uint(p.y * size.x + p.x)]];
+            if ((mark & SPLIT) != 0u) seg = u_n_bins + (mark & ~SPLIT);
+            imageStore(u_bin_image, p, uvec4(seg + 1u));
+        }
+        vec3 P = texelFetch(u_position, p, 0).xyz;
+        vec3 n = texelFetch(u_mnormal, p, 0).xyz;
+        uvec3 q = uvec3(clamp((P - u_lo) * u_inv_ext, 0.0, 1.0) * FIXED + 0.5);
+        uvec3 qn = uvec3(clamp(n * 0.5 + 0.5, 0.0, 1.0) * FIXED + 0.5);
+        uint off = f2o(dot(n, P));
+        uint slot = SLOTS;  // the first slot holding seg, or the first free one
+#ifdef TILE_SUMS
+        for (uint s = 0u; s < SLOTS; ++s) {
+            uint prev = atomicCompSwap(s_seg[s], NONE, seg);
+            if (prev == NONE || prev == seg) { slot = s; break; }
+        }
+#endif
+        if (slot < SLOTS) {
+            uint b = slot * STRIDE;
+            atomicAdd(s_stats[b], 1u);
+            for (uint k = 0u; k < 3u; ++k) {
+                add64_shared(b + 1u + 2u * k, q[k]);
+                add64_shared(b + 7u + 2u * k, qn[k]);
+            }
+            atomicMin(s_stats[b + 13u], off);
+            atomicMax(s_stats[b + 14u], off);
+        } else {  // more segments in this tile than slots, or no TILE_SUMS
+            uint b = seg * STRIDE;
+            atomicAdd(stats[b], 1u);
+            for (uint k = 0u; k < 3u; ++k) {
+                add64_global(b + 1u + 2u * k, q[k], 0u);
+                add64_global(b + 7u + 2u * k, qn[k], 0u);
+            }
+            atomicMin(stats[b + 13u], off);
+            atomicMax(stats[b + 14u], off);
+        }
     }
-    uint base = seg * STRIDE;
-    vec3 P = texelFetch(u_position, p, 0).xyz;
-    vec3 n = texelFetch(u_mnormal, p, 0).xyz;
-    atomicAdd(stats[base], 1u);
-    vec3 q = clamp((P - u_lo) * u_inv_ext, 0.0, 1.0) * FIXED;
-    vec3 qn = clamp(n * 0.5 + 0.5, 0.0, 1.0) * FIXED;
-    for (uint k = 0u; k < 3u; ++k) {
-        add64(base + 1u + 2u * k, uint(q[k] + 0.5));
-        add64(base + 7u + 2u * k, uint(qn[k] + 0.5));
-    }
-    uint off = f2o(dot(n, P));
-    atomicMin(stats[base + 13u], off);
-    atomicMax(stats[base + 14u], off);
+#ifdef TILE_SUMS
+    memoryBarrierShared();
+    barrier();
+
+    // Flush: one invocation per (slot, word group): count, the six sums, min, max.
+    uint slot = t / 9u, w = t % 9u;
+    if (slot >= SLOTS || s_seg[slot] == NONE) return;
+    uint b = slot * STRIDE, g = s_seg[slot] * STRIDE;
+    if (w == 0u) atomicAdd(stats[g], s_stats[b]);
+    else if (w <= 6u) add64_global(g + 2u * w - 1u, s_stats[b + 2u * w - 1u], s_stats[b + 2u * w]);
+    else if (w == 7u) atomicMin(stats[g + 13u], s_stats[b + 13u]);
+    else atomicMax(stats[g + 14u], s_stats[b + 14u]);
+#endif
 }
