@@ -326,14 +326,9 @@ def visible_objects(cam: ClusterCamera, object_bounds: np.ndarray) -> list[int]:
 class ClusterExtentPass:
     """Runs cluster_extent.comp (both stages) and reads back the (n, 16) extents."""
 
-    def __init__(self, gl: GLContext, tree: bool | None = None) -> None:
-        """tree: each workgroup's records combined by a tree in shared memory instead
-        of shared atomics (cluster_extent.comp); None: on a hardware renderer only
-        (same extents)."""
+    def __init__(self, gl: GLContext) -> None:
         self.gl = gl
-        self.tree = not gl.is_software if tree is None else bool(tree)
-        self.prog = compute_program(gl, "cluster_extent.comp",
-                                    {**UNITS.defines(), **({"EXTENT_TREE": "1"} if self.tree else {})})
+        self.prog = compute_program(gl, "cluster_extent.comp", UNITS.defines())
         self.ext_buf: moderngl.Buffer | None = None
         self.frame_buf: moderngl.Buffer | None = None
 

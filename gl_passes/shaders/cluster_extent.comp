@@ -6,15 +6,10 @@
 // and (stage 1) the mean projected spacing of neighbouring samples.
 // Stage 0: c = e0, frame = fitting plane basis (d_n, d_f of eq. 6);
 // stage 1: c = e_c, frame = the cluster camera (image rectangle, far, resolution).
-// Reduction: each invocation first reduces its own rays (1, or 9 for glossy) into
-// a record in registers; the records of the workgroup's cluster (the first one met
-// in the tile) are combined in shared memory, those of another cluster go straight
-// to its global record, and the combined one goes to the global record once.
-// Combining: with EXTENT_TREE (a GPU: gl_passes.cluster_camera), a tree of
-// log2(256) steps over the records, no atomics (NVIDIA spent most of this pass on
-// 256 invocations' atomics on the same shared words); else one atomic per record
-// word (llvmpipe, where barriers cost more than those atomics). Integer words: the
-// result is the same either way.
+// Reduction: each invocation first reduces its own rays (1, or 9 for glossy) in
+// registers, then one set of atomics into the workgroup's shared record (or the
+// global one for samples of another cluster), then one per workgroup into the
+// global record — atomics, not arithmetic, dominate this pass on llvmpipe.
 layout(local_size_x = 16, local_size_y = 16) in;
 #include "reflect_common.glsl"
 layout(binding = UNIT_u_bins) uniform usampler2D u_bins;
@@ -27,34 +22,20 @@ layout(std430, binding = UNIT_Ext) buffer Ext { uint ext[]; };
 #define STRIDE 16u
 #define MAXTAN 20.0
 #define SPACING_FIXED 268435456.0
-#define WORKGROUP 256u
-#ifdef EXTENT_TREE
-shared uint s_rec[WORKGROUP * STRIDE];
-#else
 shared uint s_ext[STRIDE];
-#endif
 shared int s_cid;
-uint g_rec[STRIDE];  // this invocation's record (words as the global record's)
+bool g_local;
+uint g_base;
 
-bool is_min_word(uint k) { return k == 0u || k == 1u || k == 4u || k == 5u || k == 8u || k == 10u; }
-bool is_max_word(uint k) { return k == 2u || k == 3u || k == 6u || k == 7u || k == 9u || k == 11u; }
-void amin(uint k, uint v) { g_rec[k] = min(g_rec[k], v); }
-void amax(uint k, uint v) { g_rec[k] = max(g_rec[k], v); }
-void add64(uint k, uint v) { uint o = g_rec[k]; g_rec[k] = o + v; if (o + v < o) g_rec[k + 1u] += 1u; }
-
-// A record's words into the global record of cluster gb / STRIDE, one atomic each
-// where the word is not the identity.
-void flush_global(uint gb, uint k, uint v, uint hi) {
-    if (is_min_word(k)) { if (v != 0xFFFFFFFFu) atomicMin(ext[gb + k], v); }
-    else if (is_max_word(k)) { if (v != 0u) atomicMax(ext[gb + k], v); }
-    else if (k == 12u) {
-        uint o = atomicAdd(ext[gb + 12u], v);
-        hi += o + v < o ? 1u : 0u;
-        if (hi != 0u) atomicAdd(ext[gb + 13u], hi);
-    } else if (k == 14u && v != 0u) atomicAdd(ext[gb + 14u], v);
+void amin(uint k, uint v) { if (g_local) atomicMin(s_ext[k], v); else atomicMin(ext[g_base + k], v); }
+void amax(uint k, uint v) { if (g_local) atomicMax(s_ext[k], v); else atomicMax(ext[g_base + k], v); }
+void add64(uint k, uint v) {
+    if (g_local) { uint o = atomicAdd(s_ext[k], v); if (o + v < o) atomicAdd(s_ext[k + 1u], 1u); }
+    else { uint o = atomicAdd(ext[g_base + k], v); if (o + v < o) atomicAdd(ext[g_base + k + 1u], 1u); }
 }
 
-// Per-invocation extents of the sample's rays, reduced in registers first.
+// Per-invocation extents, reduced in registers over the sample's rays and flushed
+// with one set of atomics (atomics are the cost of this pass on a CPU rasteriser).
 vec4 g_box[2];   // (umin, vmin, umax, vmax) of start / end points
 vec2 g_z;        // (min clipped start depth, max clipped end depth)
 bool g_any;
@@ -109,12 +90,13 @@ vec2 project_uv(vec3 X, ClusterFrame F) {
 }
 
 void main() {
-    uint t = gl_LocalInvocationIndex;
-    for (uint k = 0u; k < STRIDE; ++k) g_rec[k] = is_min_word(k) ? 0xFFFFFFFFu : 0u;
-#ifndef EXTENT_TREE
-    if (t < STRIDE) s_ext[t] = g_rec[t];
-#endif
-    if (t == 0u) s_cid = -1;
+    if (gl_LocalInvocationIndex < STRIDE) {
+        uint k = gl_LocalInvocationIndex;
+        bool is_min = k == 0u || k == 1u || k == 4u || k == 5u || k == 8u || k == 10u;
+        bool is_max = k == 2u || k == 3u || k == 6u || k == 7u || k == 9u || k == 11u;
+        s_ext[k] = is_min ? 0xFFFFFFFFu : 0u;
+    }
+    if (gl_LocalInvocationIndex == 0u) s_cid = -1;
     barrier();
     ivec2 p = ivec2(gl_GlobalInvocationID.xy);
     ivec2 size = textureSize(u_bins, 0);
@@ -123,6 +105,8 @@ void main() {
     if (cid >= 0) atomicCompSwap(s_cid, -1, cid);
     barrier();
     if (cid >= 0) {
+        g_local = cid == s_cid;
+        g_base = uint(cid) * STRIDE;
         ClusterFrame F = frames[cid];
         vec3 P = texelFetch(u_position, p, 0).xyz;
         vec3 n = normalize(texelFetch(u_normal, p, 0).xyz);
@@ -144,6 +128,7 @@ void main() {
         flush_rays();
         if (u_stage == 1 && zp > 0.0) {
             vec2 uv = project_uv(P, F);
+            uint n_pairs = 0u;
             for (int k = 0; k < 2; ++k) {
                 ivec2 q = p + (k == 0 ? ivec2(1, 0) : ivec2(0, 1));
                 if (any(greaterThanEqual(q, size)) || texelFetch(u_bins, q, 0).r != bin) continue;
@@ -151,47 +136,22 @@ void main() {
                 if (dot(Pq - F.c_near.xyz, F.fwd_half.xyz) <= 0.0) continue;
                 float dist = min(length(project_uv(Pq, F) - uv), 15.0);
                 add64(12u, uint(dist * SPACING_FIXED + 0.5));
-                g_rec[14] += 1u;
+                n_pairs += 1u;
+            }
+            if (n_pairs > 0u) {
+                if (g_local) atomicAdd(s_ext[14], n_pairs); else atomicAdd(ext[g_base + 14u], n_pairs);
             }
         }
-        if (cid != s_cid) {  // another cluster than the workgroup's: straight to its record
-            for (uint k = 0u; k < STRIDE; ++k) if (k != 13u) flush_global(uint(cid) * STRIDE, k, g_rec[k], g_rec[13]);
-            for (uint k = 0u; k < STRIDE; ++k) g_rec[k] = is_min_word(k) ? 0xFFFFFFFFu : 0u;
-        }
     }
-    if (s_cid < 0) return;  // uniform across the workgroup
-#ifdef EXTENT_TREE
-    for (uint k = 0u; k < STRIDE; ++k) s_rec[t * STRIDE + k] = g_rec[k];
-    memoryBarrierShared();
     barrier();
-    for (uint half_n = WORKGROUP / 2u; half_n > 0u; half_n /= 2u) {
-        if (t < half_n) {
-            uint a = t * STRIDE, b = (t + half_n) * STRIDE;
-            for (uint k = 0u; k < 12u; ++k)
-                s_rec[a + k] = is_min_word(k) ? min(s_rec[a + k], s_rec[b + k]) : max(s_rec[a + k], s_rec[b + k]);
-            uint lo = s_rec[a + 12u], add = s_rec[b + 12u];
-            s_rec[a + 12u] = lo + add;
-            s_rec[a + 13u] += s_rec[b + 13u] + (lo + add < lo ? 1u : 0u);
-            s_rec[a + 14u] += s_rec[b + 14u];
-        }
-        memoryBarrierShared();
-        barrier();
+    if (s_cid >= 0 && gl_LocalInvocationIndex < STRIDE) {
+        uint k = gl_LocalInvocationIndex, gb = uint(s_cid) * STRIDE;
+        uint v = s_ext[k];
+        bool is_min = k == 0u || k == 1u || k == 4u || k == 5u || k == 8u || k == 10u;
+        bool is_max = k == 2u || k == 3u || k == 6u || k == 7u || k == 9u || k == 11u;
+        if (is_min) { if (v != 0xFFFFFFFFu) atomicMin(ext[gb + k], v); }
+        else if (is_max) { if (v != 0u) atomicMax(ext[gb + k], v); }
+        else if (k == 12u) { uint o = atomicAdd(ext[gb + 12u], v); atomicAdd(ext[gb + 13u], s_ext[13] + (o + v < o ? 1u : 0u)); }
+        else if (k == 14u) atomicAdd(ext[gb + 14u], v);
     }
-    if (t < STRIDE && t != 13u) flush_global(uint(s_cid) * STRIDE, t, s_rec[t], s_rec[13]);
-#else
-    if (cid == s_cid) {
-        for (uint k = 0u; k < 12u; ++k) {
-            if (is_min_word(k)) { if (g_rec[k] != 0xFFFFFFFFu) atomicMin(s_ext[k], g_rec[k]); }
-            else if (g_rec[k] != 0u) atomicMax(s_ext[k], g_rec[k]);
-        }
-        if (g_rec[14] != 0u) {
-            uint o = atomicAdd(s_ext[12], g_rec[12]);
-            atomicAdd(s_ext[13], g_rec[13] + (o + g_rec[12] < o ? 1u : 0u));
-            atomicAdd(s_ext[14], g_rec[14]);
-        }
-    }
-    memoryBarrierShared();
-    barrier();
-    if (t < STRIDE && t != 13u) flush_global(uint(s_cid) * STRIDE, t, s_ext[t], s_ext[13]);
-#endif
 }
