@@ -40,6 +40,7 @@ from gl_passes.chunks import box_corners, boxes_in_frustum, facing_away
 from gl_passes.cluster_units import UNITS
 from gl_passes.clustering import ClusterStats, decode_ordered
 from gl_passes.context import GLContext
+from gl_passes.readback import StagingBuffer
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
 from scenes.camera import Camera
@@ -331,6 +332,7 @@ class ClusterExtentPass:
         self.prog = compute_program(gl, "cluster_extent.comp", UNITS.defines())
         self.ext_buf: moderngl.Buffer | None = None
         self.frame_buf: moderngl.Buffer | None = None
+        self.staging = StagingBuffer(gl.ctx)  # reads the extents back (ext_buf stays the GPU's)
 
     def _buffer(self, attr: str, data: bytes) -> moderngl.Buffer:
         buf = getattr(self, attr)
@@ -359,10 +361,12 @@ class ClusterExtentPass:
         set_uniform(p, "u_stage", stage)
         p.run((size[0] + GROUP - 1) // GROUP, (size[1] + GROUP - 1) // GROUP, 1)
         self.gl.ctx.memory_barrier()
-        return np.frombuffer(ext.read(size=4 * EXT_STRIDE * max(n, 1)), np.uint32).reshape(-1, EXT_STRIDE)[:n].copy()
+        raw = self.staging.read(ext, 4 * EXT_STRIDE * max(n, 1))
+        return np.frombuffer(raw, np.uint32).reshape(-1, EXT_STRIDE)[:n].copy()
 
     def release(self) -> None:
         for b in (self.ext_buf, self.frame_buf):
             if b is not None:
                 b.release()
         self.ext_buf = self.frame_buf = None
+        self.staging.release()

@@ -82,7 +82,7 @@ import numpy as np
 
 from gl_passes.cluster_units import UNITS
 from gl_passes.context import GLContext
-from gl_passes.readback import read_texture
+from gl_passes.readback import StagingBuffer, read_texture
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
 
@@ -223,6 +223,7 @@ class ClusteringPass:
         self.mnormal_tex: moderngl.Texture | None = None
         self._remap = np.full(1, -1, np.int32)  # segment → cluster index of the last run (−1: empty segment)
         self._buffers: dict[str, moderngl.Buffer] = {}
+        self.staging = StagingBuffer(gl.ctx)  # reads the counts, split list and statistics back
 
     def buffer(self, name: str, data: bytes | None = None, size: int = 0) -> moderngl.Buffer:
         """A named SSBO holding `data` (or at least `size` bytes left as they are;
@@ -286,7 +287,7 @@ class ClusteringPass:
         UNITS.bind_storage("ObjCount", counts_buf)
         self.count_prog.run(*groups)
         ctx.memory_barrier()
-        obj_samples = np.frombuffer(counts_buf.read(size=4 * (n_objects + 1)), np.uint32).copy()
+        obj_samples = np.frombuffer(self.staging.read(counts_buf, 4 * (n_objects + 1)), np.uint32).copy()
         mark("count")
 
         bins = bins_per_reflector(obj_samples, bin_scale, rule)
@@ -324,11 +325,11 @@ class ClusteringPass:
             set_uniform(self.split_prog, "u_capacity", capacity)
             self.split_prog.run(*groups)
             ctx.memory_barrier()
-            n_split = min(int(np.frombuffer(split_buf.read(size=4), np.uint32)[0]), capacity)
+            n_split = min(int(np.frombuffer(self.staging.read(split_buf, 4), np.uint32)[0]), capacity)
             mark("split")
         else:  # every sample stays in its raw bin (cluster_assign.comp marked no component)
             n_split = 0
-        split = np.frombuffer(split_buf.read(size=4 * 3 * n_split, offset=4), np.uint32).reshape(n_split, 3) \
+        split = np.frombuffer(self.staging.read(split_buf, 4 * 3 * n_split, 4), np.uint32).reshape(n_split, 3) \
             if n_split else np.zeros((0, 3), np.uint32)
 
         # Pass 6: segments (raw bins, then the split components) and their statistics.
@@ -348,7 +349,7 @@ class ClusteringPass:
         set_uniform(prog, "u_components", components)
         prog.run(*groups)
         ctx.memory_barrier()
-        raw = np.frombuffer(stats_buf.read(size=4 * max(n_seg, 1) * STATS_STRIDE), np.uint32)
+        raw = np.frombuffer(self.staging.read(stats_buf, 4 * max(n_seg, 1) * STATS_STRIDE), np.uint32)
         mark("accumulate")
         raw = raw[: n_seg * STATS_STRIDE].reshape(n_seg, STATS_STRIDE)
         seg_bin = np.concatenate([np.arange(n_bins), split[:, 1].astype(np.int64)])
@@ -419,6 +420,7 @@ class ClusteringPass:
         for b in self._buffers.values():
             b.release()
         self._buffers.clear()
+        self.staging.release()
         for t in (self.bins_tex, self.mnormal_tex):
             if t is not None:
                 t.release()

@@ -36,3 +36,31 @@ def write_texture(tex: moderngl.Texture, image: np.ndarray) -> None:
     w, h = tex.size
     arr = np.asarray(image, dtype=_DTYPES[tex.dtype]).reshape(h, w, tex.components)
     tex.write(np.ascontiguousarray(arr[::-1]))
+
+
+class StagingBuffer:
+    """Reads storage buffers back through a copy into a buffer of its own, so that
+    the buffers the shaders write (atomics above all) are never read by the CPU:
+    a driver may move a buffer the CPU reads back every frame into host memory
+    (NVIDIA's does), after which each of the GPU's atomics on it crosses the bus."""
+
+    def __init__(self, ctx: moderngl.Context) -> None:
+        self.ctx = ctx
+        self.buf: moderngl.Buffer | None = None
+
+    def read(self, src: moderngl.Buffer, size: int, offset: int = 0) -> bytes:
+        """`size` bytes of `src` from `offset` (waits for the GPU's writes before it,
+        as Buffer.read does; the caller issues the memory barrier)."""
+        if size <= 0:
+            return b""
+        if self.buf is None or self.buf.size < size:
+            if self.buf is not None:
+                self.buf.release()
+            self.buf = self.ctx.buffer(reserve=max(size, 64) * 2)
+        self.ctx.copy_buffer(self.buf, src, size, read_offset=offset)
+        return self.buf.read(size=size)
+
+    def release(self) -> None:
+        if self.buf is not None:
+            self.buf.release()
+            self.buf = None
