@@ -160,3 +160,24 @@ def test_1000_frames_do_not_grow_gl_objects():
     before, after = gl_object_growth(State, State.frame, 1000)
     assert before > 0
     assert after == before
+
+
+def test_staging_buffer_reads_what_the_buffer_holds(gl):
+    """readback.StagingBuffer: the bytes of a storage buffer (from an offset), through
+    a copy that grows with the largest read; the source is left as it was."""
+    from gl_passes.readback import StagingBuffer
+
+    data = np.arange(1000, dtype=np.uint32)
+    src = gl.ctx.buffer(data.tobytes())
+    staging = StagingBuffer(gl.ctx)
+    try:
+        assert staging.read(src, 0) == b""
+        assert np.array_equal(np.frombuffer(staging.read(src, 16, 8), np.uint32), [2, 3, 4, 5])
+        small = staging.buf.size
+        assert np.array_equal(np.frombuffer(staging.read(src, 4000), np.uint32), data)
+        assert staging.buf.size > small
+        assert np.array_equal(np.frombuffer(src.read(), np.uint32), data)
+    finally:
+        staging.release()
+        src.release()
+    assert staging.buf is None

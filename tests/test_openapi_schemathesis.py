@@ -9,7 +9,8 @@ the bounded queue or the job timeout), a documented status code, a documented co
 type, a body matching the documented schema, documented headers matching theirs.
 
 Path ``scene_id``\\ s are drawn from what schemathesis generates and from real scenes (the
-built-in cornell default and a small upload), and a render body that names no size also
+built-in cornell default and a small upload; DELETE deletes an upload of its own, so the
+renders keep theirs), and a render body that names no size also
 comes with a small one, so the render endpoints render (the run checks they did). The
 service runs with small frame limits (64 px a side, which the document states) and a small
 memory budget, so random cameras, effects, sample counts and resolutions either render
@@ -55,6 +56,9 @@ RENDERS = ("POST /scenes/{scene_id}/frames", "POST /scenes/{scene_id}/reconstruc
 #: Real scenes the path parameter is drawn from besides generated ids: the cornell default and
 #: (added by the `live` fixture) a small upload.
 SCENE_IDS = [builtin_id("cornell")]
+#: The scenes DELETE draws from besides generated ids: a second upload of its own (added by
+#: the `live` fixture), so that deleting a real scene is run without taking the renders' away.
+DELETE_IDS: list[str] = []
 #: Small sizes a render request gets where it names none (the defaults, 512, are over LIMITS).
 SMALL_SIZES = {"frames": {"width": 48, "height": 32}, "depth-images": {"width": 32, "height": 32},
                "reconstruction": {"resolution": 32}}
@@ -77,10 +81,11 @@ schema.config.generation.update(max_examples=MAX_EXAMPLES, deterministic=True)
 
 @schema.hook
 def flatmap_path_parameters(context, path_parameters):
-    """A generated scene id, or one of the real scenes (so renders render)."""
+    """A generated scene id, or one of the real scenes (so renders render; DELETE gets its own)."""
     if "scene_id" not in (path_parameters or {}):
         return st.just(path_parameters)
-    return st.sampled_from([path_parameters, *({**path_parameters, "scene_id": s} for s in SCENE_IDS)])
+    ids = DELETE_IDS if context.operation.method.upper() == "DELETE" else SCENE_IDS
+    return st.sampled_from([path_parameters, *({**path_parameters, "scene_id": s} for s in ids)])
 
 
 @schema.hook
@@ -110,14 +115,17 @@ def serve(tmp_path_factory, **overrides) -> Iterator[str]:
 
 @pytest.fixture(scope="module")
 def live(tmp_path_factory) -> Iterator[str]:
-    """The service (base URL), with a small uploaded scene among SCENE_IDS."""
+    """The service (base URL), with a small uploaded scene among SCENE_IDS and another
+    one in DELETE_IDS."""
     with serve(tmp_path_factory) as base:
-        r = httpx.post(f"{base}/scenes?format=obj", content=obj_text(3), timeout=60,
-                       headers={"content-type": "application/octet-stream"})
-        assert r.status_code in (200, 201), r.text
-        SCENE_IDS.append(r.json()["id"])
+        for ids, quads in ((SCENE_IDS, 3), (DELETE_IDS, 2)):
+            r = httpx.post(f"{base}/scenes?format=obj", content=obj_text(quads), timeout=60,
+                           headers={"content-type": "application/octet-stream"})
+            assert r.status_code in (200, 201), r.text
+            ids.append(r.json()["id"])
         yield base
         SCENE_IDS.pop()
+        DELETE_IDS.pop()
 
 
 @pytest.fixture(scope="module")
@@ -156,3 +164,4 @@ def test_the_run_rendered():
     for op in RENDERS:
         assert SEEN[(op, 200)] >= 5 and SEEN[(op, 422)] >= 5, {k: v for k, v in SEEN.items() if k[0] == op}
     assert SEEN[("POST /scenes", 201)] + SEEN[("POST /scenes", 200)] >= 1
+    assert SEEN[("DELETE /scenes/{scene_id}", 204)] + SEEN[("DELETE /scenes/{scene_id}", 200)] >= 1
