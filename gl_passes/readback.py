@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import moderngl
 import numpy as np
 
@@ -20,6 +22,30 @@ def read_texture(tex: moderngl.Texture, viewport: tuple[int, int, int, int] | No
         arr = arr[y:y + vh, x:x + vw]
     arr = arr[::-1]
     return np.ascontiguousarray(arr[..., 0] if tex.components == 1 else arr)
+
+
+class TextureReader:
+    """Reads textures back into one reused scratch buffer and copies out the channel
+    groups asked for, flipped to row 0 = top: one fresh array per part instead of a
+    fresh read, a flipped copy and the parts (frame-sized images: each fresh
+    allocation is paid again in page faults)."""
+
+    def __init__(self) -> None:
+        self._scratch = np.empty(0, np.uint8)
+
+    def read(self, tex: moderngl.Texture, parts: Sequence[int | slice]) -> list[np.ndarray]:
+        """One (H,W) array per int part (a channel) and one (H,W,C) per slice part."""
+        w, h = tex.size
+        dtype = np.dtype(_DTYPES[tex.dtype])
+        n = w * h * tex.components * dtype.itemsize
+        if self._scratch.nbytes < n:
+            self._scratch = np.empty(n, np.uint8)
+        tex.read_into(self._scratch)
+        arr = self._scratch[:n].view(dtype).reshape(h, w, tex.components)[::-1]  # row 0 = GL bottom → top
+        return [np.array(arr[..., part], order="C", copy=True) for part in parts]
+
+    def release(self) -> None:
+        self._scratch = np.empty(0, np.uint8)
 
 
 def read_texture_layer(arr_tex: moderngl.TextureArray, layer: int) -> np.ndarray:

@@ -108,7 +108,7 @@ from gl_passes.cluster_units import UNITS
 from gl_passes.clustering import ClusteringPass
 from gl_passes.context import GLContext
 from gl_passes.gbuffer import GBufferPass
-from gl_passes.readback import read_texture
+from gl_passes.readback import TextureReader, read_texture
 from gl_passes.reconstruction import simplify
 from gl_passes.releasable import Releasable
 from gl_passes.shaders import compute_program, program
@@ -259,6 +259,7 @@ class ClusterReflections(Releasable):
         self.gl = gl
         self.settings = settings
         self.gbuffer = GBufferPass(gl)
+        self._reader = TextureReader()  # the frame's outputs, read back into one reused buffer
         self.clustering = ClusteringPass(gl, settings.bin_normal)
         self.extent = ClusterExtentPass(gl)
         units = {**UNITS.defines(), "BACKGROUND_DEPTH": repr(BACKGROUND_DEPTH)}
@@ -480,15 +481,16 @@ class ClusterReflections(Releasable):
         set_uniform(p, "u_ss", ss)
         p.run((W + 7) // 8, (H + 7) // 8, 1)
         ctx.memory_barrier()
-        col = read_texture(out["out_color"])
-        ref = read_texture(out["out_reflected"])
-        dif = read_texture(out["out_diffuse"])
+        rgb, last = slice(0, 3), 3
+        color, specular = self._reader.read(out["out_color"], (rgb, last))
+        reflected, ray_length = self._reader.read(out["out_reflected"], (rgb, last))
+        diffuse, coverage = self._reader.read(out["out_diffuse"], (rgb, last))
         lap("resolve")
         timings["total"] = (time.perf_counter() - t_start) * 1e3
         diag = self._diagnostics(cams, pack, atlas_size) if diagnostics else None
         return ClusterReflectionResult(
-            color=col[..., :3].copy(), reflected=ref[..., :3].copy(), diffuse=dif[..., :3].copy(),
-            specular=col[..., 3].copy(), reflective=dif[..., 3] > 0, ray_length=ref[..., 3].astype(np.float64),
+            color=color, reflected=reflected, diffuse=diffuse, specular=specular, reflective=coverage > 0,
+            ray_length=ray_length.astype(np.float64),
             method=method, supersample=ss, n_clusters=len(cams), cameras=cams, timings_ms=timings,
             atlas_size=atlas_size, drawn_chunks=drawn, diagnostics=diag, cache_hits={"scene_setup": cache_hit},
             clustering_ms=dict(self.clustering.pass_ms) if diagnostics else {})
@@ -675,6 +677,7 @@ class ClusterReflections(Releasable):
     def release(self) -> None:
         self.gl.check_thread()
         self.gbuffer.release()
+        self._reader.release()
         self.clustering.release()
         self.extent.release()
         self._release_atlas()
