@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -37,6 +38,11 @@ class ChunkTable:
 
     def __len__(self) -> int:
         return len(self.first)
+
+    @cached_property
+    def corners(self) -> np.ndarray:
+        """(n, 8, 3) the boxes' corners (box_corners), computed once per table."""
+        return box_corners(self.bounds)
 
 
 def chunk_table(vertices: np.ndarray, faces: np.ndarray, ranges: list[tuple[int, int]],
@@ -95,11 +101,13 @@ def box_corners(bounds: np.ndarray) -> np.ndarray:
     return np.where(_CORNERS[None], b[:, 1][:, None, :], b[:, 0][:, None, :])
 
 
-def boxes_in_frustum(view_proj: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+def boxes_in_frustum(view_proj: np.ndarray, bounds: np.ndarray, corners: np.ndarray | None = None) -> np.ndarray:
     """(n,) bool: boxes (n, 2, 3) that may intersect the frustum of the 4×4
-    `view_proj` (culled when all 8 corners are outside one clip-space plane)."""
-    corners = box_corners(bounds)
-    hom = np.concatenate([corners, np.ones((*corners.shape[:2], 1))], axis=2) @ np.asarray(view_proj).T
+    `view_proj` (culled when all 8 corners are outside one clip-space plane);
+    corners: their box_corners when already at hand (ChunkTable.corners)."""
+    corners = box_corners(bounds) if corners is None else corners
+    vp = np.asarray(view_proj, np.float64)
+    hom = corners @ vp[:, :3].T + vp[:, 3]
     x, y, z, w = (hom[..., k] for k in range(4))
     out = (np.all(x < -w, 1) | np.all(x > w, 1) | np.all(y < -w, 1) | np.all(y > w, 1)
            | np.all(z < -w, 1) | np.all(z > w, 1))
@@ -121,13 +129,13 @@ def facing_away(eye: np.ndarray, cones: np.ndarray) -> np.ndarray:
 def runs(table: ChunkTable, sel: np.ndarray) -> Iterator[tuple[int, int, int]]:
     """(object, first face, face count) of the runs of consecutive chunks `sel`
     (ascending chunk indices) of one object each: one draw per run."""
-    i = 0
-    while i < len(sel):
-        j = i
-        k = int(table.obj[sel[i]])
-        while j + 1 < len(sel) and sel[j + 1] == sel[j] + 1 and table.obj[sel[j + 1]] == k:
-            j += 1
-        first = int(table.first[sel[i]])
-        yield k, first, int(table.first[sel[j]] + table.count[sel[j]]) - first
-        i = j + 1
-
+    sel = np.asarray(sel, np.int64)
+    if len(sel) == 0:
+        return
+    obj = table.obj[sel]
+    # a run starts at the first chunk, after a gap in the indices and at a change of object
+    start = np.flatnonzero(np.r_[True, (np.diff(sel) != 1) | (obj[1:] != obj[:-1])])
+    last = sel[np.r_[start[1:] - 1, len(sel) - 1]]
+    first = table.first[sel[start]]
+    count = table.first[last] + table.count[last] - first
+    yield from zip(obj[start].tolist(), first.tolist(), count.tolist(), strict=True)

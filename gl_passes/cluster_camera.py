@@ -305,12 +305,13 @@ def pack_atlas(cams: list[ClusterCamera], max_size: int = 8192, budget: float | 
     return width, height
 
 
-def visible_boxes(cam: ClusterCamera, bounds: np.ndarray) -> np.ndarray:
+def visible_boxes(cam: ClusterCamera, bounds: np.ndarray, corners: np.ndarray | None = None) -> np.ndarray:
     """(n,) bool: boxes (n, 2, 3) (min, max) that may intersect the cluster frustum
     (culled when all 8 corners are outside one clip-space plane or below the
-    fitting-plane clip)."""
-    below = np.all(box_corners(bounds) @ cam.plane_normal < cam.clip_offset, axis=1)
-    return boxes_in_frustum(cam.view_projection(), bounds) & ~below
+    fitting-plane clip); corners: their box_corners when at hand (ChunkTable.corners)."""
+    corners = box_corners(bounds) if corners is None else corners
+    below = np.all(corners @ cam.plane_normal < cam.clip_offset, axis=1)
+    return boxes_in_frustum(cam.view_projection(), bounds, corners) & ~below
 
 
 def backfacing_chunks(cam: ClusterCamera, cones: np.ndarray) -> np.ndarray:

@@ -102,7 +102,7 @@ import moderngl
 import numpy as np
 
 from gl_passes import cluster_camera as cc
-from gl_passes.chunks import ChunkTable, chunk_table, runs
+from gl_passes.chunks import chunk_table, runs
 from gl_passes.cluster_camera import ClusterCamera, ClusterExtentPass
 from gl_passes.cluster_units import UNITS
 from gl_passes.clustering import ClusteringPass
@@ -621,7 +621,8 @@ class ClusterReflections(Releasable):
             fbo.color_mask = tuple((False,) * 4 for _ in mask)
             fbo.clear(depth=1.0, viewport=used)
             fbo.color_mask = mask
-        visible = []  # per valid cluster: {level: visible chunks}
+        albedo = [tuple(float(x) for x in m[:3]) for m in materials]  # per material id (object k: k + 1)
+        plans = []  # per valid cluster: its uniforms and, for the reflector (True) and the others (False), its draws
         for c in cams:
             if not c.valid:
                 continue
@@ -629,14 +630,19 @@ class ClusterReflections(Releasable):
             # Planar clusters stay exact (their texels are the samples' mirror rays): full detail.
             level = self._lod_levels(c, scene_gpu.object_bounds, [] if c.planar else errors)
             level[own] = 0
-            vis = {}
-            for lv in np.unique(level):
+            draws: dict[bool, list] = {True: [], False: []}  # [(level, [(first, count, albedo)])]
+            for lv in np.unique(level).tolist():
                 t = tables[lv]
-                v = cc.visible_boxes(c, t.bounds) & (level[t.obj] == lv)
+                v = cc.visible_boxes(c, t.bounds, t.corners) & (level[t.obj] == lv)
                 if self.settings.backface_chunks:
                     v &= ~cc.backfacing_chunks(c, t.cones)
-                vis[int(lv)] = v
-            visible.append((c, vis))
+                for ids in (True, False):  # levels > 0 hold only other objects (the reflector is at level 0)
+                    sel = np.flatnonzero(v & ((t.obj == own) == ids))
+                    if len(sel):
+                        draws[ids].append((lv, len(sel), [(f, n, albedo[k + 1]) for k, f, n in runs(t, sel)]))
+            uniforms = (("u_view", c.view_matrix()), ("u_view_proj", c.view_projection()),
+                        ("u_clip_plane", np.array([*c.plane_normal, c.clip_offset])), ("u_sun", sun))
+            plans.append((c, uniforms, draws))
         # Layer by layer, so that each layer's framebuffer is bound once (a software
         # rasteriser flushes its binned triangles at every framebuffer change); the peel
         # layers read finished layers 0 and 1.
@@ -646,32 +652,31 @@ class ClusterReflections(Releasable):
             if peel:
                 UNITS.bind_texture("u_prev", self._atlas[1 if layer == 2 else 0][0])
             fbo.use()
-            for c, vis in visible:
+            for c, uniforms, draws in plans:
                 if layer == 3 and (c.planar or not self.settings.others_peel):
                     continue  # from a planar cluster's e0 nothing on its rays is hidden
-                own = c.object_id - 1
-                for name, value in (("u_view", c.view_matrix()), ("u_view_proj", c.view_projection()),
-                                    ("u_clip_plane", np.array([*c.plane_normal, c.clip_offset])), ("u_sun", sun)):
+                for name, value in uniforms:
                     set_uniform(prog, name, value)
                 fbo.viewport = c.atlas
-                for lv, v in vis.items():
-                    t = tables[lv]
-                    sel = np.nonzero(v & ((t.obj == own) == ids))[0]
-                    if len(sel):  # levels > 0 hold only other objects (the reflector is at level 0)
-                        drawn += len(sel)
-                        vao = scene_gpu.vao(prog) if lv == 0 else ch["lods"][lv - 1]["vaos"][peel]
-                        self._draw_runs(prog, vao, t, sel, materials)
+                for lv, n_chunks, items in draws[ids]:
+                    drawn += n_chunks
+                    vao = scene_gpu.vao(prog) if lv == 0 else ch["lods"][lv - 1]["vaos"][peel]
+                    self._draw_runs(prog, vao, items)
         ctx.disable_direct(GL_CLIP_DISTANCE0)
         ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         return drawn
 
     @staticmethod
-    def _draw_runs(prog, vao, t: ChunkTable, sel: np.ndarray, materials: np.ndarray) -> None:
-        """Draw the chunks `sel` of chunk table `t`, runs of consecutive chunks of
-        one object in one draw."""
-        for k, first, count in runs(t, sel):
-            set_uniform(prog, "u_base", first)
-            set_uniform(prog, "u_albedo", tuple(float(x) for x in materials[k + 1, :3]))
+    def _draw_runs(prog, vao, items: list[tuple[int, int, tuple[float, float, float]]]) -> None:
+        """Draw runs of consecutive chunks of one object (chunks.runs): per run its
+        first face, face count and albedo."""
+        base = prog["u_base"] if "u_base" in prog else None
+        albedo = prog["u_albedo"] if "u_albedo" in prog else None
+        for first, count, rgb in items:
+            if base is not None:
+                base.value = first
+            if albedo is not None:
+                albedo.value = rgb
             vao.render(moderngl.TRIANGLES, vertices=3 * count, first=3 * first)
 
     def release(self) -> None:
