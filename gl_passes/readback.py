@@ -28,7 +28,8 @@ class TextureReader:
     """Reads textures back into one reused scratch buffer and copies out the channel
     groups asked for, flipped to row 0 = top: one fresh array per part instead of a
     fresh read, a flipped copy and the parts (frame-sized images: each fresh
-    allocation is paid again in page faults)."""
+    allocation is paid again in page faults). The scratch keeps the largest size
+    read until release()."""
 
     def __init__(self) -> None:
         self._scratch = np.empty(0, np.uint8)
