@@ -1,4 +1,5 @@
-"""The one place where GL images are read back and flipped to row 0 = top."""
+"""The one place where GL images are read back and flipped to row 0 = top, and where
+storage buffers that shaders write are read back through a staging copy."""
 
 from __future__ import annotations
 
