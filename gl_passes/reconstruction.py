@@ -152,16 +152,23 @@ def offset_camera(camera: Camera) -> Camera:
     return replace(camera, width=w + 1, height=h + 1, fov=float(np.degrees(2 * np.arctan(t))))
 
 
+def _position_words(img: DepthImage) -> np.ndarray:
+    """(H, W, 4) uint32: the first rgba32ui texture of a depth image (position bits,
+    triangle id; see reconstruct_common.glsl), all that an evidence image needs."""
+    h, w = img.depth.shape
+    a = np.empty((h, w, 4), np.uint32)
+    a[..., :3] = np.ascontiguousarray(img.position, np.float32).view(np.uint32)
+    a[..., 3] = img.tri_id
+    return a
+
+
 def _image_words(img: DepthImage) -> tuple[np.ndarray, np.ndarray]:
     """The two rgba32ui textures' contents of a depth image (see reconstruct_common.glsl)."""
     h, w = img.depth.shape
-    a = np.empty((h, w, 4), np.uint32)
     b = np.empty((h, w, 4), np.uint32)
-    a[..., :3] = np.ascontiguousarray(img.position, np.float32).view(np.uint32)
-    a[..., 3] = img.tri_id
     b[..., :3] = np.ascontiguousarray(img.normal, np.float32).view(np.uint32)
     b[..., 3] = pack_colors(img.color)
-    return a, b
+    return _position_words(img), b
 
 
 class Reconstructor(Releasable):
@@ -184,8 +191,8 @@ class Reconstructor(Releasable):
     def _upload(self, img: DepthImage) -> tuple[moderngl.Texture, moderngl.Texture]:
         a, b = _image_words(img)
         size = (a.shape[1], a.shape[0])
-        return (self.gl.ctx.texture(size, 4, a.tobytes(), dtype="u4"),
-                self.gl.ctx.texture(size, 4, b.tobytes(), dtype="u4"))
+        return (self.gl.ctx.texture(size, 4, a, dtype="u4"),
+                self.gl.ctx.texture(size, 4, b, dtype="u4"))
 
     def _set_camera(self, prog: moderngl.ComputeShader, camera: Camera, settings: ReconstructionSettings) -> None:
         r, u, f = camera.basis()
@@ -259,8 +266,8 @@ class Reconstructor(Releasable):
         flags = ctx.texture((w, h), 1, dtype="u4")  # 32-bit: llvmpipe's 8-bit image stores race
         sample_corner = ctx.texture((2 * w, 2 * h), 1, dtype="u4")
         if evidence:
-            words = np.stack([_image_words(e)[0] for e in evidence])
-            ev = ctx.texture_array((w, h, len(evidence)), 4, words.tobytes(), dtype="u4")
+            words = np.stack([_position_words(e) for e in evidence])
+            ev = ctx.texture_array((w, h, len(evidence)), 4, words, dtype="u4")
         else:
             ev = ctx.texture_array((1, 1, 1), 4, dtype="u4")
         quads = n + (offset.n_samples if settings.offset_quads else 0)  # samples' quads, H samples' own
