@@ -19,7 +19,7 @@ from scipy.sparse.csgraph import connected_components
 from bench.common import load_named_scene
 from bench.reflections import view_camera
 from gl_passes.cluster_units import UNITS
-from gl_passes.clustering import STATS_STRIDE
+from gl_passes.clustering import STATS_STRIDE, bins_per_reflector
 from gl_passes.context import create_gl_context
 from gl_passes.reflections import DEFAULT_SETTINGS, ClusterReflections
 from gl_passes.upload import SceneGPU
@@ -45,7 +45,47 @@ def components(bins: np.ndarray, normals: np.ndarray, cos_break: float) -> np.nd
                                 directed=False)[1]
 
 
+def analyse(refl: ClusterReflections, n_objects: int) -> None:
+    """The last clustering's results read back and checked: every reflective sample's
+    segment against the per-segment counts, and its label against scipy's components
+    (raw bins rebuilt from the segments and the split list)."""
+    st = refl.settings
+    cp = refl.clustering
+    obj = np.frombuffer(cp.buffer("obj_count").read(size=4 * (n_objects + 1)), np.uint32)
+    n_bins = int(np.prod(bins_per_reflector(obj, st.bin_scale, st.bin_rule), axis=1).sum())
+    seg = gl_rows(cp.bins_tex, np.uint32).ravel().astype(np.int64)
+    n = seg.size
+    n_split = int(np.frombuffer(cp.buffer("split").read(size=4), np.uint32)[0])
+    split = np.frombuffer(cp.buffer("split").read(size=4 + 12 * n_split), np.uint32)[1:].reshape(-1, 3)
+    n_seg = n_bins + n_split
+    raw = np.frombuffer(cp.buffer("bin_stats").read(size=4 * n_seg * STATS_STRIDE), np.uint32)
+    got = raw.reshape(n_seg, STATS_STRIDE)[:, 0]
+    refl_mask = seg > 0
+    s = seg[refl_mask] - 1
+    print(f"  reflective {int(refl_mask.sum())} (objects' count {int(obj[1:].sum())}), n_bins {n_bins}, "
+          f"split {n_split}, segments out of range {int((s >= n_seg).sum())}, stats total {int(got.sum())}")
+    hist = np.bincount(s[s < n_seg], minlength=n_seg)
+    diff = np.nonzero(hist != got)[0]
+    print(f"  segments whose count differs from the bin image: {len(diff)} "
+          f"{[(int(i), int(hist[i]), int(got[i])) for i in diff[:6]]}", flush=True)
+    labels = np.frombuffer(cp.buffer("labels").read(size=4 * n), np.uint32).astype(np.int64)
+    lab = labels[refl_mask]
+    ok = lab < n
+    print(f"  labels NONE/out of range {int((~ok).sum())}, not a root {int((labels[lab[ok]] != lab[ok]).sum())}")
+    rawbin = np.where(s < n_bins, s, split[np.clip(s - n_bins, 0, max(n_split - 1, 0)), 1] if n_split else s)
+    bins = np.zeros(n, np.int64)
+    bins[refl_mask] = rawbin + 1
+    w, h = cp.bins_tex.size
+    normals = gl_rows(cp.mnormal_tex, np.float32, 4)[..., :3]
+    truth = components(bins.reshape(h, w), normals, float(np.cos(np.radians(st.normal_break))))[refl_mask]
+    least = np.full(truth.max() + 1, n, np.int64)
+    np.minimum.at(least, truth, np.nonzero(refl_mask)[0])
+    print(f"  components: gpu {len(np.unique(lab))}, scipy {len(np.unique(truth))}; labels equal to scipy's "
+          f"least index: {int((lab == least[truth]).sum())} of {len(lab)}", flush=True)
+
+
 def check(gl, refl: ClusterReflections, sg: SceneGPU, res: int) -> None:
+    """The clustering passes alone, each waited for (their milliseconds), then analyse."""
     st = refl.settings
     scene = sg.scene
     cam = view_camera(scene, res)
@@ -55,73 +95,20 @@ def check(gl, refl: ClusterReflections, sg: SceneGPU, res: int) -> None:
     UNITS.bind_storage("MeshVerts", sg.vbo)
     UNITS.bind_storage("MeshFaces", sg.ibo)
     cp = refl.clustering
-    seen: dict[str, np.ndarray] = {}
-    label_components = cp.label_components
-
-    def spy(bins, mnormal, normal_break, mark=lambda name: None):
-        seen["bins"] = gl_rows(bins, np.uint32)
-        seen["normals"] = gl_rows(mnormal, np.float32, 4)[..., :3]
-        label_components(bins, mnormal, normal_break, mark)
-        n = bins.size[0] * bins.size[1]
-        seen["labels"] = np.frombuffer(cp.buffer("labels").read(size=4 * n), np.uint32).copy()
-
-    cp.label_components = spy
     min_samples = max(1, round(st.min_component * ss_cam.width * ss_cam.height))
-    error = ""
     try:
         stats = cp.run(tex, scene.bounds, len(scene.objects), np.asarray(cam.eye), st.bin_scale, st.bin_rule,
                        st.normal_break, min_samples, st.split_curved, timed=True)
         print(f"res {res}: {stats.n} clusters", flush=True)
     except RuntimeError as exc:
-        error = str(exc)
-        print(f"res {res}: FAILED {error}", flush=True)
-    finally:
-        del cp.label_components
+        print(f"res {res}: FAILED {exc}", flush=True)
     print("  passes ms", {k: round(v, 2) for k, v in cp.pass_ms.items()}, flush=True)
-    bins, labels = seen["bins"], seen["labels"]
-    refl_mask = bins.ravel() > 0
-    n_refl = int(refl_mask.sum())
-    print(f"  samples {bins.size}, reflective (raw bins) {n_refl}", flush=True)
-    lab = labels[refl_mask].astype(np.int64)
-    bad = lab == 0xFFFFFFFF
-    print(f"  reflective with label NONE: {int(bad.sum())}; label out of range: {int((lab >= bins.size).sum())}")
-    ok = ~bad & (lab < bins.size)
-    not_root = int((labels[lab[ok]] != lab[ok]).sum())
-    print(f"  reflective whose label is not a root: {not_root}")
-    truth = components(bins, seen["normals"], float(np.cos(np.radians(st.normal_break))))[refl_mask]
-    pairs = np.unique(np.stack([lab, truth]), axis=1)
-    print(f"  components: gpu {len(np.unique(lab))}, scipy {len(np.unique(truth))}, pairs {pairs.shape[1]}")
-    least = np.full(truth.max() + 1, bins.size, np.int64)
-    idx = np.nonzero(refl_mask)[0]
-    np.minimum.at(least, truth, idx)
-    print(f"  labels equal to scipy's least index: {int((lab == least[truth]).sum())} of {n_refl}", flush=True)
-    seg = gl_rows(cp.bins_tex, np.uint32).ravel()
-    n_split = int(np.frombuffer(cp.buffer("split").read(size=4), np.uint32)[0])
-    raw = np.frombuffer(cp.buffer("bin_stats").read(), np.uint32)
-    n_seg = int(seg.max())
-    print(f"  after accumulate: samples with a segment {int((seg > 0).sum())}, max segment {n_seg - 1}, "
-          f"listed components {n_split}", flush=True)
-    hist = np.bincount(seg[seg > 0] - 1, minlength=n_seg)
-    got = raw[: n_seg * STATS_STRIDE].reshape(-1, STATS_STRIDE)[:, 0] if len(raw) >= n_seg * STATS_STRIDE \
-        else raw[: len(raw) // STATS_STRIDE * STATS_STRIDE].reshape(-1, STATS_STRIDE)[:, 0]
-    diff = np.nonzero(hist[: len(got)] != got[: len(hist)])[0]
-    print(f"  segments whose stats count differs from the bin image: {len(diff)} "
-          f"(first {[(int(i), int(hist[i]), int(got[i])) for i in diff[:5]]})", flush=True)
-    after = np.frombuffer(cp.buffer("comp_count").read(size=4 * bins.size), np.uint32)
-    marks = after[lab[ok]]
-    split_marks = marks[(marks & 0x80000000) != 0] & 0x7FFFFFFF
-    print(f"  split marks at labels: {len(split_marks)}, max index {int(split_marks.max()) if len(split_marks) else -1}"
-          f" (list {n_split}); marks without SPLIT but nonzero: {int(((marks != 0) & (marks < 0x80000000)).sum())}")
+    analyse(refl, len(scene.objects))
 
 
 def check_frames(gl, refl: ClusterReflections, sg: SceneGPU, res: int, frames: int) -> None:
-    """Whole frames as the benchmark renders them (no wait between the passes); after
-    each, the last clustering's segments against its statistics and its labels
-    against scipy (raw bins rebuilt from the segments and the split list)."""
-    from gl_passes.clustering import bins_per_reflector
-
-    st = refl.settings
-    cp = refl.clustering
+    """Whole frames as the benchmark renders them (no wait between the passes),
+    analyse after each."""
     cam = view_camera(sg.scene, res)
     for f in range(frames):
         try:
@@ -129,36 +116,7 @@ def check_frames(gl, refl: ClusterReflections, sg: SceneGPU, res: int, frames: i
             print(f"res {res} frame {f}: ok", flush=True)
         except RuntimeError as exc:
             print(f"res {res} frame {f}: FAILED {exc}", flush=True)
-        obj = np.frombuffer(cp.buffer("obj_count").read(size=4 * (len(sg.scene.objects) + 1)), np.uint32)
-        n_bins = int(np.prod(bins_per_reflector(obj, st.bin_scale, st.bin_rule), axis=1).sum())
-        seg = gl_rows(cp.bins_tex, np.uint32).ravel().astype(np.int64)
-        n = seg.size
-        n_split = int(np.frombuffer(cp.buffer("split").read(size=4), np.uint32)[0])
-        split = np.frombuffer(cp.buffer("split").read(size=4 + 12 * n_split), np.uint32)[1:].reshape(-1, 3)
-        n_seg = n_bins + n_split
-        raw = np.frombuffer(cp.buffer("bin_stats").read(size=4 * n_seg * STATS_STRIDE), np.uint32)
-        got = raw.reshape(n_seg, STATS_STRIDE)[:, 0]
-        refl_mask = seg > 0
-        s = seg[refl_mask] - 1
-        print(f"  reflective {int(refl_mask.sum())} (objects' count {int(obj[1:].sum())}), n_bins {n_bins}, "
-              f"split {n_split}, segments out of range {int((s >= n_seg).sum())}, stats total {int(got.sum())}")
-        hist = np.bincount(s[s < n_seg], minlength=n_seg)
-        diff = np.nonzero(hist != got)[0]
-        print(f"  segments whose count differs from the bin image: {len(diff)} "
-              f"{[(int(i), int(hist[i]), int(got[i])) for i in diff[:6]]}", flush=True)
-        labels = np.frombuffer(cp.buffer("labels").read(size=4 * n), np.uint32).astype(np.int64)
-        lab = labels[refl_mask]
-        ok = lab < n
-        print(f"  labels NONE/out of range {int((~ok).sum())}, not a root {int((labels[lab[ok]] != lab[ok]).sum())}")
-        rawbin = np.where(s < n_bins, s, split[np.clip(s - n_bins, 0, max(n_split - 1, 0)), 1] if n_split else s)
-        bins = np.zeros(n, np.int64)
-        bins[refl_mask] = rawbin + 1
-        w, h = cp.bins_tex.size
-        normals = gl_rows(cp.mnormal_tex, np.float32, 4)[..., :3]
-        truth = components(bins.reshape(h, w), normals, float(np.cos(np.radians(st.normal_break))))[refl_mask]
-        least = np.full(truth.max() + 1, n, np.int64)
-        np.minimum.at(least, truth, np.nonzero(refl_mask)[0])
-        print(f"  labels equal to scipy's least index: {int((lab == least[truth]).sum())} of {len(lab)}", flush=True)
+        analyse(refl, len(sg.scene.objects))
 
 
 def main() -> None:
