@@ -65,7 +65,7 @@ class SceneGPU(IndexedBuffers):
             keep[list(objs)] = True
             v = keep[t.obj]
             if view_proj is not None:
-                v &= boxes_in_frustum(view_proj, t.bounds)
+                v &= boxes_in_frustum(view_proj, t.bounds, t.corners)
             if eye is not None:
                 v &= ~facing_away(eye, t.cones)
             pieces = runs(t, np.nonzero(v)[0])
