@@ -37,9 +37,14 @@ void add64_global(uint i, uint lo, uint hi) {
     if (old + lo < old) hi += 1u;
     if (hi != 0u) atomicAdd(stats[i + 1u], hi);
 }
-void add64_shared(uint i, uint v) {
-    uint old = atomicAdd(s_stats[i], v);
-    if (old + v < old) atomicAdd(s_stats[i + 1u], 1u);
+// ADD_SAMPLE(A, b): one sample (q, qn, off) into the record at A[b..b+STRIDE) of an
+// array A (the SSBO or a shared slot), 64-bit sums by 32-bit atomics with carry.
+#define ADD64(A, i, v) { uint o_ = atomicAdd(A[i], v); if (o_ + (v) < o_) atomicAdd(A[(i) + 1u], 1u); }
+#define ADD_SAMPLE(A, b) { \
+    atomicAdd(A[b], 1u); \
+    for (uint k = 0u; k < 3u; ++k) { ADD64(A, (b) + 1u + 2u * k, q[k]); ADD64(A, (b) + 7u + 2u * k, qn[k]); } \
+    atomicMin(A[(b) + 13u], off); \
+    atomicMax(A[(b) + 14u], off); \
 }
 
 void main() {
@@ -74,25 +79,8 @@ void main() {
             if (prev == NONE || prev == seg) { slot = s; break; }
         }
 #endif
-        if (slot < SLOTS) {
-            uint b = slot * STRIDE;
-            atomicAdd(s_stats[b], 1u);
-            for (uint k = 0u; k < 3u; ++k) {
-                add64_shared(b + 1u + 2u * k, q[k]);
-                add64_shared(b + 7u + 2u * k, qn[k]);
-            }
-            atomicMin(s_stats[b + 13u], off);
-            atomicMax(s_stats[b + 14u], off);
-        } else {  // more segments in this tile than slots, or no TILE_SUMS
-            uint b = seg * STRIDE;
-            atomicAdd(stats[b], 1u);
-            for (uint k = 0u; k < 3u; ++k) {
-                add64_global(b + 1u + 2u * k, q[k], 0u);
-                add64_global(b + 7u + 2u * k, qn[k], 0u);
-            }
-            atomicMin(stats[b + 13u], off);
-            atomicMax(stats[b + 14u], off);
-        }
+        if (slot < SLOTS) ADD_SAMPLE(s_stats, slot * STRIDE)
+        else ADD_SAMPLE(stats, seg * STRIDE)  // more segments in this tile than slots, or no TILE_SUMS
     }
 #ifdef TILE_SUMS
     memoryBarrierShared();
