@@ -23,7 +23,7 @@ UNITS = Units(
     storage=("ObjCount", "BinTable", "BinStats", "Remap", "Ext", "Frames", "MeshVerts", "MeshFaces", "Labels",
              "CompCount", "SplitList"),
     # samplers
-    textures=("u_bins", "u_tri", "u_normal", "u_position", "u_atlas", "u_color", "u_material", "u_reflected",
-              "u_atlas_self_tri", "u_atlas_self", "u_pack", "u_block_min", "u_atlas_peel", "u_atlas_peel_tri",
-              "u_block_max", "u_atlas_peel_other", "u_obj", "u_prev", "u_mnormal"),
+    textures=("u_bins", "u_tri", "u_normal", "u_position", "u_colour_pack", "u_color", "u_material", "u_reflected",
+              "u_atlas_self_tri", "u_pack", "u_block_min", "u_atlas_peel_tri", "u_block_max", "u_obj", "u_prev",
+              "u_mnormal"),
 )

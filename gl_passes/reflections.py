@@ -285,6 +285,7 @@ class ClusterReflections(Releasable):
         self.block_prog = compute_program(gl, "cluster_block_depth.comp", {**units, "BLOCK": str(BLOCK)})
         self._atlas: list = []
         self._pack: moderngl.Texture | None = None  # the layers' depths, written with them
+        self._colour_pack: moderngl.Texture | None = None  # the layers' colours, likewise
         self._pack_fbo: moderngl.Framebuffer | None = None
         self._samples: moderngl.Texture | None = None
         self._outputs: dict[str, moderngl.Texture] = {}
@@ -293,11 +294,13 @@ class ClusterReflections(Releasable):
     # --- GPU resources -------------------------------------------------------------
     def _atlas_target(self, size: tuple[int, int]) -> list[tuple[moderngl.Texture, moderngl.Texture | None,
                                                                   moderngl.Framebuffer]]:
-        """The N_LAYERS atlas layers of the same layout, (colour+depth, triangle id or
-        None, framebuffer): the other objects, the cluster's own reflector, the
+        """The N_LAYERS atlas layers of the same layout, (depth, triangle id or None,
+        framebuffer): the other objects, the cluster's own reflector, the
         reflector's second surface and the others' second surface. Every layer's
         framebuffer also writes its depth into its own channel of one shared pack
-        texture (self._pack: the layers' depths in one texel)."""
+        texture (self._pack: the layers' depths in one texel) and its colour into its
+        channel of one shared colour pack (self._colour_pack: pack_colour, common.glsl),
+        so that the march reads any layer's depth or colour with one fetch."""
         need = (max(256, -(-size[0] // 256) * 256), max(256, -(-size[1] // 256) * 256))
         have = self._atlas[0][0].size if self._atlas else (0, 0)
         if not self._atlas or have[0] < need[0] or have[1] < need[1]:
@@ -307,31 +310,36 @@ class ClusterReflections(Releasable):
             self._pack = ctx.texture(need, 4, dtype="f4")
             self._pack.filter = (moderngl.NEAREST, moderngl.NEAREST)
             self._pack_fbo = ctx.framebuffer([self._pack])
+            self._colour_pack = ctx.texture(need, 4, dtype="u4")
+            self._colour_pack.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            packs = (self._pack, self._colour_pack)
             for layer in range(N_LAYERS):  # only the reflector layers need triangle ids
-                color = ctx.texture(need, 4, dtype="f4")
-                color.filter = (moderngl.NEAREST, moderngl.NEAREST)
+                own = ctx.texture(need, 1, dtype="f4")  # the layer's depth (a peel layer's u_prev)
+                own.filter = (moderngl.NEAREST, moderngl.NEAREST)
                 tri = ctx.texture(need, 1, dtype="u4") if layer in (1, 2) else None
                 if tri is not None:
                     tri.filter = (moderngl.NEAREST, moderngl.NEAREST)
                 depth = ctx.depth_texture(need)
-                # Fragment outputs: 0 colour + depth, 1 the pack (this layer's channel), 2 triangle id.
-                attachments = [color, self._pack] + ([tri] if tri is not None else [])
+                # Fragment outputs: 0 depth (the peel layers' u_prev), 1 the pack
+                # and 2 the colour pack (this layer's channel of each), 3 triangle id.
+                attachments = [own, *packs] + ([tri] if tri is not None else [])
                 fbo = ctx.framebuffer(attachments, depth)
-                fbo.color_mask = tuple(tuple(c == layer for c in range(4)) if a is self._pack else (True,) * 4
+                fbo.color_mask = tuple(tuple(c == layer for c in range(4)) if a in packs else (True,) * 4
                                        for a in attachments)
-                self._atlas.append((color, tri, fbo, depth))
+                self._atlas.append((own, tri, fbo, depth))
         return [a[:3] for a in self._atlas]
 
     def _release_atlas(self) -> None:
-        for color, tri, fbo, depth in self._atlas:
+        for own, tri, fbo, depth in self._atlas:
             fbo.release()
             depth.release()
             if tri is not None:
                 tri.release()
-            color.release()
+            own.release()
         if self._atlas:
             self._pack_fbo.release()
             self._pack.release()
+            self._colour_pack.release()
         self._atlas = []
 
     def _block_bounds(self, used: tuple[int, int]) -> tuple[moderngl.Texture, moderngl.Texture]:
@@ -358,11 +366,10 @@ class ClusterReflections(Releasable):
                           ("u_color", "color"), ("u_material", "material")):
             UNITS.bind_texture(name, tex[key])
 
-    @staticmethod
-    def _bind_layers(layers) -> None:
-        """Bind the atlas layers' colour+depth and triangle-id textures to their samplers."""
-        for name, tex in (("u_atlas", layers[0][0]), ("u_atlas_self", layers[1][0]), ("u_atlas_peel", layers[2][0]),
-                          ("u_atlas_peel_other", layers[3][0]), ("u_atlas_self_tri", layers[1][1]),
+    def _bind_layers(self, layers) -> None:
+        """Bind the atlas layers' colour pack and the reflector layers' triangle-id
+        textures to their samplers."""
+        for name, tex in (("u_colour_pack", self._colour_pack), ("u_atlas_self_tri", layers[1][1]),
                           ("u_atlas_peel_tri", layers[2][1])):
             UNITS.bind_texture(name, tex)
 

@@ -1,5 +1,6 @@
 #version 430 core
-// Cluster depth image texel: local-shaded colour (rgb) + linear depth (a), and with
+// Cluster depth image texel: linear depth (in the layer's own image and its channel
+// of the pack), local-shaded colour (its channel of the colour pack), and with
 // TRIANGLE_IDS the triangle id. Only the reflector's layers store ids: reading
 // gl_PrimitiveID makes llvmpipe run its primitive assembler, which grows a
 // per-draw array one primitive at a time (realloc), about a third of the draw time.
@@ -8,15 +9,17 @@ uniform vec3 u_albedo;
 uniform uint u_base;  // first global face of the drawn object
 in vec3 vs_normal;
 in float vs_depth;
-layout(location = 0) out vec4 out_color;
+layout(location = 0) out float out_depth;  // this layer's own depth image (a peel layer's u_prev)
 layout(location = 1) out vec4 out_pack;  // the layers' depths: the framebuffer keeps this layer's channel
+layout(location = 2) out uvec4 out_colour_pack;  // the layers' colours (pack_colour), likewise
 #ifdef TRIANGLE_IDS
-layout(location = 2) out uint out_tri;  // triangle id (1-based): the reflector's layers only
+layout(location = 3) out uint out_tri;  // triangle id (1-based): the reflector's layers only
 #endif
 
 void main() {
-    out_color = vec4(local_shade(u_albedo, normalize(vs_normal)), vs_depth);
+    out_depth = vs_depth;
     out_pack = vec4(vs_depth);
+    out_colour_pack = uvec4(pack_colour(local_shade(u_albedo, normalize(vs_normal))));
 #ifdef TRIANGLE_IDS
     out_tri = u_base + uint(gl_PrimitiveID) + 1u;
 #endif

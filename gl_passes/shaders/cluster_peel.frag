@@ -5,20 +5,22 @@
 #include "common.glsl"
 uniform vec3 u_albedo;
 uniform uint u_base;
-layout(binding = UNIT_u_prev) uniform sampler2D u_prev;  // first reflector layer: rgb colour, a = depth
+layout(binding = UNIT_u_prev) uniform sampler2D u_prev;  // the layer peeled: its depth (out_depth)
 in vec3 vs_normal;
 in float vs_depth;
-layout(location = 0) out vec4 out_color;
+layout(location = 0) out float out_depth;  // this layer's own depth image (a peel layer's u_prev)
 layout(location = 1) out vec4 out_pack;  // the layers' depths: the framebuffer keeps this layer's channel
+layout(location = 2) out uvec4 out_colour_pack;  // the layers' colours (pack_colour), likewise
 #ifdef TRIANGLE_IDS
-layout(location = 2) out uint out_tri;  // triangle id (1-based): the reflector's layers only
+layout(location = 3) out uint out_tri;  // triangle id (1-based): the reflector's layers only
 #endif
 
 void main() {
-    float first = texelFetch(u_prev, ivec2(gl_FragCoord.xy), 0).a;
+    float first = texelFetch(u_prev, ivec2(gl_FragCoord.xy), 0).r;
     if (vs_depth <= first * (1.0 + 1e-5)) discard;
-    out_color = vec4(local_shade(u_albedo, normalize(vs_normal)), vs_depth);
+    out_depth = vs_depth;
     out_pack = vec4(vs_depth);
+    out_colour_pack = uvec4(pack_colour(local_shade(u_albedo, normalize(vs_normal))));
 #ifdef TRIANGLE_IDS
     out_tri = u_base + uint(gl_PrimitiveID) + 1u;
 #endif

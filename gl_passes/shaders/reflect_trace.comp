@@ -29,18 +29,17 @@ layout(binding = UNIT_u_normal) uniform sampler2D u_normal;
 layout(binding = UNIT_u_position) uniform sampler2D u_position;
 layout(binding = UNIT_u_material) uniform sampler2D u_material;
 layout(binding = UNIT_u_color) uniform sampler2D u_color;
-layout(binding = UNIT_u_atlas) uniform sampler2D u_atlas;
-// Second layer, same layout: the cluster's own reflector only (self-reflections); the
-// first layer holds every other object, so the reflector cannot hide them.
-layout(binding = UNIT_u_atlas_self) uniform sampler2D u_atlas_self;
-layout(binding = UNIT_u_atlas_self_tri) uniform usampler2D u_atlas_self_tri;  // triangle id per texel of the reflector layer
-// Third layer: the reflector's second surface (depth peel), so a ray passing behind
-// the reflector's nearest surface can still meet the one behind it.
-layout(binding = UNIT_u_atlas_peel) uniform sampler2D u_atlas_peel;
+// Four layers per cluster image, their colours in one texel (pack_colour, channel =
+// layer): 0 every other object; 1 the cluster's own reflector only
+// (self-reflections; the first layer holds every other object, so the reflector
+// cannot hide them); 2 the reflector's second surface (depth peel: a ray passing
+// behind the reflector's nearest surface can still meet the one behind it); 3 the
+// other objects' second surface (depth peel; non-planar clusters), what the first
+// layer hides from e_c but the reflected rays may see.
+layout(binding = UNIT_u_colour_pack) uniform usampler2D u_colour_pack;
+// Triangle id per texel of the reflector's layers (1, 2): the self-hit test.
+layout(binding = UNIT_u_atlas_self_tri) uniform usampler2D u_atlas_self_tri;
 layout(binding = UNIT_u_atlas_peel_tri) uniform usampler2D u_atlas_peel_tri;
-// Fourth layer: the other objects' second surface (depth peel; non-planar clusters),
-// what the first layer hides from e_c but the reflected rays may see.
-layout(binding = UNIT_u_atlas_peel_other) uniform sampler2D u_atlas_peel_other;
 // The layers' depths packed (written with the layers, BACKGROUND_DEPTH where a layer
 // holds nothing this frame): one fetch per step; per
 // BLOCK×BLOCK block and layer their min and max stored depth
@@ -87,11 +86,14 @@ vec2 to_texel(vec3 X, ClusterFrame F, out float z) {
 // Layer test at one step: the hit rule above, against the stored depth D.
 bool layer_hit(float D, float zhi, float lower) { return D <= zhi * (1.0 + 1e-5) && D >= lower; }
 
-// Bilinear colour (rgb) and depth (a) of layer l's surface at image point pix, over
-// the 2×2 texels whose depth is within dtol of D (the hit surface). Depths and
-// coverage come from u_pack: the layer's colour texture is not cleared, so a texel
-// it does not cover this frame holds an earlier frame's colour and is never read.
-vec4 surface_at(sampler2D atlas, int l, ivec2 org, ivec2 top, vec2 pix, float D, float dtol) {
+vec3 layer_colour(int l, ivec2 q) { return unpack_colour(texelFetch(u_colour_pack, q, 0)[l]); }
+
+// Bilinear colour (rgb, when `colour`; else 0) and depth (a) of layer l's surface
+// (0 other objects, 1 reflector, 2 reflector 2nd, 3 others 2nd) at image point pix,
+// over the 2×2 texels whose depth is within dtol of D (the hit surface). Depths and coverage come from u_pack: the colour pack is not cleared,
+// so a texel a layer does not cover this frame holds an earlier frame's colour and
+// is never read.
+vec4 surface_at(int l, ivec2 org, ivec2 top, vec2 pix, float D, float dtol, bool colour) {
     vec2 f = pix - 0.5;
     ivec2 b = ivec2(floor(f));
     vec2 w = f - floor(f);
@@ -101,11 +103,15 @@ vec4 surface_at(sampler2D atlas, int l, ivec2 org, ivec2 top, vec2 pix, float D,
         ivec2 q = org + clamp(b + ivec2(i, j), ivec2(0), top);
         float dq = texelFetch(u_pack, q, 0)[l];
         float wt = (i == 1 ? w.x : 1.0 - w.x) * (j == 1 ? w.y : 1.0 - w.y);
-        if (abs(dq - D) <= dtol) { acc += wt * vec4(texelFetch(atlas, q, 0).rgb, dq); wsum += wt; }
+        if (abs(dq - D) <= dtol) {
+            acc += wt * vec4(colour ? layer_colour(l, q) : vec3(0.0), dq);
+            wsum += wt;
+        }
     }
     if (wsum > 1e-6) return acc / wsum;
+    if (!colour) return vec4(0.0, 0.0, 0.0, D);
     ivec2 q = org + clamp(ivec2(floor(pix)), ivec2(0), top);  // black where the layer holds nothing
-    return vec4(texelFetch(u_pack, q, 0)[l] < 0.5 * BACKGROUND_DEPTH ? texelFetch(atlas, q, 0).rgb : vec3(0.0), D);
+    return vec4(texelFetch(u_pack, q, 0)[l] < 0.5 * BACKGROUND_DEPTH ? layer_colour(l, q) : vec3(0.0), D);
 }
 
 #ifdef SURFACE_CROSSING
@@ -129,23 +135,14 @@ vec4 surface_inv(ivec2 org, ivec2 top, vec2 pix, float rel, out bvec4 ok) {
 }
 #endif
 
-// surface_at on layer l's image (0 other objects, 1 reflector, 2 reflector 2nd,
-// 3 others 2nd).
-vec4 layer_surface(int l, ivec2 org, ivec2 top, vec2 pix, float D, float dtol) {
-    if (l == 0) return surface_at(u_atlas, 0, org, top, pix, D, dtol);
-    if (l == 1) return surface_at(u_atlas_self, 1, org, top, pix, D, dtol);
-    if (l == 2) return surface_at(u_atlas_peel, 2, org, top, pix, D, dtol);
-    return surface_at(u_atlas_peel_other, 3, org, top, pix, D, dtol);
-}
-
 // Hit refinement inside the step [alo, ahi]: where the ray's depth crosses layer
 // l's bilinearly interpolated surface depth. Returns the image
 // parameter of the crossing, or -1 when the ray does not cross there.
 float refine(int l, ivec2 org, ivec2 top, vec2 s2, vec2 e2, float is2, float ie2, float alo,
              float ahi, float D, float dtol) {
     // In inverse depth both the ray and a planar surface are linear in the image.
-    float glo = mix(is2, ie2, alo) - 1.0 / layer_surface(l, org, top, mix(s2, e2, alo), D, dtol).a;
-    float ghi = mix(is2, ie2, ahi) - 1.0 / layer_surface(l, org, top, mix(s2, e2, ahi), D, dtol).a;
+    float glo = mix(is2, ie2, alo) - 1.0 / surface_at(l, org, top, mix(s2, e2, alo), D, dtol, false).a;
+    float ghi = mix(is2, ie2, ahi) - 1.0 / surface_at(l, org, top, mix(s2, e2, ahi), D, dtol, false).a;
     if (glo >= 0.0 && ghi <= 0.0 && glo > ghi) return alo + (ahi - alo) * glo / (glo - ghi);
     return -1.0;
 }
@@ -350,29 +347,29 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
             if (h[l] && (layer < 0 || (away ? Dl < D : Dl > D))) { layer = l; D = Dl; }
         }
         dtol = max(2.0 * tol, 5e-3 * D);
+        // Where in the step the hit lies (image parameter ac, depth D), by the rule
+        // that found it; then one colour lookup for all three rules.
+        bool surface_xing = false;
 #ifdef SURFACE_CROSSING
-        if (sx[layer]) {
+        surface_xing = sx[layer];
+#endif
+        if (surface_xing) {
+#ifdef SURFACE_CROSSING
             ac = sxa[layer]; pix = mix(s2, e2, ac);
             dtol = max(5e-3 * D, sc_rel * D);
-            col = layer_surface(layer, org, top, pix, D, dtol).rgb;
-            t_hit = hit_distance(t0, t1, zs, ze, a0, a1, ac, D);
-            return true;
-        }
 #endif
-        if (xing[layer] && !(D <= zhi * (1.0 + 1e-5) && D >= lower)) {
+        } else if (xing[layer] && !(D <= zhi * (1.0 + 1e-5) && D >= lower)) {
             // Crossed between the previous step's centre and this one: the crossing of
             // the ray's and the surface's inverse depths, both linear between them.
             float gp = 1.0 / pz - 1.0 / pd[layer], gk = 1.0 / zc - 1.0 / D;
             float ax = gp > gk ? pa + (ac - pa) * clamp(gp / (gp - gk), 0.0, 1.0) : ac;
             ac = ax; pix = mix(s2, e2, ax); D = 1.0 / mix(is2, ie2, ax);
             dtol = max(dtol, u_continuity * D);
-            col = layer_surface(layer, org, top, pix, D, dtol).rgb;
-            t_hit = hit_distance(t0, t1, zs, ze, a0, a1, ac, D);
-            return true;
+        } else {
+            float ar = ars[layer] > -2.0 ? ars[layer] : refine(layer, org, top, s2, e2, is2, ie2, alo, ahi, D, dtol);
+            if (ar >= 0.0) { ac = ar; pix = mix(s2, e2, ar); D = 1.0 / mix(is2, ie2, ar); }
         }
-        float ar = ars[layer] > -2.0 ? ars[layer] : refine(layer, org, top, s2, e2, is2, ie2, alo, ahi, D, dtol);
-        if (ar >= 0.0) { ac = ar; pix = mix(s2, e2, ar); D = 1.0 / mix(is2, ie2, ar); }
-        col = layer_surface(layer, org, top, pix, D, dtol).rgb;
+        col = surface_at(layer, org, top, pix, D, dtol, true).rgb;
         t_hit = hit_distance(t0, t1, zs, ze, a0, a1, ac, D);
         return true;
     }
