@@ -24,6 +24,6 @@ UNITS = Units(
              "CompCount", "SplitList"),
     # samplers
     textures=("u_bins", "u_tri", "u_normal", "u_position", "u_colour_pack", "u_color", "u_material", "u_reflected",
-              "u_atlas_self_tri", "u_pack", "u_block_min", "u_atlas_peel_tri", "u_block_max", "u_obj", "u_prev",
+              "u_tri_pack", "u_pack", "u_block_min", "u_block_max", "u_obj", "u_prev",
               "u_mnormal"),
 )

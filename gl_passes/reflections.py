@@ -286,21 +286,23 @@ class ClusterReflections(Releasable):
         self._atlas: list = []
         self._pack: moderngl.Texture | None = None  # the layers' depths, written with them
         self._colour_pack: moderngl.Texture | None = None  # the layers' colours, likewise
+        self._tri_pack: moderngl.Texture | None = None  # the reflector layers' triangle ids, likewise
         self._pack_fbo: moderngl.Framebuffer | None = None
         self._samples: moderngl.Texture | None = None
         self._outputs: dict[str, moderngl.Texture] = {}
         self._chunk_cache: dict = {}
 
     # --- GPU resources -------------------------------------------------------------
-    def _atlas_target(self, size: tuple[int, int]) -> list[tuple[moderngl.Texture, moderngl.Texture | None,
-                                                                  moderngl.Framebuffer]]:
-        """The N_LAYERS atlas layers of the same layout, (depth, triangle id or None,
-        framebuffer): the other objects, the cluster's own reflector, the
-        reflector's second surface and the others' second surface. Every layer's
-        framebuffer also writes its depth into its own channel of one shared pack
-        texture (self._pack: the layers' depths in one texel) and its colour into its
-        channel of one shared colour pack (self._colour_pack: pack_colour, common.glsl),
-        so that the march reads any layer's depth or colour with one fetch."""
+    def _atlas_target(self, size: tuple[int, int]) -> list[moderngl.Framebuffer]:
+        """The framebuffers of the N_LAYERS atlas layers of the same layout: the other
+        objects, the cluster's own reflector, the reflector's second surface and the
+        others' second surface. Each layer writes its depth into its own texture (the
+        peel layers' u_prev) and into its own channel of one shared pack (self._pack:
+        the layers' depths in one texel), its colour into its channel of one shared
+        colour pack (self._colour_pack: pack_colour, common.glsl) and, for the
+        reflector's layers 1 and 2, its triangle id into channel layer - 1 of one
+        shared triangle pack (self._tri_pack), so that the march reads any layer's
+        depth, colour or id with one fetch."""
         need = (max(256, -(-size[0] // 256) * 256), max(256, -(-size[1] // 256) * 256))
         have = self._atlas[0][0].size if self._atlas else (0, 0)
         if not self._atlas or have[0] < need[0] or have[1] < need[1]:
@@ -308,38 +310,35 @@ class ClusterReflections(Releasable):
             ctx = self.gl.ctx
             need = (max(need[0], have[0]), max(need[1], have[1]))
             self._pack = ctx.texture(need, 4, dtype="f4")
-            self._pack.filter = (moderngl.NEAREST, moderngl.NEAREST)
             self._pack_fbo = ctx.framebuffer([self._pack])
             self._colour_pack = ctx.texture(need, 4, dtype="u4")
-            self._colour_pack.filter = (moderngl.NEAREST, moderngl.NEAREST)
-            packs = (self._pack, self._colour_pack)
-            for layer in range(N_LAYERS):  # only the reflector layers need triangle ids
-                own = ctx.texture(need, 1, dtype="f4")  # the layer's depth (a peel layer's u_prev)
+            self._tri_pack = ctx.texture(need, 2, dtype="u4")
+            for tex in (self._pack, self._colour_pack, self._tri_pack):
+                tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            for layer in range(N_LAYERS):
+                own = ctx.texture(need, 1, dtype="f4")
                 own.filter = (moderngl.NEAREST, moderngl.NEAREST)
-                tri = ctx.texture(need, 1, dtype="u4") if layer in (1, 2) else None
-                if tri is not None:
-                    tri.filter = (moderngl.NEAREST, moderngl.NEAREST)
                 depth = ctx.depth_texture(need)
-                # Fragment outputs: 0 depth (the peel layers' u_prev), 1 the pack
-                # and 2 the colour pack (this layer's channel of each), 3 triangle id.
-                attachments = [own, *packs] + ([tri] if tri is not None else [])
-                fbo = ctx.framebuffer(attachments, depth)
-                fbo.color_mask = tuple(tuple(c == layer for c in range(4)) if a in packs else (True,) * 4
-                                       for a in attachments)
-                self._atlas.append((own, tri, fbo, depth))
-        return [a[:3] for a in self._atlas]
+                # Fragment outputs: 0 the layer's depth, 1 the pack, 2 the colour pack,
+                # 3 the triangle pack (the reflector's layers only: ids cost the draw on
+                # llvmpipe, cluster_depth.frag); the framebuffer keeps the layer's channel.
+                packs = [(self._pack, layer), (self._colour_pack, layer)]
+                if layer in (1, 2):
+                    packs.append((self._tri_pack, layer - 1))
+                fbo = ctx.framebuffer([own, *(t for t, _ in packs)], depth)
+                fbo.color_mask = ((True,) * 4, *(tuple(c == ch for c in range(4)) for _, ch in packs))
+                self._atlas.append((own, fbo, depth))
+        return [fbo for _, fbo, _ in self._atlas]
 
     def _release_atlas(self) -> None:
-        for own, tri, fbo, depth in self._atlas:
+        for own, fbo, depth in self._atlas:
             fbo.release()
             depth.release()
-            if tri is not None:
-                tri.release()
             own.release()
         if self._atlas:
             self._pack_fbo.release()
-            self._pack.release()
-            self._colour_pack.release()
+            for tex in (self._pack, self._colour_pack, self._tri_pack):
+                tex.release()
         self._atlas = []
 
     def _block_bounds(self, used: tuple[int, int]) -> tuple[moderngl.Texture, moderngl.Texture]:
@@ -366,12 +365,10 @@ class ClusterReflections(Releasable):
                           ("u_color", "color"), ("u_material", "material")):
             UNITS.bind_texture(name, tex[key])
 
-    def _bind_layers(self, layers) -> None:
-        """Bind the atlas layers' colour pack and the reflector layers' triangle-id
-        textures to their samplers."""
-        for name, tex in (("u_colour_pack", self._colour_pack), ("u_atlas_self_tri", layers[1][1]),
-                          ("u_atlas_peel_tri", layers[2][1])):
-            UNITS.bind_texture(name, tex)
+    def _bind_layers(self) -> None:
+        """Bind the atlas layers' colour and triangle packs to their samplers."""
+        UNITS.bind_texture("u_colour_pack", self._colour_pack)
+        UNITS.bind_texture("u_tri_pack", self._tri_pack)
 
     def _texture(self, key: str, size: tuple[int, int], components: int = 4) -> moderngl.Texture:
         tex = self._outputs.get(key)
@@ -449,7 +446,7 @@ class ClusterReflections(Releasable):
         # 4. cluster depth images
         layers = self._atlas_target(atlas_size if atlas_size[0] else (1, 1))
         if method == "clusters" and cams:
-            drawn = self._draw_atlas(scene_gpu, cams, [fb for _, _, fb in layers])
+            drawn = self._draw_atlas(scene_gpu, cams, layers)
         lap("depth_images")
         # 5. intersection
         frames = np.asarray([c.frame() for c in cams], np.float32).reshape(-1, cc.FRAME_FLOATS)
@@ -459,7 +456,7 @@ class ClusterReflections(Releasable):
         block_min, block_max = self._block_bounds(atlas_size)
         UNITS.bind_image("u_out", samples, read=False, write=True)  # after the block-bounds pass (shared unit)
         self._bind_gbuffer(bins, tex)
-        self._bind_layers(layers)
+        self._bind_layers()
         for name, blocks in (("u_pack", pack), ("u_block_min", block_min), ("u_block_max", block_max)):
             UNITS.bind_texture(name, blocks)
         p = self.trace_prog

@@ -13,7 +13,9 @@ layout(location = 0) out float out_depth;  // this layer's own depth image (a pe
 layout(location = 1) out vec4 out_pack;  // the layers' depths: the framebuffer keeps this layer's channel
 layout(location = 2) out uvec4 out_colour_pack;  // the layers' colours (pack_colour), likewise
 #ifdef TRIANGLE_IDS
-layout(location = 3) out uint out_tri;  // triangle id (1-based): the reflector's layers only
+// Triangle id (1-based), the reflector's layers only: the framebuffer keeps this
+// layer's channel of the triangle pack.
+layout(location = 3) out uvec2 out_tri;
 #endif
 
 void main() {
@@ -21,6 +23,6 @@ void main() {
     out_pack = vec4(vs_depth);
     out_colour_pack = uvec4(pack_colour(local_shade(u_albedo, normalize(vs_normal))));
 #ifdef TRIANGLE_IDS
-    out_tri = u_base + uint(gl_PrimitiveID) + 1u;
+    out_tri = uvec2(u_base + uint(gl_PrimitiveID) + 1u);
 #endif
 }

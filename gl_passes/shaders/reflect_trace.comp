@@ -37,9 +37,8 @@ layout(binding = UNIT_u_color) uniform sampler2D u_color;
 // other objects' second surface (depth peel; non-planar clusters), what the first
 // layer hides from e_c but the reflected rays may see.
 layout(binding = UNIT_u_colour_pack) uniform usampler2D u_colour_pack;
-// Triangle id per texel of the reflector's layers (1, 2): the self-hit test.
-layout(binding = UNIT_u_atlas_self_tri) uniform usampler2D u_atlas_self_tri;
-layout(binding = UNIT_u_atlas_peel_tri) uniform usampler2D u_atlas_peel_tri;
+// Triangle ids of the reflector's layers 1 and 2 per texel (x, y): the self-hit test.
+layout(binding = UNIT_u_tri_pack) uniform usampler2D u_tri_pack;
 // The layers' depths packed (written with the layers, BACKGROUND_DEPTH where a layer
 // holds nothing this frame): one fetch per step; per
 // BLOCK×BLOCK block and layer their min and max stored depth
@@ -308,8 +307,8 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
 #endif
             if (!any(h)) continue;
             // The sample's own triangle is never a hit (checked only on candidate hits).
-            if (h.y) h.y = texelFetch(u_atlas_self_tri, org + tx, 0).r != g_own_tri;
-            if (h.z) h.z = texelFetch(u_atlas_peel_tri, org + tx, 0).r != g_own_tri;
+            uvec2 ids = texelFetch(u_tri_pack, org + tx, 0).rg;
+            h.yz = bvec2(h.y && ids.x != g_own_tri, h.z && ids.y != g_own_tri);
             if (!any(h)) continue;
             found = true;
             break;
