@@ -65,12 +65,13 @@ def _version(mod: str) -> str | None:
 
 
 def git_revision() -> str:
-    """The checkout's short commit (with '+' when its tree has changes), or '?'."""
+    """The checkout's short commit (with '+' when its tree has changes outside
+    bench/results, which a run writes before it is stamped), or '?'."""
     try:
         rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
                              check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
-                               text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", ".",
+                                ":(exclude)bench/results"], capture_output=True, text=True, check=True).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return "?"
     return rev + ("+" if dirty else "")
