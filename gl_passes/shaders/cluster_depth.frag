@@ -5,9 +5,8 @@
 // gl_PrimitiveID makes llvmpipe run its primitive assembler, which grows a
 // per-draw array one primitive at a time (realloc), about a third of the draw time.
 #include "common.glsl"
-uniform vec3 u_albedo;
 uniform uint u_base;  // first global face of the drawn object
-in vec3 vs_normal;
+in vec3 vs_colour;  // local-shaded per vertex
 in float vs_depth;
 layout(location = 0) out float out_depth;  // this layer's own depth image (a peel layer's u_prev)
 layout(location = 1) out vec4 out_pack;  // the layers' depths: the framebuffer keeps this layer's channel
@@ -21,7 +20,7 @@ layout(location = 3) out uvec2 out_tri;
 void main() {
     out_depth = vs_depth;
     out_pack = vec4(vs_depth);
-    out_colour_pack = uvec4(pack_colour(local_shade(u_albedo, normalize(vs_normal))));
+    out_colour_pack = uvec4(pack_colour(vs_colour));
 #ifdef TRIANGLE_IDS
     out_tri = uvec2(u_base + uint(gl_PrimitiveID) + 1u);
 #endif

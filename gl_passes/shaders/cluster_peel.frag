@@ -3,10 +3,9 @@
 // cluster_depth.frag, but fragments not behind the first reflector layer (u_prev,
 // same atlas viewport) are discarded, so the depth test keeps the next surface.
 #include "common.glsl"
-uniform vec3 u_albedo;
 uniform uint u_base;
 layout(binding = UNIT_u_prev) uniform sampler2D u_prev;  // the layer peeled: its depth (out_depth)
-in vec3 vs_normal;
+in vec3 vs_colour;  // local-shaded per vertex
 in float vs_depth;
 layout(location = 0) out float out_depth;  // this layer's own depth image (a peel layer's u_prev)
 layout(location = 1) out vec4 out_pack;  // the layers' depths: the framebuffer keeps this layer's channel
@@ -22,7 +21,7 @@ void main() {
     if (vs_depth <= first * (1.0 + 1e-5)) discard;
     out_depth = vs_depth;
     out_pack = vec4(vs_depth);
-    out_colour_pack = uvec4(pack_colour(local_shade(u_albedo, normalize(vs_normal))));
+    out_colour_pack = uvec4(pack_colour(vs_colour));
 #ifdef TRIANGLE_IDS
     out_tri = uvec2(u_base + uint(gl_PrimitiveID) + 1u);
 #endif
