@@ -1,8 +1,9 @@
 #version 430 core
 // Cluster depth image (§4.4-4.5): scene geometry seen from a cluster camera; the
 // fitting plane is the near clip plane (gl_ClipDistance), depth is linear along
-// the camera axis. Local shading per vertex (Gouraud): per fragment, the normal's
-// interpolation and shading were a fifth of the depth-image step on llvmpipe.
+// the camera axis. Local shading per vertex (Gouraud): fragments interpolate one
+// colour instead of normalising and shading a normal (cheaper on llvmpipe, where
+// fragments are about half of this step; bench/results/reflections.md).
 #include "common.glsl"
 uniform vec3 u_albedo;
 uniform mat4 u_view;
