@@ -41,6 +41,7 @@ from gl_passes.cluster_units import UNITS
 from gl_passes.clustering import ClusterStats, decode_ordered
 from gl_passes.context import GLContext
 from gl_passes.readback import StagingBuffer
+from gl_passes.reflective_list import ReflectiveSampleList
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
 from scenes.camera import Camera
@@ -51,7 +52,7 @@ FRAME_FLOATS = 32  # 8 vec4, layout of ClusterFrame in reflect_common.glsl
 MAX_SHIFT = 0.5
 CLIP_DROP = 0.5  # curved clusters: clip plane lowered by CLIP_DROP·d_n below the lowest ray start
 SPACING_FIXED = float(1 << 28)
-GROUP = 16
+EXTENT_GROUP = 256  # cluster_extent.comp's work group (invocations)
 
 
 @dataclass
@@ -350,9 +351,11 @@ class ClusterExtentPass:
         UNITS.bind_storage("Frames", buf)
         return buf
 
-    def run(self, stage: int, frames: np.ndarray, size: tuple[int, int], eye: np.ndarray) -> np.ndarray:
-        """Textures (u_bins, u_tri, u_normal, u_position) and SSBOs (Remap,
-        MeshVerts, MeshFaces) of cluster_units.UNITS must be bound by the caller."""
+    def run(self, stage: int, frames: np.ndarray, samples: ReflectiveSampleList, eye: np.ndarray) -> np.ndarray:
+        """One invocation per reflective sample of `samples` (built from the bins
+        bound as u_bins). Textures (u_bins, u_tri, u_normal, u_position) and SSBOs
+        (Remap, MeshVerts, MeshFaces) of cluster_units.UNITS must be bound by the
+        caller."""
         n = len(frames)
         self.upload_frames(frames)
         ext = self._buffer("ext_buf", ext_init(n).tobytes())
@@ -360,7 +363,7 @@ class ClusterExtentPass:
         p = self.prog
         set_uniform(p, "u_eye", np.asarray(eye, np.float64))
         set_uniform(p, "u_stage", stage)
-        p.run((size[0] + GROUP - 1) // GROUP, (size[1] + GROUP - 1) // GROUP, 1)
+        samples.dispatch(p, EXTENT_GROUP)
         self.gl.ctx.memory_barrier()
         raw = self.staging.read(ext, 4 * EXT_STRIDE * max(n, 1))
         return np.frombuffer(raw, np.uint32).reshape(-1, EXT_STRIDE)[:n].copy()

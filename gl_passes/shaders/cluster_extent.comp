@@ -9,9 +9,10 @@
 // Reduction: each invocation first reduces its own rays (1, or 9 for glossy) in
 // registers, then one set of atomics into the workgroup's shared record (or the
 // global one for samples of another cluster), then one per workgroup into the
-// global record — atomics, not arithmetic, dominate this pass on llvmpipe.
-layout(local_size_x = 16, local_size_y = 16) in;
+// global record. One invocation per listed reflective sample (reflective_list.glsl).
+layout(local_size_x = 256) in;
 #include "reflect_common.glsl"
+#include "reflective_list.glsl"
 layout(binding = UNIT_u_bins) uniform usampler2D u_bins;
 layout(binding = UNIT_u_tri) uniform usampler2D u_tri;
 layout(binding = UNIT_u_normal) uniform sampler2D u_normal;
@@ -98,9 +99,10 @@ void main() {
     }
     if (gl_LocalInvocationIndex == 0u) s_cid = -1;
     barrier();
-    ivec2 p = ivec2(gl_GlobalInvocationID.xy);
+    uint i = gl_GlobalInvocationID.x;
+    ivec2 p = i < n_samples ? list_sample(i) : ivec2(0);
     ivec2 size = textureSize(u_bins, 0);
-    uint bin = all(lessThan(p, size)) ? texelFetch(u_bins, p, 0).r : 0u;
+    uint bin = i < n_samples ? texelFetch(u_bins, p, 0).r : 0u;
     int cid = bin > 0u ? remap[bin - 1u] : -1;
     if (cid >= 0) atomicCompSwap(s_cid, -1, cid);
     barrier();

@@ -20,9 +20,11 @@
 // (u_near_steps > 0), in the ray's first u_near_steps texels a thin-surface hit
 // counts only where the ray crosses the interpolated surface inside the step (the
 // ray starts on its reflector, within the thin-surface tolerance of its texels).
-layout(local_size_x = TRACE_GX, local_size_y = TRACE_GY) in;
+// One invocation per listed reflective sample (reflective_list.glsl).
+layout(local_size_x = TRACE_GROUP) in;
 #include "common.glsl"
 #include "reflect_common.glsl"
+#include "reflective_list.glsl"
 layout(binding = UNIT_u_bins) uniform usampler2D u_bins;
 layout(binding = UNIT_u_tri) uniform usampler2D u_tri;
 layout(binding = UNIT_u_normal) uniform sampler2D u_normal;
@@ -376,11 +378,9 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
 }
 
 void main() {
-    ivec2 p = ivec2(gl_GlobalInvocationID.xy);
-    ivec2 size = textureSize(u_bins, 0);
-    if (any(greaterThanEqual(p, size))) return;
-    uint bin = texelFetch(u_bins, p, 0).r;
-    if (bin == 0u) { imageStore(u_out, p, vec4(0.0, 0.0, 0.0, uintBitsToFloat(0x7fc00000u))); return; }
+    if (gl_GlobalInvocationID.x >= n_samples) return;
+    ivec2 p = list_sample(gl_GlobalInvocationID.x);
+    uint bin = texelFetch(u_bins, p, 0).r;  // listed: never 0 (the resolve reads reflective samples only)
     int cid = remap[bin - 1u];
     ClusterFrame F = frames[max(cid, 0)];
     vec3 P = texelFetch(u_position, p, 0).xyz;
