@@ -53,10 +53,12 @@ per cluster from its own normals, so a flat mirror inside a larger reflector
 object keeps the exact e0 camera (cluster_camera.place_centers).
 
 Passes (cluster_*.comp): `count` counts reflective samples per object (a tiny
-readback gives a_R and n_v); `assign` writes each sample's raw bin (r32ui image)
-and mirror normal (rgba32f image) and, for components, initialises the union-find
-labels; then a block union-find (cluster_labels.glsl): `merge` unites each
-sample with its left and upper neighbour when connected inside its 16×16 tile, in
+readback gives a_R and n_v) and lists them (gl_passes.reflective_list: `assign`,
+`accumulate` and the later steps' per-sample passes run over the list); `assign`
+writes each reflective sample's raw bin (r32ui image) and mirror normal (rgba32f
+image) and, for components, initialises the union-find labels; then a block
+union-find (cluster_labels.glsl): `merge` unites each sample with its left and
+upper neighbour when connected inside its 16×16 tile, in
 shared memory, and labels it with its tile-local root; `border` unites the local
 roots' sets across tile borders; `roots` points every local root at its
 component's root (the least sample index); `compress` does the same for every
@@ -83,6 +85,7 @@ import numpy as np
 from gl_passes.cluster_units import UNITS
 from gl_passes.context import GLContext
 from gl_passes.readback import StagingBuffer, read_texture
+from gl_passes.reflective_list import ReflectiveSampleList
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
 
@@ -95,6 +98,7 @@ PLANAR_LENGTH = 1.0 - 1e-6
 PLANAR_SPAN = 1e-5
 FIXED = float(1 << 24)
 GROUP = 16  # work-group side of the passes, and the union-find's tile (TILE in the shaders)
+LIST_GROUP = 256  # work group of the passes over the listed reflective samples (assign, accumulate)
 
 
 @dataclass
@@ -218,6 +222,7 @@ class ClusteringPass:
         self.split_prog = compute_program(gl, "cluster_split.comp", units)
         self.accumulate_prog = compute_program(gl, "cluster_accumulate.comp",
                                                {**units, **({"TILE_SUMS": "1"} if self.tile_sums else {})})
+        self.samples = ReflectiveSampleList(gl)  # this frame's reflective samples, listed by the count pass
         self.pass_ms: dict[str, float] = {}  # run(timed=True): milliseconds per pass
         self.bins_tex: moderngl.Texture | None = None
         self.mnormal_tex: moderngl.Texture | None = None
@@ -282,9 +287,16 @@ class ClusteringPass:
                           ("u_position", "position"), ("u_tri", "tri_id")):
             UNITS.bind_texture(name, textures[key])
 
-        # Pass 1: reflective samples per object.
+        # Pass 1: reflective samples per object; the list of reflective samples; the
+        # non-reflective samples' bins (0) and union-find records.
+        components = normal_break > 0
         counts_buf = self.buffer("obj_count", np.zeros(n_objects + 1, np.uint32).tobytes())
         UNITS.bind_storage("ObjCount", counts_buf)
+        UNITS.bind_storage("Labels", self.buffer("labels", size=4 * n_samples))
+        UNITS.bind_storage("CompCount", self.buffer("comp_count", size=4 * n_samples))
+        UNITS.bind_image("u_bin_image", self.bins_tex, read=False, write=True)
+        self.samples.reset(size)
+        set_uniform(self.count_prog, "u_components", components)
         self.count_prog.run(*groups)
         ctx.memory_barrier()
         obj_samples = np.frombuffer(self.staging.read(counts_buf, 4 * (n_objects + 1)), np.uint32).copy()
@@ -298,16 +310,13 @@ class ClusteringPass:
         table[:, 0], table[:, 1], table[:, 2] = base, np.maximum(bins[:, 0], 1), np.maximum(bins[:, 1], 1)
         eye = np.asarray(eye, np.float64)
 
-        # Pass 2: raw bins, mirror normals, labels.
+        # Pass 2: raw bins, mirror normals, labels of the listed reflective samples.
         UNITS.bind_storage("BinTable", self.buffer("bin_table", table.tobytes()))
-        UNITS.bind_storage("Labels", self.buffer("labels", size=4 * n_samples))
-        UNITS.bind_storage("CompCount", self.buffer("comp_count", size=4 * n_samples))
         UNITS.bind_image("u_bin_image", self.bins_tex, read=False, write=True)
         UNITS.bind_image("u_mnormal_image", self.mnormal_tex, read=False, write=True)
-        components = normal_break > 0
         set_uniform(self.assign_prog, "u_eye", eye)
         set_uniform(self.assign_prog, "u_components", components)
-        self.assign_prog.run(*groups)
+        self.samples.dispatch(self.assign_prog, LIST_GROUP)
         ctx.memory_barrier()
         mark("assign")
 
@@ -347,7 +356,7 @@ class ClusteringPass:
         set_uniform(prog, "u_inv_ext", 1.0 / (hi - lo))
         set_uniform(prog, "u_n_bins", n_bins)
         set_uniform(prog, "u_components", components)
-        prog.run(*groups)
+        self.samples.dispatch(prog, LIST_GROUP)
         ctx.memory_barrier()
         raw = np.frombuffer(self.staging.read(stats_buf, 4 * max(n_seg, 1) * STATS_STRIDE), np.uint32)
         mark("accumulate")
@@ -421,6 +430,7 @@ class ClusteringPass:
             b.release()
         self._buffers.clear()
         self.staging.release()
+        self.samples.release()
         for t in (self.bins_tex, self.mnormal_tex):
             if t is not None:
                 t.release()

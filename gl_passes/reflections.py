@@ -110,7 +110,6 @@ from gl_passes.context import GLContext
 from gl_passes.gbuffer import GBufferPass
 from gl_passes.readback import TextureReader, read_texture
 from gl_passes.reconstruction import simplify
-from gl_passes.reflective_list import ReflectiveSampleList
 from gl_passes.releasable import Releasable
 from gl_passes.shaders import compute_program, program
 from gl_passes.uniforms import set_uniform
@@ -263,7 +262,6 @@ class ClusterReflections(Releasable):
         self._reader = TextureReader()  # the frame's outputs, read back into one reused buffer
         self.clustering = ClusteringPass(gl, settings.bin_normal)
         self.extent = ClusterExtentPass(gl)
-        self.samples = ReflectiveSampleList(gl)  # the reflective samples, per frame
         units = {**UNITS.defines(), "BACKGROUND_DEPTH": repr(BACKGROUND_DEPTH)}
         defines = {**units, "FADE_FRACTION": repr(float(FADE_FRACTION)), "MAX_RAYS": str(MAX_RAYS),
                    "BLOCK": str(BLOCK), "TRACE_GROUP": str(TRACE_GROUP)}
@@ -433,15 +431,14 @@ class ClusterReflections(Releasable):
         # 3. cluster cameras
         bins = self.clustering.bins_tex
         size = bins.size
-        self.samples.build(bins)
         self._bind_gbuffer(bins, tex)
         cams = cc.initial_cameras(stats, cam, scene.materials, scene.diagonal)
         atlas_size = (0, 0)
         drawn = 0
         if method == "clusters" and cams:
-            ext0 = self.extent.run(0, cc.stage0_frames(cams), self.samples, eye)
+            ext0 = self.extent.run(0, cc.stage0_frames(cams), self.clustering.samples, eye)
             cc.place_centers(cams, ext0, stats, scene.diagonal, st.max_shift)
-            ext1 = self.extent.run(1, cc.stage1_frames(cams), self.samples, eye)
+            ext1 = self.extent.run(1, cc.stage1_frames(cams), self.clustering.samples, eye)
             cc.finish_cameras(cams, ext1, cam, ss, st.resolution_scale, st.max_resolution)
             budget = st.atlas_budget * size[0] * size[1] if st.atlas_budget else None
             atlas_size = cc.pack_atlas(cams, st.atlas_max, budget)
@@ -475,7 +472,7 @@ class ClusterReflections(Releasable):
             lobe = np.zeros((MAX_RAYS, 2), np.float32)
             lobe[:glossy_rays] = lobe_offsets(glossy_rays)
             p["u_lobe"].write(lobe.tobytes())
-        self.samples.dispatch(p, TRACE_GROUP)
+        self.clustering.samples.dispatch(p, TRACE_GROUP)
         ctx.memory_barrier()
         lap("intersection")
         # 6. blend + ss×ss resolve + readback
@@ -691,7 +688,6 @@ class ClusterReflections(Releasable):
         self._reader.release()
         self.clustering.release()
         self.extent.release()
-        self.samples.release()
         self._release_atlas()
         for entry in self._chunk_cache.values():
             self._release_entry(entry)

@@ -6,15 +6,17 @@
 // (32-bit atomics with carry), and the range of the samples' plane offsets n·P
 // (order-preserving uints: a component is planar when its normals agree and this
 // range is nil). With TILE_SUMS (a GPU: gl_passes.clustering), each work group
-// first sums its samples in shared memory (a tile's samples mostly share a few
-// segments: up to SLOTS of them, the rest straight to the SSBO) and adds each slot
-// to the SSBO once, instead of every sample contending for its segment's words (a
-// GPU runs the atomics on one address one after another); llvmpipe, whose
+// first sums its samples in shared memory (its 256 listed samples, neighbours on
+// screen, mostly share a few segments: up to SLOTS of them, the rest straight to
+// the SSBO) and adds each slot to the SSBO once, instead of every sample
+// contending for its segment's words (a GPU runs the atomics on one address one
+// after another); llvmpipe, whose
 // barriers and shared atomics cost more than its contention, adds every sample
 // directly. Integer sums: the totals are the same either way, in any order.
-layout(local_size_x = 16, local_size_y = 16) in;
+layout(local_size_x = 256) in;  // one invocation per listed reflective sample
 #include "cluster_sample.glsl"
 #include "cluster_labels.glsl"
+#include "reflective_list.glsl"
 layout(std430, binding = UNIT_CompCount) readonly buffer CompCount { uint comp_count[]; };
 layout(std430, binding = UNIT_BinStats) buffer BinStats { uint stats[]; };
 layout(r32ui, binding = UNIT_u_bin_image) uniform uimage2D u_bin_image;  // in: raw bin + 1, out: segment + 1
@@ -57,9 +59,10 @@ void main() {
     barrier();
 #endif
 
-    ivec2 p = ivec2(gl_GlobalInvocationID.xy);
+    bool listed = gl_GlobalInvocationID.x < n_samples;
+    ivec2 p = listed ? list_sample(gl_GlobalInvocationID.x) : ivec2(0);
     ivec2 size = textureSize(u_mnormal, 0);
-    uint raw = all(lessThan(p, size)) ? imageLoad(u_bin_image, p).r : 0u;
+    uint raw = listed ? imageLoad(u_bin_image, p).r : 0u;
     if (raw != 0u) {
         uint seg = raw - 1u;
         if (u_components) {

@@ -2,10 +2,12 @@
 // §4.3 step 4: the raw bin of every reflective sample, by (mirror-normal theta
 // bin, phi bin, reflector id), and its mirror normal (for the normal-break test
 // of cluster_merge.comp and the statistics of cluster_accumulate.comp); with
-// u_components, its union-find label (itself) and component count (0).
-layout(local_size_x = 16, local_size_y = 16) in;
+// u_components, its union-find label (itself) and component count (0). One
+// invocation per listed reflective sample (cluster_count.comp wrote the others').
+layout(local_size_x = 256) in;
 #include "cluster_sample.glsl"
 #include "cluster_labels.glsl"
+#include "reflective_list.glsl"
 layout(std430, binding = UNIT_BinTable) readonly buffer BinTable { uvec4 bin_info[]; };  // per object id: base, n_theta, n_phi
 layout(std430, binding = UNIT_CompCount) writeonly buffer CompCount { uint comp_count[]; };
 layout(r32ui, binding = UNIT_u_bin_image) writeonly uniform uimage2D u_bin_image;  // raw bin + 1 (0 = not reflective)
@@ -14,16 +16,14 @@ uniform bool u_components;
 #define PI 3.14159265358979
 
 void main() {
-    ivec2 p = ivec2(gl_GlobalInvocationID.xy);
-    ivec2 size = textureSize(u_obj, 0);
-    if (any(greaterThanEqual(p, size))) return;
-    uint idx = uint(p.y * size.x + p.x);
+    if (gl_GlobalInvocationID.x >= n_samples) return;
+    ivec2 p = list_sample(gl_GlobalInvocationID.x);
+    uint idx = uint(p.y * textureSize(u_obj, 0).x + p.x);
     uint o = reflector(p);
     if (u_components) {
         comp_count[idx] = 0u;
-        labels[idx] = o == 0u ? NONE : idx;
+        labels[idx] = idx;
     }
-    if (o == 0u) { imageStore(u_bin_image, p, uvec4(0u)); return; }
     vec3 n = sample_mirror_normal(p, texelFetch(u_position, p, 0).xyz);
     float theta = atan(n.z, n.x);
     if (theta < 0.0) theta += 2.0 * PI;
