@@ -21,7 +21,7 @@ UNITS = Units(
             ("u_block_min_image", "u_block_max_image")),
     # storage blocks
     storage=("ObjCount", "BinTable", "BinStats", "Remap", "Ext", "Frames", "MeshVerts", "MeshFaces", "Labels",
-             "CompCount", "SplitList", "SampleList"),
+             "CompCount", "SplitList", "SampleList", "TileList"),
     # samplers
     textures=("u_bins", "u_tri", "u_normal", "u_position", "u_colour_pack", "u_color", "u_material", "u_reflected",
               "u_tri_pack", "u_pack", "u_block_min", "u_block_max", "u_obj", "u_prev",

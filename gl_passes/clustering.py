@@ -332,7 +332,7 @@ class ClusteringPass:
             self.label_components(self.bins_tex, self.mnormal_tex, normal_break, mark)
             set_uniform(self.split_prog, "u_min_samples", min_samples)
             set_uniform(self.split_prog, "u_capacity", capacity)
-            self.split_prog.run(*groups)
+            self.samples.dispatch(self.split_prog, LIST_GROUP)
             ctx.memory_barrier()
             n_split = min(int(np.frombuffer(self.staging.read(split_buf, 4), np.uint32)[0]), capacity)
             mark("split")
@@ -396,14 +396,15 @@ class ClusteringPass:
                          mark: Callable[[str], None] = lambda name: None) -> None:
         """The block union-find (module docstring): passes merge, border, roots and
         compress over a raw-bin image (r32ui, bin + 1, 0 = not reflective) and a
-        mirror-normal image of the same size. On entry the "labels" SSBO holds each
-        sample's own linear index (NONE where not reflective) and "comp_count" zeros
-        (cluster_assign.comp's initialisation); on return every reflective sample's
+        mirror-normal image of the same size. On entry self.samples lists the
+        reflective samples and tiles of `bins` (the count pass, or
+        self.samples.build(bins)), the "labels" SSBO holds each sample's own linear
+        index (NONE where not reflective) and "comp_count" zeros at the reflective
+        samples (cluster_count.comp's and cluster_assign.comp's initialisation); on return every reflective sample's
         label is its component's root (the least linear index in it) and comp_count
         at a root the component's size. mark(name) is called after each pass."""
         ctx = self.gl.ctx
         size = bins.size
-        groups = ((size[0] + GROUP - 1) // GROUP, (size[1] + GROUP - 1) // GROUP, 1)  # one per tile
         UNITS.bind_storage("Labels", self.buffer("labels", size=4 * size[0] * size[1]))
         UNITS.bind_storage("CompCount", self.buffer("comp_count", size=4 * size[0] * size[1]))
         UNITS.bind_texture("u_bins", bins)
@@ -412,9 +413,12 @@ class ClusteringPass:
             set_uniform(prog, "u_cos_break", float(np.cos(np.radians(normal_break))))
         for prog in (self.roots_prog, self.compress_prog):
             set_uniform(prog, "u_size", tuple(int(x) for x in size))
-        for name, prog in (("merge", self.merge_prog), ("border", self.border_prog), ("roots", self.roots_prog),
-                           ("compress", self.compress_prog)):
-            prog.run(*groups)
+        for name, prog in (("merge", self.merge_prog), ("border", self.border_prog)):
+            self.samples.dispatch_tiles(prog)
+            ctx.memory_barrier()
+            mark(name)
+        for name, prog in (("roots", self.roots_prog), ("compress", self.compress_prog)):
+            self.samples.dispatch(prog, LIST_GROUP)
             ctx.memory_barrier()
             mark(name)
 

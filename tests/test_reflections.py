@@ -213,6 +213,7 @@ def test_block_union_find_labels_the_components_of_a_random_maze(gl, seed):
     try:
         cp.buffer("labels", np.where(bins > 0, idx, 0xFFFFFFFF).astype(np.uint32).tobytes())
         cp.buffer("comp_count", np.zeros(h * w, np.uint32).tobytes())
+        cp.samples.build(bins_tex)
         cp.label_components(bins_tex, normal_tex, 10.0)
         labels = np.frombuffer(cp.buffer("labels").read(size=4 * h * w), np.uint32).reshape(h, w).astype(np.int64)
         count = np.frombuffer(cp.buffer("comp_count").read(size=4 * h * w), np.uint32)

@@ -6,7 +6,8 @@
 // cluster_roots.comp.
 #include "cluster_labels.glsl"
 #include "cluster_edges.glsl"
-layout(local_size_x = TILE, local_size_y = TILE) in;
+#include "reflective_list.glsl"
+layout(local_size_x = TILE, local_size_y = TILE) in;  // one work group per listed tile
 layout(std430, binding = UNIT_CompCount) buffer CompCount { uint comp_count[]; };
 shared uint s_parent[TILE * TILE];
 shared uint s_bin[TILE * TILE];     // the tile's raw bins + 1 and mirror normals, fetched once
@@ -19,8 +20,9 @@ bool local_connected(uint a, uint b) {
 }
 
 void main() {
-    ivec2 p = ivec2(gl_GlobalInvocationID.xy);
+    ivec2 tile = list_tile();
     ivec2 l = ivec2(gl_LocalInvocationID.xy);
+    ivec2 p = tile * TILE + l;
     uint li = gl_LocalInvocationIndex;
     ivec2 size = textureSize(u_bins, 0);
     bool inside = all(lessThan(p, size));
@@ -38,7 +40,7 @@ void main() {
     barrier();
     if (bin == 0u) return;
     uint r = local_find(li);
-    ivec2 rp = ivec2(gl_WorkGroupID.xy) * TILE + ivec2(r % uint(TILE), r / uint(TILE));
+    ivec2 rp = tile * TILE + ivec2(r % uint(TILE), r / uint(TILE));
     uint idx = uint(p.y * size.x + p.x);
     labels[idx] = uint(rp.y * size.x + rp.x);
     if (r == li) comp_count[idx] = 1u;

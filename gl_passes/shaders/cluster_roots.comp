@@ -2,14 +2,15 @@
 // Block union-find, step 3 (cluster_labels.glsl): every tile-local root (flagged
 // by cluster_merge.comp) points at its component's root, and its flag is
 // cleared, so that cluster_compress.comp finds every sample's root in two hops.
-layout(local_size_x = 16, local_size_y = 16) in;
+layout(local_size_x = 256) in;  // one invocation per listed reflective sample
 #include "cluster_labels.glsl"
+#include "reflective_list.glsl"
 layout(std430, binding = UNIT_CompCount) buffer CompCount { uint comp_count[]; };
 uniform ivec2 u_size;
 
 void main() {
-    ivec2 p = ivec2(gl_GlobalInvocationID.xy);
-    if (any(greaterThanEqual(p, u_size))) return;
+    if (gl_GlobalInvocationID.x >= n_samples) return;
+    ivec2 p = list_sample(gl_GlobalInvocationID.x);
     uint idx = uint(p.y * u_size.x + p.x);
     if (comp_count[idx] == 0u) return;
     comp_count[idx] = 0u;

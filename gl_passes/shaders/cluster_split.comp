@@ -3,8 +3,9 @@
 // their root appends (root, raw bin, samples) to the list and marks its count
 // entry with SPLIT | list index; the samples of smaller components stay in their
 // raw bin's cluster (comp entry 0).
-layout(local_size_x = 16, local_size_y = 16) in;
+layout(local_size_x = 256) in;  // one invocation per listed reflective sample
 #include "cluster_labels.glsl"
+#include "reflective_list.glsl"
 layout(std430, binding = UNIT_CompCount) buffer CompCount { uint comp_count[]; };
 layout(std430, binding = UNIT_SplitList) buffer SplitList { uint n_split; uint split[]; };  // 3 per entry
 layout(binding = UNIT_u_bins) uniform usampler2D u_bins;  // raw bin + 1
@@ -13,9 +14,9 @@ uniform uint u_capacity;
 #define SPLIT 0x80000000u
 
 void main() {
-    ivec2 p = ivec2(gl_GlobalInvocationID.xy);
+    if (gl_GlobalInvocationID.x >= n_samples) return;
+    ivec2 p = list_sample(gl_GlobalInvocationID.x);
     ivec2 size = textureSize(u_bins, 0);
-    if (any(greaterThanEqual(p, size))) return;
     uint idx = uint(p.y * size.x + p.x);
     if (labels[idx] != idx) return;  // not a root (or not reflective)
     uint c = comp_count[idx];

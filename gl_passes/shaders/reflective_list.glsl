@@ -1,9 +1,11 @@
-// The reflective samples of the supersampled G-buffer as one list (built by
-// reflective_list.comp, tile by tile): the passes that work per reflective sample
-// (cluster_extent.comp, reflect_trace.comp) run over it instead of over every
-// sample, since a CPU rasteriser runs an invocation's code under a lane mask even
-// when none of its lanes has a reflective sample. The two dispatch triples are
-// glDispatchComputeIndirect arguments for groups of 64 and 256 invocations.
+// The reflective samples of the supersampled G-buffer as one list, and the 16×16
+// tiles holding any, built tile by tile (list_tile_samples: by cluster_count.comp
+// in a frame, by reflective_list.comp from a bin image): the passes that work per
+// reflective sample or per tile run over them instead of over every sample, since
+// a CPU rasteriser runs an invocation's code under a lane mask even when none of
+// its lanes has a reflective sample. The dispatch triples are
+// glDispatchComputeIndirect arguments: groups of 64 or 256 invocations over the
+// samples, one group per listed tile.
 #ifndef LIST_ACCESS
 #define LIST_ACCESS readonly
 #endif
@@ -14,5 +16,38 @@ layout(std430, binding = UNIT_SampleList) LIST_ACCESS buffer SampleList {
     uint list_pad_;
     uint sample_xy[];  // x | y << 16
 };
+layout(std430, binding = UNIT_TileList) LIST_ACCESS buffer TileList {
+    uint n_tiles;
+    uint dispatch_tiles[3];
+    uint tile_xy[];  // tile x | tile y << 16
+};
 
-ivec2 list_sample(uint i) { uint v = sample_xy[i]; return ivec2(int(v & 0xFFFFu), int(v >> 16)); }
+ivec2 list_unpack(uint v) { return ivec2(int(v & 0xFFFFu), int(v >> 16)); }
+ivec2 list_sample(uint i) { return list_unpack(sample_xy[i]); }
+ivec2 list_tile() { return list_unpack(tile_xy[gl_WorkGroupID.x]); }  // this work group's tile
+
+#ifdef LIST_WRITER
+shared uint s_listed_;
+shared uint s_list_base_;
+// Called by every invocation of a 16×16 work group over the sample grid, in
+// uniform control flow (it holds barriers): lists p when `listed`, the group's
+// samples in one contiguous stretch (in invocation order on a CPU rasteriser, so
+// neighbours stay neighbours), and the group's tile when it listed any.
+void list_tile_samples(bool listed, ivec2 p) {
+    if (gl_LocalInvocationIndex == 0u) s_listed_ = 0u;
+    barrier();
+    uint slot = listed ? atomicAdd(s_listed_, 1u) : 0u;
+    barrier();
+    if (gl_LocalInvocationIndex == 0u && s_listed_ > 0u) {
+        s_list_base_ = atomicAdd(n_samples, s_listed_);
+        uint end = s_list_base_ + s_listed_;
+        atomicMax(dispatch64[0], (end + 63u) / 64u);
+        atomicMax(dispatch256[0], (end + 255u) / 256u);
+        uint t = atomicAdd(n_tiles, 1u);
+        tile_xy[t] = gl_WorkGroupID.x | (gl_WorkGroupID.y << 16);
+        atomicMax(dispatch_tiles[0], t + 1u);
+    }
+    barrier();
+    if (listed) sample_xy[s_list_base_ + slot] = uint(p.x) | (uint(p.y) << 16);
+}
+#endif
