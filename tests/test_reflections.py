@@ -23,6 +23,7 @@ import trimesh
 from gl_passes.cluster_camera import mirror_point
 from gl_passes.clustering import MAX_PHI_BINS, MAX_THETA_BINS, ClusteringPass, bins_per_reflector
 from gl_passes.reflections import ClusterReflections, ClusterSettings
+from gl_passes.reflective_list import HEADER_BYTES, TILE_HEADER_BYTES, ReflectiveSampleList
 from gl_passes.upload import SceneGPU
 from reference.image_metrics import mean_abs_error, occlusion_error_mask, occlusion_error_percentage
 from reference.raycast import RayCaster
@@ -228,6 +229,41 @@ def test_block_union_find_labels_the_components_of_a_random_maze(gl, seed):
     sizes = np.bincount(truth[refl])
     assert np.array_equal(count[least[1:]], sizes[1:])
     assert truth.max() > 100 and sizes.max() > 16 * 16 * 4  # many components, some spanning several tiles
+
+
+def test_reflective_sample_list_holds_each_reflective_sample_once_tile_by_tile(gl):
+    """The list the per-sample passes dispatch over: every sample with a bin exactly
+    once, each 16×16 tile's samples in one contiguous stretch, the tiles with any
+    sample listed once, and the indirect dispatch sizes cover the list (a 203×141
+    image: partial tiles at the right and top edges, an empty band of tiles)."""
+    h, w = 141, 203
+    rng = np.random.default_rng(3)
+    bins = np.where(rng.random((h, w)) < 0.3, 1 + rng.integers(0, 5, (h, w)), 0).astype(np.uint32)
+    bins[:, 32:64] = 0  # two columns of tiles without a sample
+    lists = ReflectiveSampleList(gl)
+    tex = gl.ctx.texture((w, h), 1, bins.tobytes(), dtype="u4")  # numpy row = GL row
+    try:
+        lists.build(tex)
+        head = np.frombuffer(lists.buf.read(size=HEADER_BYTES), np.uint32)
+        n = int(head[0])
+        xy = np.frombuffer(lists.buf.read(size=4 * n, offset=HEADER_BYTES), np.uint32)
+        tile_head = np.frombuffer(lists.tiles.read(size=TILE_HEADER_BYTES), np.uint32)
+        tiles = np.frombuffer(lists.tiles.read(size=4 * int(tile_head[0]), offset=TILE_HEADER_BYTES), np.uint32)
+    finally:
+        tex.release()
+        lists.release()
+    x, y = (xy & 0xFFFF).astype(np.int64), (xy >> 16).astype(np.int64)
+    ys, xs = np.nonzero(bins)
+    assert n == len(ys)
+    assert np.array_equal(np.sort(y * w + x), np.sort(ys * w + xs))  # each sample once, nothing else
+    tile = (y // 16) * 64 + x // 16
+    starts = np.r_[True, tile[1:] != tile[:-1]]
+    assert starts.sum() == len(np.unique(tile))  # one stretch per tile
+    expected = np.unique((ys // 16) * 64 + xs // 16)
+    listed = (tiles >> 16).astype(np.int64) * 64 + (tiles & 0xFFFF)
+    assert len(listed) == len(expected) and np.array_equal(np.sort(listed), expected)
+    assert tuple(head[1:4]) == (-(-n // 64), 1, 1) and tuple(head[4:7]) == (-(-n // 256), 1, 1)
+    assert tuple(tile_head[1:4]) == (len(expected), 1, 1)
 
 
 # --- planar mirror ----------------------------------------------------------------
