@@ -322,8 +322,12 @@ class ClusterReflections(Releasable):
             self._tri_pack = ctx.texture(need, 2, dtype="u4")
             for tex in (self._pack, self._colour_pack, self._tri_pack):
                 tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            # The layers' own depths: layers 0 and 1 are peeled (u_prev of layers 3 and
+            # 2); the peel layers share one target with writes masked off (on llvmpipe
+            # every written colour output costs its fragments).
+            owns = [ctx.texture(need, 1, dtype="f4") for _ in range(3)]
             for layer in range(N_LAYERS):
-                own = ctx.texture(need, 1, dtype="f4")
+                own = owns[min(layer, 2)]
                 own.filter = (moderngl.NEAREST, moderngl.NEAREST)
                 depth = ctx.depth_texture(need)
                 # Fragment outputs: 0 the layer's depth, 1 the pack, 2 the colour pack,
@@ -333,14 +337,15 @@ class ClusterReflections(Releasable):
                 if layer in (1, 2):
                     packs.append((self._tri_pack, layer - 1))
                 fbo = ctx.framebuffer([own, *(t for t, _ in packs)], depth)
-                fbo.color_mask = ((True,) * 4, *(tuple(c == ch for c in range(4)) for _, ch in packs))
+                fbo.color_mask = ((layer < 2,) * 4, *(tuple(c == ch for c in range(4)) for _, ch in packs))
                 self._atlas.append((own, fbo, depth))
         return [fbo for _, fbo, _ in self._atlas]
 
     def _release_atlas(self) -> None:
-        for own, fbo, depth in self._atlas:
+        for _, fbo, depth in self._atlas:
             fbo.release()
             depth.release()
+        for own in {id(own): own for own, _, _ in self._atlas}.values():  # layers 2 and 3 share one
             own.release()
         if self._atlas:
             self._pack_fbo.release()
