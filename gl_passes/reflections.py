@@ -295,7 +295,6 @@ class ClusterReflections(Releasable):
         self._colour_pack: moderngl.Texture | None = None  # the layers' colours, likewise
         self._tri_pack: moderngl.Texture | None = None  # the reflector layers' triangle ids, likewise
         self._pack_fbo: moderngl.Framebuffer | None = None
-        self._samples: moderngl.Texture | None = None
         self._outputs: dict[str, moderngl.Texture] = {}
         self._chunk_cache: dict = {}
 
