@@ -2,8 +2,9 @@
 (technique 3, thesis Ch. 4): built on the GPU tile by tile by the clustering's
 first pass (cluster_count.comp, §4.3), so that the passes working per reflective
 sample or tile — the clustering's passes after it, the cluster cameras' extent
-passes (§4.4) and the intersection (Alg. 7) — dispatch over them (glDispatchComputeIndirect, the count never read
-back) instead of over every G-buffer sample. On a CPU rasteriser an invocation
+passes (§4.4) and the intersection (Alg. 7) — dispatch over them
+(glDispatchComputeIndirect, the counts never read back) instead of over every
+G-buffer sample. On a CPU rasteriser an invocation
 whose lanes are all non-reflective still runs its code under an empty lane mask;
 most samples of a view are not reflective."""
 
@@ -21,6 +22,7 @@ from gl_passes.shaders import compute_program
 HEADER_BYTES = 32  # n_samples, dispatch64[3], dispatch256[3], pad (reflective_list.glsl)
 TILE_HEADER_BYTES = 16  # n_tiles, dispatch_tiles[3]
 DISPATCH_OFFSET = {64: 4, 256: 16}  # byte offset of the indirect dispatch triple per group size
+TILE_DISPATCH_OFFSET = 4  # byte offset of dispatch_tiles
 TILE = 16  # the lists' tile side (the clustering's work groups)
 
 
@@ -76,7 +78,7 @@ class ReflectiveSampleList(Releasable):
     def dispatch_tiles(self, prog: moderngl.ComputeShader) -> None:
         """Run `prog` with one work group per listed tile (list_tile)."""
         self._bind()
-        prog.run_indirect(self.tiles, 4)
+        prog.run_indirect(self.tiles, TILE_DISPATCH_OFFSET)
 
     def release(self) -> None:
         for attr in ("buf", "tiles"):
