@@ -23,6 +23,9 @@ layout(std430, binding = UNIT_Ext) buffer Ext { uint ext[]; };
 #define STRIDE 16u
 #define MAXTAN 20.0
 #define SPACING_FIXED 268435456.0
+#define D45 0.70710678118654752
+const vec2 LOBE_RIM[8] = vec2[8](vec2(1.0, 0.0), vec2(D45, D45), vec2(0.0, 1.0), vec2(-D45, D45), vec2(-1.0, 0.0),
+                                 vec2(-D45, -D45), vec2(0.0, -1.0), vec2(D45, -D45));
 shared uint s_ext[STRIDE];
 shared int s_cid;
 bool g_local;
@@ -122,10 +125,15 @@ void main() {
         accum_ray(P, r, F, true);
         float half_angle = F.fwd_half.w;
         if (half_angle > 0.0) {
-            for (int k = 0; k < 8; ++k) {
-                float a = float(k) * 0.78539816339;
-                accum_ray(P, lift_above(lobe_dir(r, half_angle, vec2(cos(a), sin(a))), ng), F, true);
-            }
+            // The lobe's rim (lobe_dir at rho = 1, every 45°), its frame and tilt
+            // worked out once for the eight rays.
+            vec3 t1, t2;
+            lobe_frame(r, t1, t2);
+            float tilt = tan(half_angle);
+            t1 *= tilt;
+            t2 *= tilt;
+            for (int k = 0; k < 8; ++k)
+                accum_ray(P, lift_above(normalize(r + LOBE_RIM[k].x * t1 + LOBE_RIM[k].y * t2), ng), F, true);
         }
         flush_rays();
         if (u_stage == 1 && zp > 0.0) {

@@ -32,14 +32,21 @@ vec3 mirror_normal(vec3 d, vec3 n, vec3 ng) {
     return dot(m, d) > 0.0 ? -m : m;
 }
 
-// Lobe direction: tilt the axis m by rho·half toward phi, offset = rho·(cos phi, sin phi),
-// in the branchless orthonormal frame of Duff et al. (scenes.glossy.lobe_directions).
-vec3 lobe_dir(vec3 m, float half_angle, vec2 off) {
+// The branchless orthonormal frame (t1, t2) around the unit axis m of Duff et al.
+// (scenes.glossy.lobe_directions).
+void lobe_frame(vec3 m, out vec3 t1, out vec3 t2) {
     float sgn = m.z >= 0.0 ? 1.0 : -1.0;
     float a = -1.0 / (sgn + m.z);
     float b = m.x * m.y * a;
-    vec3 t1 = vec3(1.0 + sgn * m.x * m.x * a, sgn * b, -sgn * m.x);
-    vec3 t2 = vec3(b, sgn + m.y * m.y * a, -m.y);
+    t1 = vec3(1.0 + sgn * m.x * m.x * a, sgn * b, -sgn * m.x);
+    t2 = vec3(b, sgn + m.y * m.y * a, -m.y);
+}
+
+// Lobe direction: tilt the axis m by rho·half toward phi, offset = rho·(cos phi, sin phi),
+// in lobe_frame's frame.
+vec3 lobe_dir(vec3 m, float half_angle, vec2 off) {
+    vec3 t1, t2;
+    lobe_frame(m, t1, t2);
     float rho = length(off);
     float scale = rho > 0.0 ? tan(rho * half_angle) / rho : half_angle;
     return normalize(m + off.x * scale * t1 + off.y * scale * t2);
