@@ -42,6 +42,7 @@ from gl_passes.clustering import ClusterStats, decode_ordered
 from gl_passes.context import GLContext
 from gl_passes.readback import StagingBuffer
 from gl_passes.reflective_list import ReflectiveSampleList
+from gl_passes.releasable import grown_buffer
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
 from scenes.camera import Camera
@@ -337,12 +338,8 @@ class ClusterExtentPass:
         self.staging = StagingBuffer(gl.ctx)  # reads the extents back (ext_buf stays the GPU's)
 
     def _buffer(self, attr: str, data: bytes) -> moderngl.Buffer:
-        buf = getattr(self, attr)
-        if buf is None or buf.size < len(data):
-            if buf is not None:
-                buf.release()
-            buf = self.gl.ctx.buffer(reserve=max(len(data), 64) * 2)
-            setattr(self, attr, buf)
+        buf = grown_buffer(self.gl.ctx, getattr(self, attr), len(data), max(len(data), 64) * 2)
+        setattr(self, attr, buf)
         buf.write(data)
         return buf
 

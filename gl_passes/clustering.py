@@ -86,6 +86,7 @@ from gl_passes.cluster_units import UNITS
 from gl_passes.context import GLContext
 from gl_passes.readback import StagingBuffer, read_texture
 from gl_passes.reflective_list import ReflectiveSampleList
+from gl_passes.releasable import grown_buffer
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
 
@@ -234,12 +235,7 @@ class ClusteringPass:
         """A named SSBO holding `data` (or at least `size` bytes left as they are;
         grown when needed, reused across frames)."""
         need = len(data) if data is not None else size
-        buf = self._buffers.get(name)
-        if buf is None or buf.size < need:
-            if buf is not None:
-                buf.release()
-            buf = self.gl.ctx.buffer(reserve=max(need, 16) * 2)
-            self._buffers[name] = buf
+        buf = self._buffers[name] = grown_buffer(self.gl.ctx, self._buffers.get(name), need, max(need, 16) * 2)
         if data is not None:
             buf.write(data)
         return buf

@@ -8,6 +8,8 @@ from collections.abc import Sequence
 import moderngl
 import numpy as np
 
+from gl_passes.releasable import grown_buffer
+
 _DTYPES = {"f1": np.uint8, "f2": np.float16, "f4": np.float32, "u1": np.uint8, "u2": np.uint16,
            "u4": np.uint32, "i1": np.int8, "i2": np.int16, "i4": np.int32}
 
@@ -81,10 +83,7 @@ class StagingBuffer:
         as Buffer.read does; the caller issues the memory barrier)."""
         if size <= 0:
             return b""
-        if self.buf is None or self.buf.size < size:
-            if self.buf is not None:
-                self.buf.release()
-            self.buf = self.ctx.buffer(reserve=max(size, 64) * 2)
+        self.buf = grown_buffer(self.ctx, self.buf, size, max(size, 64) * 2)
         self.ctx.copy_buffer(self.buf, src, size, read_offset=offset)
         return self.buf.read(size=size)
 

@@ -16,7 +16,7 @@ import moderngl
 
 from gl_passes.cluster_units import UNITS
 from gl_passes.context import GLContext
-from gl_passes.releasable import Releasable
+from gl_passes.releasable import Releasable, grown_buffer
 from gl_passes.shaders import compute_program
 
 HEADER_BYTES = 32  # n_samples, dispatch64[3], dispatch256[3], pad (reflective_list.glsl)
@@ -38,22 +38,15 @@ class ReflectiveSampleList(Releasable):
         self.buf: moderngl.Buffer | None = None
         self.tiles: moderngl.Buffer | None = None
 
-    def _reserve(self, attr: str, need: int) -> moderngl.Buffer:
-        buf = getattr(self, attr)
-        if buf is None or buf.size < need:
-            if buf is not None:
-                buf.release()
-            buf = self.gl.ctx.buffer(reserve=need)
-            setattr(self, attr, buf)
-        return buf
-
     def reset(self, size: tuple[int, int]) -> None:
         """Empty the lists, with room for every sample and tile of a (W, H)
         G-buffer, and bind them to UNITS' SampleList and TileList for the pass that
         fills them."""
         n_tiles = -(-size[0] // TILE) * -(-size[1] // TILE)
-        self._reserve("buf", HEADER_BYTES + 4 * size[0] * size[1]).write(struct.pack("8I", 0, 0, 1, 1, 0, 1, 1, 0))
-        self._reserve("tiles", TILE_HEADER_BYTES + 4 * n_tiles).write(struct.pack("4I", 0, 0, 1, 1))
+        self.buf = grown_buffer(self.gl.ctx, self.buf, HEADER_BYTES + 4 * size[0] * size[1])
+        self.tiles = grown_buffer(self.gl.ctx, self.tiles, TILE_HEADER_BYTES + 4 * n_tiles)
+        self.buf.write(struct.pack("8I", 0, 0, 1, 1, 0, 1, 1, 0))
+        self.tiles.write(struct.pack("4I", 0, 0, 1, 1))
         self._bind()
 
     def build(self, bins: moderngl.Texture) -> None:

@@ -45,7 +45,7 @@ import numpy as np
 
 from gl_passes.bindings import Units
 from gl_passes.context import GLContext
-from gl_passes.releasable import Releasable
+from gl_passes.releasable import Releasable, grown_buffer
 from gl_passes.shaders import compute_program, program
 from scenes.lights import light_camera
 from scenes.model import AreaLight
@@ -224,11 +224,7 @@ class SoftShadowPass(Releasable):
     # --- resources -------------------------------------------------------------------
     def _buffer(self, name: str, nbytes: int) -> moderngl.Buffer:
         """The storage buffer `name`, at least `nbytes` long (replaced when smaller)."""
-        buf = self._buffers.get(name)
-        if buf is None or buf.size < nbytes:
-            if buf is not None:
-                buf.release()
-            buf = self._buffers[name] = self.gl.ctx.buffer(reserve=max(nbytes, 16))
+        buf = self._buffers[name] = grown_buffer(self.gl.ctx, self._buffers.get(name), nbytes, max(nbytes, 16))
         return buf
 
     def release(self) -> None:
