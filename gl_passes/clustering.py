@@ -58,8 +58,8 @@ readback gives a_R and n_v) and lists them (gl_passes.reflective_list: `assign`,
 writes each reflective sample's raw bin (r32ui image) and mirror normal (rgba32f
 image) and, for components, initialises the union-find labels; then a block
 union-find (cluster_labels.glsl): `merge` unites each sample with its left and
-upper neighbour when connected inside its 16×16 tile, in
-shared memory, and labels it with its tile-local root; `border` unites the local
+upper neighbour when connected inside its 16×16 tile, in shared memory, and
+labels it with its tile-local root; `border` unites the local
 roots' sets across tile borders; `roots` points every local root at its
 component's root (the least sample index); `compress` does the same for every
 sample and counts the component; `split` lists the components of at least
@@ -396,9 +396,9 @@ class ClusteringPass:
         reflective samples and tiles of `bins` (the count pass, or
         self.samples.build(bins)), the "labels" SSBO holds each sample's own linear
         index (NONE where not reflective) and "comp_count" zeros at the reflective
-        samples (cluster_count.comp's and cluster_assign.comp's initialisation); on return every reflective sample's
-        label is its component's root (the least linear index in it) and comp_count
-        at a root the component's size. mark(name) is called after each pass."""
+        samples (cluster_count.comp's and cluster_assign.comp's initialisation); on
+        return every reflective sample's label is its component's root (the least
+        linear index in it) and comp_count at a root the component's size. mark(name) is called after each pass."""
         ctx = self.gl.ctx
         size = bins.size
         UNITS.bind_storage("Labels", self.buffer("labels", size=4 * size[0] * size[1]))

@@ -290,7 +290,8 @@ class ClusterReflections(Releasable):
         self.trace_prog = compute_program(gl, "reflect_trace.comp", defines)
         self.resolve_prog = compute_program(gl, "reflect_resolve.comp", units)
         self.block_prog = compute_program(gl, "cluster_block_depth.comp", {**units, "BLOCK": str(BLOCK)})
-        self._atlas: list = []
+        self._atlas: list[tuple[moderngl.Framebuffer, moderngl.Texture]] = []  # per layer: framebuffer, depth
+        self._owns: list[moderngl.Texture] = []  # layers 0 and 1's own depths, then the peel layers' (unwritten)
         self._pack: moderngl.Texture | None = None  # the layers' depths, written with them
         self._colour_pack: moderngl.Texture | None = None  # the layers' colours, likewise
         self._tri_pack: moderngl.Texture | None = None  # the reflector layers' triangle ids, likewise
@@ -310,7 +311,7 @@ class ClusterReflections(Releasable):
         shared triangle pack (self._tri_pack), so that the march reads any layer's
         depth, colour or id with one fetch."""
         need = (max(256, -(-size[0] // 256) * 256), max(256, -(-size[1] // 256) * 256))
-        have = self._atlas[0][0].size if self._atlas else (0, 0)
+        have = self._pack.size if self._atlas else (0, 0)
         if not self._atlas or have[0] < need[0] or have[1] < need[1]:
             self._release_atlas()
             ctx = self.gl.ctx
@@ -319,15 +320,13 @@ class ClusterReflections(Releasable):
             self._pack_fbo = ctx.framebuffer([self._pack])
             self._colour_pack = ctx.texture(need, 4, dtype="u4")
             self._tri_pack = ctx.texture(need, 2, dtype="u4")
-            for tex in (self._pack, self._colour_pack, self._tri_pack):
-                tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
             # The layers' own depths: layers 0 and 1 are peeled (u_prev of layers 3 and
             # 2); the peel layers share one target with writes masked off (on llvmpipe
             # every written colour output costs its fragments).
-            owns = [ctx.texture(need, 1, dtype="f4") for _ in range(3)]
+            self._owns = [ctx.texture(need, 1, dtype="f4") for _ in range(3)]
+            for tex in (self._pack, self._colour_pack, self._tri_pack, *self._owns):
+                tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
             for layer in range(N_LAYERS):
-                own = owns[min(layer, 2)]
-                own.filter = (moderngl.NEAREST, moderngl.NEAREST)
                 depth = ctx.depth_texture(need)
                 # Fragment outputs: 0 the layer's depth, 1 the pack, 2 the colour pack,
                 # 3 the triangle pack (the reflector's layers only: ids cost the draw on
@@ -335,22 +334,20 @@ class ClusterReflections(Releasable):
                 packs = [(self._pack, layer), (self._colour_pack, layer)]
                 if layer in (1, 2):
                     packs.append((self._tri_pack, layer - 1))
-                fbo = ctx.framebuffer([own, *(t for t, _ in packs)], depth)
+                fbo = ctx.framebuffer([self._owns[min(layer, 2)], *(t for t, _ in packs)], depth)
                 fbo.color_mask = ((layer < 2,) * 4, *(tuple(c == ch for c in range(4)) for _, ch in packs))
-                self._atlas.append((own, fbo, depth))
-        return [fbo for _, fbo, _ in self._atlas]
+                self._atlas.append((fbo, depth))
+        return [fbo for fbo, _ in self._atlas]
 
     def _release_atlas(self) -> None:
-        for _, fbo, depth in self._atlas:
+        for fbo, depth in self._atlas:
             fbo.release()
             depth.release()
-        for own in {id(own): own for own, _, _ in self._atlas}.values():  # layers 2 and 3 share one
-            own.release()
         if self._atlas:
             self._pack_fbo.release()
-            for tex in (self._pack, self._colour_pack, self._tri_pack):
+            for tex in (self._pack, self._colour_pack, self._tri_pack, *self._owns):
                 tex.release()
-        self._atlas = []
+        self._atlas, self._owns = [], []
 
     def _block_bounds(self, used: tuple[int, int]) -> tuple[moderngl.Texture, moderngl.Texture]:
         """Per BLOCK×BLOCK block of the pack and per layer, the minimum and the
@@ -664,7 +661,7 @@ class ClusterReflections(Releasable):
             peel, ids = layer >= 2, layer in (1, 2)
             prog = self.layer_progs[layer]
             if peel:
-                UNITS.bind_texture("u_prev", self._atlas[1 if layer == 2 else 0][0])
+                UNITS.bind_texture("u_prev", self._owns[1 if layer == 2 else 0])
             fbo.use()
             for c, uniforms, draws in plans:
                 if layer == 3 and (c.planar or not self.settings.others_peel):
