@@ -87,13 +87,14 @@ vec2 to_texel(vec3 X, ClusterFrame F, out float z) {
 // Layer test at one step: the hit rule above, against the stored depth D.
 bool layer_hit(float D, float zhi, float lower) { return D <= zhi * (1.0 + 1e-5) && D >= lower; }
 
+// Colour of texel q of layer l (one fetch whatever the layer).
 vec3 layer_colour(int l, ivec2 q) { return unpack_colour(texelFetch(u_colour_pack, q, 0)[l]); }
 
 // Bilinear colour (rgb, when `colour`; else 0) and depth (a) of layer l's surface
 // (0 other objects, 1 reflector, 2 reflector 2nd, 3 others 2nd) at image point pix,
-// over the 2×2 texels whose depth is within dtol of D (the hit surface). Depths and coverage come from u_pack: the colour pack is not cleared,
-// so a texel a layer does not cover this frame holds an earlier frame's colour and
-// is never read.
+// over the 2×2 texels whose depth is within dtol of D (the hit surface). Depths and
+// coverage come from u_pack: the colour pack is not cleared, so a texel a layer
+// does not cover this frame holds an earlier frame's colour and is never read.
 vec4 surface_at(int l, ivec2 org, ivec2 top, vec2 pix, float D, float dtol, bool colour) {
     vec2 f = pix - 0.5;
     ivec2 b = ivec2(floor(f));
@@ -359,7 +360,7 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
             ac = sxa[layer]; pix = mix(s2, e2, ac);
             dtol = max(5e-3 * D, sc_rel * D);
 #endif
-        } else if (xing[layer] && !(D <= zhi * (1.0 + 1e-5) && D >= lower)) {
+        } else if (xing[layer] && !layer_hit(D, zhi, lower)) {
             // Crossed between the previous step's centre and this one: the crossing of
             // the ray's and the surface's inverse depths, both linear between them.
             float gp = 1.0 / pz - 1.0 / pd[layer], gk = 1.0 / zc - 1.0 / D;
