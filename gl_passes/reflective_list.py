@@ -34,7 +34,6 @@ class ReflectiveSampleList(Releasable):
     def __init__(self, gl: GLContext) -> None:
         gl.check_thread()
         self.gl = gl
-        self.prog = compute_program(gl, "reflective_list.comp", UNITS.defines())
         self.buf: moderngl.Buffer | None = None
         self.tiles: moderngl.Buffer | None = None
 
@@ -51,10 +50,12 @@ class ReflectiveSampleList(Releasable):
 
     def build(self, bins: moderngl.Texture) -> None:
         """List the samples of `bins` (R32UI, 0 = not reflective) with a bin, and
-        their tiles (reflective_list.comp)."""
+        their tiles (reflective_list.comp; compiled on first use, since a frame's
+        lists come from the clustering's count pass)."""
         self.reset(bins.size)
         UNITS.bind_texture("u_bins", bins)
-        self.prog.run(-(-bins.size[0] // TILE), -(-bins.size[1] // TILE), 1)
+        prog = compute_program(self.gl, "reflective_list.comp", UNITS.defines())
+        prog.run(-(-bins.size[0] // TILE), -(-bins.size[1] // TILE), 1)
         self.gl.ctx.memory_barrier()
 
     def _bind(self) -> None:
