@@ -115,8 +115,8 @@ from gl_passes.cluster_units import UNITS
 from gl_passes.clustering import ClusteringPass
 from gl_passes.context import GLContext
 from gl_passes.gbuffer import GBufferPass
+from gl_passes.lod import lod_faces
 from gl_passes.readback import TextureReader, read_texture
-from gl_passes.reconstruction import simplify
 from gl_passes.releasable import Releasable
 from gl_passes.shaders import compute_program, program
 from gl_passes.uniforms import set_uniform
@@ -202,7 +202,8 @@ class ClusterSettings:
     non-planar cluster image (planar ones stay exact) each object other than the
     reflector is drawn at the coarsest
     level whose error is at most lod_texels texels of that image at the object's
-    nearest depth (so the stored depths move by at most that many texels' width).
+    nearest depth (meshoptimizer's error measure: the surface moves by about that
+    many texels' width, up to about twice it, tests/test_lod.py).
     Sampling (§4.2, §4.6): supersample is the G-buffer's ss×ss samples per output
     pixel; glossy_rays the lobe rays per G-buffer sample of a glossy reflector (1 to
     MAX_RAYS; Embree's reference traces the same lobe)."""
@@ -537,13 +538,13 @@ class ClusterReflections(Releasable):
 
     def _lod_table(self, scene_gpu: SceneGPU, error: float) -> dict:
         """The scene's objects simplified (meshoptimizer, absolute error ≤ `error`
-        scene units, gl_passes.reconstruction.simplify) in one index buffer over the
+        scene units, welded and sided: gl_passes.lod) in one index buffer over the
         scene's vertex buffer: its chunk table, `error`, the buffer and its VAOs for
         the depth and peel programs."""
         scene = scene_gpu.scene
         parts, ranges, f0 = [], [], 0
         for o, off in zip(scene.objects, scene.vertex_offsets[:-1], strict=True):
-            tri = simplify(o.vertices, o.faces, error).astype(np.int64) + int(off) if len(o.faces) else np.zeros((0, 3))
+            tri = lod_faces(o.vertices, o.normals, o.faces, error).astype(np.int64) + int(off)
             parts.append(tri.astype(np.uint32))
             ranges.append((f0, len(tri)))
             f0 += len(tri)
