@@ -24,6 +24,6 @@ UNITS = Units(
              "CompCount", "SplitList", "SampleList", "TileList"),
     # samplers
     textures=("u_bins", "u_tri", "u_normal", "u_position", "u_colour_pack", "u_color", "u_material", "u_reflected",
-              "u_tri_pack", "u_pack", "u_block_min", "u_block_max", "u_obj", "u_prev",
+              "u_pack", "u_block_min", "u_block_max", "u_obj", "u_prev",
               "u_mnormal"),
 )

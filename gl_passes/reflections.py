@@ -39,11 +39,10 @@ shaders comes from gl_passes.cluster_units.UNITS.
    for +60 % / +50 % depth-image time (planar clusters: e_c = e0 lies on every
    ray, nothing on a ray is hidden from it, so they skip this layer). Each
    layer's fragment shader also writes its depth into that layer's channel of one
-   pack texture (a colour mask per framebuffer), its colour (11/11/10 bits) into
-   its channel of a colour pack and, for the reflector's layers, its triangle id
-   into a triangle pack; per frame only the pack (to the background) and the depth
-   attachments are cleared: a layer's colour and triangle ids are read only where
-   the pack says this frame drew them;
+   pack texture (a colour mask per framebuffer) and its colour (11/11/10 bits)
+   into its channel of a colour pack; per frame only the pack (to the background)
+   and the depth attachments are cleared: a layer's colour is read only where the
+   pack says this frame drew it;
 5. intersection (Alg. 7, reflect_trace.comp) per reflective sample (the list of
    gl_passes.reflective_list, as for the clustering's per-sample passes and the
    cluster cameras' extent passes: llvmpipe runs a pass's code for invocations
@@ -66,7 +65,11 @@ shaders comes from gl_passes.cluster_units.UNITS.
    first `near_steps` texels, where the ray lies on its reflector and the
    reflector's texels are within (a)'s tolerance) an (a) hit needs that refined
    crossing, else marching goes on (false self-hits on finely tessellated curved
-   reflectors). The sample's own triangle is never a hit. A stretch of the ray
+   reflectors). The sample's own triangle is never a hit, nor is any reflector
+   texel whose stored point lies on its plane (a reflected ray leaves that plane;
+   a geometric test, so the cluster images store no triangle ids). The mirror ray's
+   hit is refined and its colour filtered; a glossy sample's lobe rays take their
+   hit texel's colour, as Alg. 7 does. A stretch of the ray
    inside one 8×8-texel block is skipped when, in every layer, the block's stored
    depths all lie behind the ray there or all in front of the lowest depth rule (a)
    accepts there (cluster_block_depth.comp; exact: frames are bit-identical to
@@ -281,13 +284,10 @@ class ClusterReflections(Releasable):
             defines["NEAR_CROSSING"] = "1"
         if not settings.block_skip:  # exact either way (tests compare the two)
             defines["NO_BLOCK_SKIP"] = "1"
-        # Per cluster-image layer: the depth and peel programs, with triangle ids for the
-        # reflector's layers (1, 2) only (cluster_depth.frag: ids cost the draw on llvmpipe).
-        ids = {**units, "TRIANGLE_IDS": "1"}
+        # Per cluster-image layer: the depth program (layers 0, 1), the peel program (2, 3).
         self.depth_prog = program(gl, "cluster_depth.vert", "cluster_depth.frag", defines=units)
         self.peel_prog = program(gl, "cluster_depth.vert", "cluster_peel.frag", defines=units)
-        self.layer_progs = (self.depth_prog, program(gl, "cluster_depth.vert", "cluster_depth.frag", defines=ids),
-                            program(gl, "cluster_depth.vert", "cluster_peel.frag", defines=ids), self.peel_prog)
+        self.layer_progs = (self.depth_prog, self.depth_prog, self.peel_prog, self.peel_prog)
         self.trace_prog = compute_program(gl, "reflect_trace.comp", defines)
         self.resolve_prog = compute_program(gl, "reflect_resolve.comp", units)
         self.block_prog = compute_program(gl, "cluster_block_depth.comp", {**units, "BLOCK": str(BLOCK)})
@@ -295,7 +295,6 @@ class ClusterReflections(Releasable):
         self._owns: list[moderngl.Texture] = []  # layers 0 and 1's own depths, then the peel layers' (unwritten)
         self._pack: moderngl.Texture | None = None  # the layers' depths, written with them
         self._colour_pack: moderngl.Texture | None = None  # the layers' colours, likewise
-        self._tri_pack: moderngl.Texture | None = None  # the reflector layers' triangle ids, likewise
         self._pack_fbo: moderngl.Framebuffer | None = None
         self._outputs: dict[str, moderngl.Texture] = {}
         self._chunk_cache: dict = {}
@@ -306,11 +305,9 @@ class ClusterReflections(Releasable):
         objects, the cluster's own reflector, the reflector's second surface and the
         others' second surface. Each layer writes its depth into its own texture (the
         peel layers' u_prev) and into its own channel of one shared pack (self._pack:
-        the layers' depths in one texel), its colour into its channel of one shared
-        colour pack (self._colour_pack: pack_colour, common.glsl) and, for the
-        reflector's layers 1 and 2, its triangle id into channel layer - 1 of one
-        shared triangle pack (self._tri_pack), so that the march reads any layer's
-        depth, colour or id with one fetch."""
+        the layers' depths in one texel) and its colour into its channel of one shared
+        colour pack (self._colour_pack: pack_colour, common.glsl), so that the march
+        reads any layer's depth or colour with one fetch."""
         need = (max(256, -(-size[0] // 256) * 256), max(256, -(-size[1] // 256) * 256))
         have = self._pack.size if self._atlas else (0, 0)
         if not self._atlas or have[0] < need[0] or have[1] < need[1]:
@@ -320,21 +317,17 @@ class ClusterReflections(Releasable):
             self._pack = ctx.texture(need, 4, dtype="f4")
             self._pack_fbo = ctx.framebuffer([self._pack])
             self._colour_pack = ctx.texture(need, 4, dtype="u4")
-            self._tri_pack = ctx.texture(need, 2, dtype="u4")
             # The layers' own depths: layers 0 and 1 are peeled (u_prev of layers 3 and
             # 2); the peel layers share one target with writes masked off (on llvmpipe
             # every written colour output costs its fragments).
             self._owns = [ctx.texture(need, 1, dtype="f4") for _ in range(3)]
-            for tex in (self._pack, self._colour_pack, self._tri_pack, *self._owns):
+            for tex in (self._pack, self._colour_pack, *self._owns):
                 tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
             for layer in range(N_LAYERS):
                 depth = ctx.depth_texture(need)
-                # Fragment outputs: 0 the layer's depth, 1 the pack, 2 the colour pack,
-                # 3 the triangle pack (the reflector's layers only: ids cost the draw on
-                # llvmpipe, cluster_depth.frag); the framebuffer keeps the layer's channel.
+                # Fragment outputs: 0 the layer's depth, 1 the pack, 2 the colour pack;
+                # the framebuffer keeps the layer's channel.
                 packs = [(self._pack, layer), (self._colour_pack, layer)]
-                if layer in (1, 2):
-                    packs.append((self._tri_pack, layer - 1))
                 fbo = ctx.framebuffer([self._owns[min(layer, 2)], *(t for t, _ in packs)], depth)
                 fbo.color_mask = ((layer < 2,) * 4, *(tuple(c == ch for c in range(4)) for _, ch in packs))
                 self._atlas.append((fbo, depth))
@@ -346,7 +339,7 @@ class ClusterReflections(Releasable):
             depth.release()
         if self._atlas:
             self._pack_fbo.release()
-            for tex in (self._pack, self._colour_pack, self._tri_pack, *self._owns):
+            for tex in (self._pack, self._colour_pack, *self._owns):
                 tex.release()
         self._atlas, self._owns = [], []
 
@@ -375,9 +368,8 @@ class ClusterReflections(Releasable):
             UNITS.bind_texture(name, tex[key])
 
     def _bind_layers(self) -> None:
-        """Bind the atlas layers' colour and triangle packs to their samplers."""
+        """Bind the atlas layers' colour pack to its sampler."""
         UNITS.bind_texture("u_colour_pack", self._colour_pack)
-        UNITS.bind_texture("u_tri_pack", self._tri_pack)
 
     def _texture(self, key: str, size: tuple[int, int], components: int = 4) -> moderngl.Texture:
         tex = self._outputs.get(key)
@@ -455,7 +447,7 @@ class ClusterReflections(Releasable):
         # 4. cluster depth images
         layers = self._atlas_target(atlas_size if atlas_size[0] else (1, 1))
         if method == "clusters" and cams:
-            drawn = self._draw_atlas(scene_gpu, cams, layers)
+            drawn = self._draw_atlas(scene_gpu, cams, layers, atlas_size)
         lap("depth_images")
         # 5. intersection
         frames = np.asarray([c.frame() for c in cams], np.float32).reshape(-1, cc.FRAME_FLOATS)
@@ -603,14 +595,16 @@ class ClusterReflections(Releasable):
             lvl[err <= self.settings.lod_texels * texel] = level
         return lvl
 
-    def _draw_atlas(self, scene_gpu: SceneGPU, cams: list[ClusterCamera], fbos: list[moderngl.Framebuffer]) -> int:
+    def _draw_atlas(self, scene_gpu: SceneGPU, cams: list[ClusterCamera], fbos: list[moderngl.Framebuffer],
+                    atlas_size: tuple[int, int]) -> int:
         """Render every cluster image into its atlas viewport: layer 0 = the objects
         other than the cluster's reflector, layer 1 = the reflector itself, layer 2 its
         second surface, layer 3 the others' second surface; only the triangle chunks
         that survive frustum and back-face culling are drawn (adjacent visible chunks
         of one object in one draw), the other objects at their level of detail
-        (_lod_levels; the reflector always at full detail: its triangle ids are the
-        self-hit test's). Returns the number of chunks drawn."""
+        (_lod_levels; the reflector always at full detail: the trace's self-hit test
+        finds the sample's own triangle's plane in its layers). Returns the number of
+        chunks drawn."""
         ctx = self.gl.ctx
         ch = self._chunks(scene_gpu)
         tables = [ch["table"], *(lod["table"] for lod in ch["lods"])]
@@ -623,10 +617,10 @@ class ClusterReflections(Releasable):
         ctx.cull_face = "back"
         ctx.enable_direct(GL_CLIP_DISTANCE0)
         drawn = 0
-        used = (0, 0, max(c.atlas[0] + c.atlas[2] for c in cams), max(c.atlas[1] + c.atlas[3] for c in cams))
-        # One clear of the used atlas area: the pack to the background, the layers' depth
-        # attachments only (their colour and triangle ids are read only where the
-        # pack says this frame drew them).
+        used = (0, 0, *atlas_size)  # the packed rectangle (some of it in no viewport)
+        # One clear of the frame's atlas area: the pack to the background, the layers' depth
+        # attachments only (their colour is read only where the pack says this frame
+        # drew it).
         self._pack_fbo.clear(BACKGROUND_DEPTH, BACKGROUND_DEPTH, BACKGROUND_DEPTH, BACKGROUND_DEPTH, viewport=used)
         for fbo in fbos:
             mask = fbo.color_mask
@@ -648,10 +642,10 @@ class ClusterReflections(Releasable):
                 v = cc.visible_boxes(c, t.bounds, t.corners) & (level[t.obj] == lv)
                 if self.settings.backface_chunks:
                     v &= ~cc.backfacing_chunks(c, t.cones)
-                for ids in (True, False):  # levels > 0 hold only other objects (the reflector is at level 0)
-                    sel = np.flatnonzero(v & ((t.obj == own) == ids))
+                for mine in (True, False):  # levels > 0 hold only other objects (the reflector is at level 0)
+                    sel = np.flatnonzero(v & ((t.obj == own) == mine))
                     if len(sel):
-                        draws[ids].append((lv, len(sel), [(f, n, albedo[k + 1]) for k, f, n in runs(t, sel)]))
+                        draws[mine].append((lv, len(sel), [(f, n, albedo[k + 1]) for k, f, n in runs(t, sel)]))
             uniforms = (("u_view", c.view_matrix()), ("u_view_proj", c.view_projection()),
                         ("u_clip_plane", np.array([*c.plane_normal, c.clip_offset])), ("u_sun", sun))
             plans.append((c, uniforms, draws))
@@ -659,7 +653,7 @@ class ClusterReflections(Releasable):
         # rasteriser flushes its binned triangles at every framebuffer change); the peel
         # layers read finished layers 0 and 1.
         for layer, fbo in enumerate(fbos):
-            peel, ids = layer >= 2, layer in (1, 2)
+            peel, mine = layer >= 2, layer in (1, 2)
             prog = self.layer_progs[layer]
             if peel:
                 UNITS.bind_texture("u_prev", self._owns[1 if layer == 2 else 0])
@@ -670,7 +664,7 @@ class ClusterReflections(Releasable):
                 for name, value in uniforms:
                     set_uniform(prog, name, value)
                 fbo.viewport = c.atlas
-                for lv, n_chunks, items in draws[ids]:
+                for lv, n_chunks, items in draws[mine]:
                     drawn += n_chunks
                     vao = scene_gpu.vao(prog) if lv == 0 else ch["lods"][lv - 1]["vaos"][peel]
                     self._draw_runs(prog, vao, items)
@@ -682,11 +676,8 @@ class ClusterReflections(Releasable):
     def _draw_runs(prog, vao, items: list[tuple[int, int, tuple[float, float, float]]]) -> None:
         """Draw runs of consecutive chunks of one object (chunks.runs): per run its
         first face, face count and albedo."""
-        base = prog["u_base"] if "u_base" in prog else None
         albedo = prog["u_albedo"] if "u_albedo" in prog else None
         for first, count, rgb in items:
-            if base is not None:
-                base.value = first
             if albedo is not None:
                 albedo.value = rgb
             vao.render(moderngl.TRIANGLES, vertices=3 * count, first=3 * first)

@@ -506,10 +506,11 @@ def test_tile_sums_give_the_same_clusters_and_frames(gl, refl):
 
 
 def test_frame_does_not_depend_on_the_frames_before(gl):
-    """The cluster layers' colour and triangle ids are not cleared between frames
-    (only the pack and the depth attachments are): a frame rendered after others of
-    other views and scenes, whose atlas layouts differ, is bit-identical to the same
-    frame from a fresh renderer, diagnostics (the stored depths) included."""
+    """The cluster layers' colours are not cleared between frames (only the pack and
+    the depth attachments are, over the whole packed rectangle): a frame rendered
+    after others of other views and scenes, whose atlas layouts differ, is
+    bit-identical to the same frame from a fresh renderer, diagnostics (the stored
+    depths, texels in no cluster's viewport included) too."""
     room, bath = make_builtin("living_room"), make_builtin("bathroom")
     views = [flythrough_path(s.bounds, 8, width=48, height=48)[k] for s, k in ((room, 1), (bath, 3), (room, 5))]
     with ClusterReflections(gl) as fresh, ClusterReflections(gl) as used:

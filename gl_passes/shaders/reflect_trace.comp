@@ -20,8 +20,13 @@
 // (u_near_steps > 0), in the ray's first u_near_steps texels a thin-surface hit
 // counts only where the ray crosses the interpolated surface inside the step (the
 // ray starts on its reflector, within the thin-surface tolerance of its texels).
+// The hit's colour: the mirror ray refines the hit inside its step and filters the
+// hit surface's texels (surface_at); a glossy sample's lobe rays, averaged eight or
+// more at a time, take their hit texel's colour as Alg. 7 does (trace's exact_hit,
+// a constant per call, so each call compiles only its own hit processing).
 // One invocation per listed reflective sample (reflective_list.glsl).
 layout(local_size_x = TRACE_GROUP) in;
+#define SELF_PLANE 1e-4  // relative to depth: the stored point on the own triangle's plane
 #include "common.glsl"
 #include "reflect_common.glsl"
 #include "reflective_list.glsl"
@@ -39,8 +44,6 @@ layout(binding = UNIT_u_color) uniform sampler2D u_color;
 // other objects' second surface (depth peel; non-planar clusters), what the first
 // layer hides from e_c but the reflected rays may see.
 layout(binding = UNIT_u_colour_pack) uniform usampler2D u_colour_pack;
-// Triangle ids of the reflector's layers 1 and 2 per texel (x, y): the self-hit test.
-layout(binding = UNIT_u_tri_pack) uniform usampler2D u_tri_pack;
 // The layers' depths packed (written with the layers, BACKGROUND_DEPTH where a layer
 // holds nothing this frame): one fetch per step; per
 // BLOCK×BLOCK block and layer their min and max stored depth
@@ -48,7 +51,12 @@ layout(binding = UNIT_u_tri_pack) uniform usampler2D u_tri_pack;
 layout(binding = UNIT_u_pack) uniform sampler2D u_pack;
 layout(binding = UNIT_u_block_min) uniform sampler2D u_block_min;
 layout(binding = UNIT_u_block_max) uniform sampler2D u_block_max;
-uint g_own_tri;  // the sample's own triangle: never a hit (it faces away from its reflected rays)
+// Self-hit test: a reflected ray leaves the plane of the sample's own triangle, so a
+// reflector texel (layers 1, 2) whose stored point lies on that plane is never its
+// hit (the own triangle, and any triangle coplanar with it). The stored point of
+// texel centre (u, v) at depth D is c + D·(fwd + u·right + v·up); its signed
+// distance to the plane is g_plane.x + D·(g_plane.y + u·g_plane.z + v·g_plane.w).
+vec4 g_plane;
 uniform vec3 u_eye;
 uniform int u_mode;
 uniform int u_rays;
@@ -157,7 +165,10 @@ float hit_distance(float t0, float t1, float zs, float ze, float a0, float a1, f
     return t0 + (t1 - t0) * ao * (1.0 / ze) / mix(1.0 / zs, 1.0 / ze, ao);
 }
 
-bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
+// The ray P + t·d through cluster image F: its hit's colour and distance, or false.
+// exact_hit: refine the hit and filter its colour (the mirror ray), else the hit
+// texel's colour (lobe rays).
+bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit, const bool exact_hit) {
     col = vec3(0.0); t_hit = f_inf();
     if (F.atlas.z <= 0.0) return false;  // cluster without a valid camera: miss
     float t0, t1;
@@ -309,9 +320,11 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
             h = bvec4(vec4(h) + vec4(sx));
 #endif
             if (!any(h)) continue;
-            // The sample's own triangle is never a hit (checked only on candidate hits).
-            uvec2 ids = texelFetch(u_tri_pack, org + tx, 0).rg;
-            h.yz = bvec2(h.y && ids.x != g_own_tri, h.z && ids.y != g_own_tri);
+            // The own triangle's plane is never a hit (checked only on candidate hits).
+            vec2 uv = mix(F.rect.xy, F.rect.zw, (vec2(tx) + 0.5) / wh);
+            float slope = g_plane.y + uv.x * g_plane.z + uv.y * g_plane.w;
+            vec2 off = abs(vec2(g_plane.x) + pk.yz * slope);
+            h.yz = bvec2(h.y && off.x > SELF_PLANE * pk.y, h.z && off.y > SELF_PLANE * pk.z);
             if (!any(h)) continue;
             found = true;
             break;
@@ -347,6 +360,11 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit) {
             if (sx[l]) Dl = 1.0 / mix(is2, ie2, sxa[l]);
 #endif
             if (h[l] && (layer < 0 || (away ? Dl < D : Dl > D))) { layer = l; D = Dl; }
+        }
+        if (!exact_hit) {  // a lobe ray: its hit texel's colour
+            col = layer_colour(layer, org + tx);
+            t_hit = hit_distance(t0, t1, zs, ze, a0, a1, ac, D);
+            return true;
         }
         dtol = max(2.0 * tol, 5e-3 * D);
         // Where in the step the hit lies (image parameter ac, depth D), by the rule
@@ -386,8 +404,8 @@ void main() {
     ClusterFrame F = frames[max(cid, 0)];
     vec3 P = texelFetch(u_position, p, 0).xyz;
     vec3 n = normalize(texelFetch(u_normal, p, 0).xyz);
-    g_own_tri = texelFetch(u_tri, p, 0).r;
-    vec3 ng = geom_normal(g_own_tri);
+    vec3 ng = geom_normal(texelFetch(u_tri, p, 0).r);
+    g_plane = vec4(dot(F.c_near.xyz - P, ng), dot(F.fwd_half.xyz, ng), dot(F.right_far.xyz, ng), dot(F.up_len.xyz, ng));
     vec3 r = mirror_dir(normalize(P - u_eye), n, ng);
     float g = texelFetch(u_material, p, 0).g;
     vec3 diff = texelFetch(u_color, p, 0).rgb;
@@ -400,13 +418,13 @@ void main() {
                refl /= float(u_rays); }
     } else {
         vec3 hc; float th;
-        bool h = trace(P, r, F, hc, th);
+        bool h = trace(P, r, F, hc, th, true);
         len = h ? th : f_inf();
         if (g <= 0.0) refl = h ? hc : sky(r);
         else {
             for (int k = 0; k < u_rays; ++k) {
                 vec3 dk = lift_above(lobe_dir(r, half_angle, u_lobe[k]), ng);
-                h = trace(P, dk, F, hc, th);
+                h = trace(P, dk, F, hc, th, false);  // a lobe ray: its hit texel's colour
                 float w = h ? clamp((far_len - th) / (FADE_FRACTION * far_len), 0.0, 1.0) : 0.0;
                 refl += w * hc + (1.0 - w) * diff;
             }
