@@ -54,7 +54,7 @@ from scenes.builtin import make_builtin
 BIN_SCALES = (2.0, 1.5, 1.0, 0.5, 0.25)
 OUTPUT_RES = (2048, 1024, 512, 256)
 IMAGE_SCALES = (0.5, 1.0, 2.0)
-ATLAS_BUDGETS = (4.0, 8.0, 16.0, 32.0)
+ATLAS_BUDGETS = (3.0, 4.0, 5.0, 6.0, 8.0, 16.0)
 DETAILS = (1.0, 0.5, 0.25)
 GLOSSY_RAYS = (8, 49)
 OTHERS_PEEL = (False, True)

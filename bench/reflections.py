@@ -428,7 +428,7 @@ def sweeps_markdown(sweeps: list[dict]) -> list[str]:
     md += _sweep_section(
         sweeps, "tablebudget", "### Atlas budget (beyond the thesis): texels per G-buffer sample",
         "ClusterSettings atlas_budget caps the cluster images' total area at that many texels per G-buffer "
-        "sample: over it the non-planar images shrink uniformly, planar ones keep their texel = sample grid "
+        "sample: over it the images shrink uniformly but planar mirrors', which keep their texel = sample grid "
         f"(cluster_camera.pack_atlas); the default is {DEFAULT_SETTINGS.atlas_budget:g}. MAE against Embree "
         "(0–255); occlusion error: the thesis's definition, per reflected ray.",
         ["budget [texels / sample]", "atlas texels", "fps ours", "depth images [ms]", "MAE", "occlusion error"],

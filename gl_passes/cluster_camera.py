@@ -260,19 +260,22 @@ def finish_cameras(cams: list[ClusterCamera], ext: np.ndarray, camera: Camera, s
 
 def pack_atlas(cams: list[ClusterCamera], max_size: int = 8192, budget: float | None = None) -> tuple[int, int]:
     """Shelf-pack the cluster images (tallest first). When their total area exceeds
-    `budget` texels the non-planar images shrink uniformly; planar clusters keep
-    their texel = sample grid (exact intersections, one texel per sample, so they
-    cost little), unless they alone exceed the budget. All shrink uniformly when the
-    atlas would exceed max_size² (reported via each camera's resolution and spacing).
-    Returns the atlas (width, height)."""
+    `budget` texels the images shrink uniformly, except planar mirrors' (glossiness
+    0), which keep their texel = sample grid (exact intersections, one texel per
+    sample, so they cost little) unless they alone exceed the budget; a planar
+    glossy cluster shrinks with the others (its lobe rays spread its image far past
+    its samples, and land between texel centres anyway). All shrink uniformly when
+    the atlas would exceed max_size² (reported via each camera's resolution and
+    spacing). Returns the atlas (width, height)."""
     live = [c for c in cams if c.valid]
     for c in cams:
         if not c.valid:
             c.atlas = (0, 0, 0, 0)  # the trace treats an empty viewport as a miss
     if not live:
         return 1, 1
+    exact = {c.index for c in live if c.planar and c.glossiness <= 0}
     total = float(sum(c.resolution[0] * c.resolution[1] for c in live))
-    fixed = float(sum(c.resolution[0] * c.resolution[1] for c in live if c.planar))
+    fixed = float(sum(c.resolution[0] * c.resolution[1] for c in live if c.index in exact))
     scale = fscale = 1.0
     if budget and total > budget:
         if fixed < 0.5 * budget and total > fixed:
@@ -280,8 +283,8 @@ def pack_atlas(cams: list[ClusterCamera], max_size: int = 8192, budget: float | 
         else:
             scale = fscale = float(np.sqrt(budget / total))
     for _ in range(20):
-        res = {c.index: (max(1, int(np.ceil(c.resolution[0] * (fscale if c.planar else scale)))),
-                         max(1, int(np.ceil(c.resolution[1] * (fscale if c.planar else scale)))))
+        res = {c.index: (max(1, int(np.ceil(c.resolution[0] * (fscale if c.index in exact else scale)))),
+                         max(1, int(np.ceil(c.resolution[1] * (fscale if c.index in exact else scale)))))
                for c in live}
         area = sum(w * h for w, h in res.values())
         width = int(min(max_size, max(max(w for w, _ in res.values()), np.ceil(np.sqrt(area * 1.15)))))

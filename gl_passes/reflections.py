@@ -16,8 +16,8 @@ shaders comes from gl_passes.cluster_units.UNITS.
    statistics and ray extents by compute passes with atomics, the per-cluster
    camera algebra in numpy on those few numbers;
 4. cluster depth images (local-shaded colour + linear depth) rendered into one
-   atlas texture, one viewport per cluster (over `atlas_budget` the non-planar
-   images shrink; planar ones keep their texel = sample grid, on which their rays
+   atlas texture, one viewport per cluster (over `atlas_budget` the images shrink
+   but planar mirrors'; those keep their texel = sample grid, on which their rays
    are exact: shrinking them caused ~1.2 points of the occlusion error), with
    frustum culling of triangle
    chunks (gl_passes.chunks; finer than SceneGPU.object_bounds, so large floors and walls are mostly
@@ -187,7 +187,7 @@ class ClusterSettings:
     max_resolution caps an image's side (texels).
     Cluster depth images (§4.5): atlas_max caps the atlas side (texels); atlas_budget
     caps the total image area at that many texels per G-buffer sample (None = no cap;
-    the non-planar images shrink uniformly, planar ones keep their exact texel =
+    the images shrink uniformly but planar mirrors', which keep their exact texel =
     sample grid, cluster_camera.pack_atlas; the default is chosen by the budget sweep
     of bench/reflection_sweeps.py); others_peel adds the other objects' second surface
     to non-planar images (module docstring, step 4).
@@ -221,7 +221,7 @@ class ClusterSettings:
     split_curved: bool = True
     thickness: float = 1.0
     atlas_max: int = 4096
-    atlas_budget: float | None = 8.0
+    atlas_budget: float | None = 4.0
     max_shift: float = cc.MAX_SHIFT
     continuity: float = CONTINUITY
     slope: float = SLOPE
