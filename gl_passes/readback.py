@@ -1,5 +1,6 @@
-"""The one place where GL images are read back and flipped to row 0 = top, and where
-storage buffers that shaders write are read back through a staging copy."""
+"""The one place where GL images are read back and flipped to row 0 = top, where
+storage buffers of top-down planes are read into arrays, and where storage buffers
+that shaders write with atomics are read back through a staging copy."""
 
 from __future__ import annotations
 
@@ -27,29 +28,18 @@ def read_texture(tex: moderngl.Texture, viewport: tuple[int, int, int, int] | No
     return np.ascontiguousarray(arr[..., 0] if tex.components == 1 else arr)
 
 
-class TextureReader:
-    """Reads textures back into one reused scratch buffer and copies out the channel
-    groups asked for, flipped to row 0 = top: one fresh array per part instead of a
-    fresh read, a flipped copy and the parts (frame-sized images: each fresh
-    allocation is paid again in page faults). The scratch keeps the largest size
-    read until release()."""
-
-    def __init__(self) -> None:
-        self._scratch = np.empty(0, np.uint8)
-
-    def read(self, tex: moderngl.Texture, parts: Sequence[int | slice]) -> list[np.ndarray]:
-        """One (H,W) array per int part (a channel) and one (H,W,C) per slice part."""
-        w, h = tex.size
-        dtype = np.dtype(_DTYPES[tex.dtype])
-        n = w * h * tex.components * dtype.itemsize
-        if self._scratch.nbytes < n:
-            self._scratch = np.empty(n, np.uint8)
-        tex.read_into(self._scratch)
-        arr = self._scratch[:n].view(dtype).reshape(h, w, tex.components)[::-1]  # row 0 = GL bottom → top
-        return [np.array(arr[..., part], order="C", copy=True) for part in parts]
-
-    def release(self) -> None:
-        self._scratch = np.empty(0, np.uint8)
+def read_planes(buf: moderngl.Buffer, shapes: Sequence[tuple[int, ...]], dtype: type = np.float32) -> list[np.ndarray]:
+    """Consecutive planes of a storage buffer, each read straight into a fresh array
+    of its shape: for buffers whose shader wrote their rows top-down (row 0 = top), so
+    that a frame-sized output costs one copy and no flip (the caller issues the memory
+    barrier)."""
+    out, offset = [], 0
+    for shape in shapes:
+        arr = np.empty(shape, dtype)
+        buf.read_into(arr, size=arr.nbytes, offset=offset)
+        offset += arr.nbytes
+        out.append(arr)
+    return out
 
 
 def read_texture_layer(arr_tex: moderngl.TextureArray, layer: int) -> np.ndarray:

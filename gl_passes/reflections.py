@@ -119,8 +119,8 @@ from gl_passes.clustering import ClusteringPass
 from gl_passes.context import GLContext
 from gl_passes.gbuffer import GBufferPass
 from gl_passes.lod import lod_faces
-from gl_passes.readback import TextureReader, read_texture
-from gl_passes.releasable import Releasable
+from gl_passes.readback import read_planes, read_texture
+from gl_passes.releasable import Releasable, grown_buffer
 from gl_passes.shaders import compute_program, program
 from gl_passes.uniforms import set_uniform
 from gl_passes.upload import SceneGPU
@@ -129,6 +129,7 @@ from scenes.camera import Camera
 from scenes.glossy import FADE_FRACTION, lobe_offsets
 
 MAX_RAYS = 64
+RESOLVED_PLANES = 12  # reflect_resolve.comp's output channels (colour, s, reflected, length, diffuse, count)
 CHUNK_CACHE = 4  # scenes whose chunk records (bounds, normal cones) are kept
 BLOCK = 8    # atlas texels per side of a depth-bounds block (march skipping)
 TRACE_GROUP = 64  # intersection work group (invocations, one per listed reflective sample)
@@ -270,7 +271,7 @@ class ClusterReflections(Releasable):
         self.gl = gl
         self.settings = settings
         self.gbuffer = GBufferPass(gl)
-        self._reader = TextureReader()  # the frame's outputs, read back into one reused buffer
+        self._resolved: moderngl.Buffer | None = None  # the frame's outputs (reflect_resolve.comp's planes)
         self.clustering = ClusteringPass(gl, settings.bin_normal)
         self.extent = ClusterExtentPass(gl)
         units = {**UNITS.defines(), "BACKGROUND_DEPTH": repr(BACKGROUND_DEPTH)}
@@ -477,18 +478,16 @@ class ClusterReflections(Releasable):
         ctx.memory_barrier()
         lap("intersection")
         # 6. blend + ss×ss resolve + readback
-        out = {k: self._texture(k, (W, H)) for k in ("out_color", "out_reflected", "out_diffuse")}
-        for k in ("out_color", "out_reflected", "out_diffuse"):
-            UNITS.bind_image(f"u_{k}", out[k], read=False, write=True)
+        self._resolved = grown_buffer(ctx, self._resolved, RESOLVED_PLANES * 4 * W * H)
+        UNITS.bind_storage("Resolved", self._resolved)
         UNITS.bind_texture("u_reflected", samples)
         p = self.resolve_prog
         set_uniform(p, "u_ss", ss)
+        set_uniform(p, "u_size", (W, H))
         p.run((W + 7) // 8, (H + 7) // 8, 1)
         ctx.memory_barrier()
-        rgb, last = slice(0, 3), 3
-        color, specular = self._reader.read(out["out_color"], (rgb, last))
-        reflected, ray_length = self._reader.read(out["out_reflected"], (rgb, last))
-        diffuse, coverage = self._reader.read(out["out_diffuse"], (rgb, last))
+        color, specular, reflected, ray_length, diffuse, coverage = read_planes(
+            self._resolved, [(H, W, 3), (H, W), (H, W, 3), (H, W), (H, W, 3), (H, W)])
         lap("resolve")
         timings["total"] = (time.perf_counter() - t_start) * 1e3
         diag = self._diagnostics(cams, pack, atlas_size) if diagnostics else None
@@ -685,7 +684,9 @@ class ClusterReflections(Releasable):
     def release(self) -> None:
         self.gl.check_thread()
         self.gbuffer.release()
-        self._reader.release()
+        if self._resolved is not None:
+            self._resolved.release()
+            self._resolved = None
         self.clustering.release()
         self.extent.release()
         self._release_atlas()
