@@ -8,8 +8,7 @@ Per cluster (P_c mean position, n_c mean normal from gl_passes.clustering):
 3. centre of projection e_c = e0 + (P_c − e0)·(1 − f), f = d_n / d_f (DESIGN.md's
    note: the printed e0 + (P_c − e0)·f would put a planar mirror's camera on the
    mirror). d_n, d_f are the diagonals of the AABBs of the ray start and end points
-   centrally projected from e0 onto the fitting plane (GPU pass, stage 0, from every
-   fourth sample's rays: STAGE0_STRIDE; the start depths of all). The shift
+   centrally projected from e0 onto the fitting plane (GPU pass, stage 0). The shift
    1 − f is clamped to [0, MAX_SHIFT]; a planar cluster (all start points on the
    plane, all normals equal) gets exactly e_c = e0;
 4. image rectangle: the AABB of the clipped ray start and end points (glossy: the
@@ -54,8 +53,7 @@ FRAME_FLOATS = 32  # 8 vec4, layout of ClusterFrame in reflect_common.glsl
 MAX_SHIFT = 0.5
 CLIP_DROP = 0.5  # curved clusters: clip plane lowered by CLIP_DROP·d_n below the lowest ray start
 SPACING_FIXED = float(1 << 28)
-EXTENT_GROUP = 256  # cluster_extent.comp's work group (listed samples)
-STAGE0_STRIDE = 4  # stage 0 takes every fourth sample's rays (cluster_extent.comp)
+EXTENT_GROUP = 256  # cluster_extent.comp's work group (invocations)
 
 
 @dataclass
@@ -337,9 +335,7 @@ class ClusterExtentPass:
 
     def __init__(self, gl: GLContext) -> None:
         self.gl = gl
-        self.progs = tuple(compute_program(gl, "cluster_extent.comp", {
-            **UNITS.defines(), "SAMPLE_STRIDE": str(k), "EXTENT_LOCAL": str(EXTENT_GROUP // k)})
-            for k in (STAGE0_STRIDE, 1))  # per stage
+        self.prog = compute_program(gl, "cluster_extent.comp", UNITS.defines())
         self.ext_buf: moderngl.Buffer | None = None
         self.frame_buf: moderngl.Buffer | None = None
         self.staging = StagingBuffer(gl.ctx)  # reads the extents back (ext_buf stays the GPU's)
@@ -364,7 +360,7 @@ class ClusterExtentPass:
         self.upload_frames(frames)
         ext = self._buffer("ext_buf", ext_init(n).tobytes())
         UNITS.bind_storage("Ext", ext)
-        p = self.progs[stage]
+        p = self.prog
         set_uniform(p, "u_eye", np.asarray(eye, np.float64))
         set_uniform(p, "u_stage", stage)
         samples.dispatch(p, EXTENT_GROUP)

@@ -63,10 +63,9 @@ class ReflectiveSampleList(Releasable):
         UNITS.bind_storage("TileList", self.tiles)
 
     def dispatch(self, prog: moderngl.ComputeShader, group_size: int) -> None:
-        """Run `prog` (1D work groups covering `group_size` = 64 or 256 listed samples,
-        one invocation each, or fewer invocations with several samples each, read
-        with list_sample) over the listed samples, rounded up to whole groups
-        (invocations past n_samples return)."""
+        """Run `prog` (1D work groups of `group_size` = 64 or 256 invocations, each
+        reading its sample with list_sample) once per listed sample, rounded up to
+        whole groups (invocations past n_samples return)."""
         self._bind()
         prog.run_indirect(self.buf, DISPATCH_OFFSET[group_size])
 

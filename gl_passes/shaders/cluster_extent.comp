@@ -9,13 +9,8 @@
 // Reduction: each invocation first reduces its own rays (1, or 9 for glossy) in
 // registers, then one set of atomics into the workgroup's shared record (or the
 // global one for samples of another cluster), then one per workgroup into the
-// global record. One invocation per SAMPLE_STRIDE listed reflective samples
-// (reflective_list.glsl), a work group per 256 of them: stage 1 takes every
-// sample's rays (stride 1: the image must hold them all); stage 0 (stride 4) every
-// fourth sample's, and the start depths of all (the clip plane holds every ray
-// start, the flatness test sees every sample), since its extents only place e_c
-// (eq. 6's d_n and d_f).
-layout(local_size_x = EXTENT_LOCAL) in;  // 256 / SAMPLE_STRIDE
+// global record. One invocation per listed reflective sample (reflective_list.glsl).
+layout(local_size_x = 256) in;
 #include "reflect_common.glsl"
 #include "reflective_list.glsl"
 layout(binding = UNIT_u_bins) uniform usampler2D u_bins;
@@ -107,7 +102,7 @@ void main() {
     }
     if (gl_LocalInvocationIndex == 0u) s_cid = -1;
     barrier();
-    uint i = gl_GlobalInvocationID.x * uint(SAMPLE_STRIDE);
+    uint i = gl_GlobalInvocationID.x;
     ivec2 p = i < n_samples ? list_sample(i) : ivec2(0);
     ivec2 size = textureSize(u_bins, 0);
     uint bin = i < n_samples ? texelFetch(u_bins, p, 0).r : 0u;
@@ -158,22 +153,6 @@ void main() {
             }
         }
     }
-#if SAMPLE_STRIDE > 1
-    // The stride's other samples: their start depths only.
-    for (uint k = 1u; k < uint(SAMPLE_STRIDE); ++k) {
-        uint j = i + k;
-        if (j >= n_samples) break;
-        ivec2 q = list_sample(j);
-        uint bq = texelFetch(u_bins, q, 0).r;
-        int cq = bq > 0u ? remap[bq - 1u] : -1;
-        if (cq < 0) continue;
-        g_local = cq == s_cid;
-        g_base = uint(cq) * STRIDE;
-        float zq = dot(texelFetch(u_position, q, 0).xyz - frames[cq].c_near.xyz, frames[cq].fwd_half.xyz);
-        amin(8u, f2o(zq));
-        amax(9u, f2o(zq));
-    }
-#endif
     barrier();
     if (s_cid >= 0 && gl_LocalInvocationIndex < STRIDE) {
         uint k = gl_LocalInvocationIndex, gb = uint(s_cid) * STRIDE;
