@@ -8,7 +8,8 @@ Per cluster (P_c mean position, n_c mean normal from gl_passes.clustering):
 3. centre of projection e_c = e0 + (P_c − e0)·(1 − f), f = d_n / d_f (DESIGN.md's
    note: the printed e0 + (P_c − e0)·f would put a planar mirror's camera on the
    mirror). d_n, d_f are the diagonals of the AABBs of the ray start and end points
-   centrally projected from e0 onto the fitting plane (GPU pass, stage 0). The shift
+   centrally projected from e0 onto the fitting plane (GPU pass, stage 0: the mirror
+   rays; stage 1 adds a glossy lobe's rim). The shift
    1 − f is clamped to [0, MAX_SHIFT]; a planar cluster (all start points on the
    plane, all normals equal) gets exactly e_c = e0;
 4. image rectangle: the AABB of the clipped ray start and end points (glossy: the
@@ -335,7 +336,8 @@ class ClusterExtentPass:
 
     def __init__(self, gl: GLContext) -> None:
         self.gl = gl
-        self.prog = compute_program(gl, "cluster_extent.comp", UNITS.defines())
+        self.progs = tuple(compute_program(gl, "cluster_extent.comp", {**UNITS.defines(), "EXTENT_STAGE": str(k)})
+                           for k in (0, 1))
         self.ext_buf: moderngl.Buffer | None = None
         self.frame_buf: moderngl.Buffer | None = None
         self.staging = StagingBuffer(gl.ctx)  # reads the extents back (ext_buf stays the GPU's)
@@ -360,9 +362,8 @@ class ClusterExtentPass:
         self.upload_frames(frames)
         ext = self._buffer("ext_buf", ext_init(n).tobytes())
         UNITS.bind_storage("Ext", ext)
-        p = self.prog
+        p = self.progs[stage]
         set_uniform(p, "u_eye", np.asarray(eye, np.float64))
-        set_uniform(p, "u_stage", stage)
         samples.dispatch(p, EXTENT_GROUP)
         self.gl.ctx.memory_barrier()
         raw = self.staging.read(ext, 4 * EXT_STRIDE * max(n, 1))

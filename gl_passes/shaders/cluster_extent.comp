@@ -4,8 +4,11 @@
 // start and end points (glossy: end points of the lobe boundary too), the range of
 // start depths z = (P-c)·Z, the min clipped start depth, the max clipped end depth
 // and (stage 1) the mean projected spacing of neighbouring samples.
-// Stage 0: c = e0, frame = fitting plane basis (d_n, d_f of eq. 6);
+// Stage 0: c = e0, frame = fitting plane basis (d_n, d_f of eq. 6), the mirror rays
+// only (its extents only place e_c: the lobe's rim is left to stage 1);
 // stage 1: c = e_c, frame = the cluster camera (image rectangle, far, resolution).
+// EXTENT_STAGE (0 or 1) is compiled in: a CPU rasteriser runs a branch's code even
+// when no lane takes it.
 // Reduction: each invocation first reduces its own rays (1, or 9 for glossy) in
 // registers, then one set of atomics into the workgroup's shared record (or the
 // global one for samples of another cluster), then one per workgroup into the
@@ -18,7 +21,6 @@ layout(binding = UNIT_u_tri) uniform usampler2D u_tri;
 layout(binding = UNIT_u_normal) uniform sampler2D u_normal;
 layout(binding = UNIT_u_position) uniform sampler2D u_position;
 uniform vec3 u_eye;
-uniform int u_stage;
 layout(std430, binding = UNIT_Ext) buffer Ext { uint ext[]; };
 #define STRIDE 16u
 #define MAXTAN 20.0
@@ -123,6 +125,7 @@ void main() {
         g_z = vec2(3.0e38, -3.0e38);
         g_any = false;
         accum_ray(P, r, F, true);
+#if EXTENT_STAGE == 1
         float half_angle = F.fwd_half.w;
         if (half_angle > 0.0) {
             // The lobe's rim (lobe_dir at rho = 1, every 45°), its frame and tilt
@@ -135,8 +138,10 @@ void main() {
             for (int k = 0; k < 8; ++k)
                 accum_ray(P, lift_above(normalize(r + LOBE_RIM[k].x * t1 + LOBE_RIM[k].y * t2), ng), F, true);
         }
+#endif
         flush_rays();
-        if (u_stage == 1 && zp > 0.0) {
+#if EXTENT_STAGE == 1
+        if (zp > 0.0) {
             vec2 uv = project_uv(P, F);
             uint n_pairs = 0u;
             for (int k = 0; k < 2; ++k) {
@@ -152,6 +157,7 @@ void main() {
                 if (g_local) atomicAdd(s_ext[14], n_pairs); else atomicAdd(ext[g_base + 14u], n_pairs);
             }
         }
+#endif
     }
     barrier();
     if (s_cid >= 0 && gl_LocalInvocationIndex < STRIDE) {
