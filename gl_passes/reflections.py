@@ -290,7 +290,7 @@ class ClusterReflections(Releasable):
         self.peel_prog = program(gl, "cluster_depth.vert", "cluster_peel.frag", defines=units)
         self.layer_progs = (self.depth_prog, self.depth_prog, self.peel_prog, self.peel_prog)
         self.trace_prog = compute_program(gl, "reflect_trace.comp", defines)
-        self.resolve_prog = compute_program(gl, "reflect_resolve.comp", units)
+        self._units = units  # the resolve is compiled per supersampling factor, in render()
         self.block_prog = compute_program(gl, "cluster_block_depth.comp", {**units, "BLOCK": str(BLOCK)})
         self._atlas: list[tuple[moderngl.Framebuffer, moderngl.Texture]] = []  # per layer: framebuffer, depth
         self._owns: list[moderngl.Texture] = []  # layers 0 and 1's own depths, then the peel layers' (unwritten)
@@ -481,8 +481,7 @@ class ClusterReflections(Releasable):
         self._resolved = grown_buffer(ctx, self._resolved, RESOLVED_PLANES * 4 * W * H)
         UNITS.bind_storage("Resolved", self._resolved)
         UNITS.bind_texture("u_reflected", samples)
-        p = self.resolve_prog
-        set_uniform(p, "u_ss", ss)
+        p = compute_program(self.gl, "reflect_resolve.comp", {**self._units, "SS": str(ss)})  # cached per ss
         set_uniform(p, "u_size", (W, H))
         p.run((W + 7) // 8, (H + 7) // 8, 1)
         ctx.memory_barrier()

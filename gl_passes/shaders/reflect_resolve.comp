@@ -5,8 +5,9 @@
 // Output: one storage buffer of planes, rows top-down (row 0 = the image's top, as
 // readback.read_planes hands them out): colour rgb, mean s, reflected rgb, ray length,
 // diffuse rgb, reflective samples; n = W·H values per channel.
+// SS (the supersampling factor) is compiled in: a constant loop is unrolled, which a
+// CPU rasteriser runs faster than one bounded by a uniform.
 layout(local_size_x = 8, local_size_y = 8) in;
-uniform int u_ss;
 uniform ivec2 u_size;  // output W, H
 layout(binding = UNIT_u_bins) uniform usampler2D u_bins;
 layout(binding = UNIT_u_material) uniform sampler2D u_material;
@@ -24,8 +25,8 @@ void main() {
     vec3 col = vec3(0.0), dif = vec3(0.0), ref = vec3(0.0);
     float s_sum = 0.0, len = 0.0, count = 0.0;
     bool missed = false;
-    for (int j = 0; j < u_ss; ++j) for (int i = 0; i < u_ss; ++i) {
-        ivec2 p = o * u_ss + ivec2(i, j);
+    for (int j = 0; j < SS; ++j) for (int i = 0; i < SS; ++i) {
+        ivec2 p = o * SS + ivec2(i, j);
         vec3 d = texelFetch(u_color, p, 0).rgb;
         dif += d;
         if (texelFetch(u_bins, p, 0).r == 0u) { col += d; continue; }
@@ -37,7 +38,7 @@ void main() {
         count += 1.0;
         if (isinf(r.a)) missed = true; else len += r.a;
     }
-    float inv = 1.0 / float(u_ss * u_ss);
+    float inv = 1.0 / float(SS * SS);
     float L = count == 0.0 ? uintBitsToFloat(0x7fc00000u) : (missed ? uintBitsToFloat(0x7f800000u) : len / count);
     uint n = uint(u_size.x * u_size.y), i = uint((u_size.y - 1 - o.y) * u_size.x + o.x);
     put3(0u, i, col * inv);
