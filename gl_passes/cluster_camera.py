@@ -284,8 +284,7 @@ def pack_atlas(cams: list[ClusterCamera], max_size: int = 8192, budget: float | 
         else:
             scale = fscale = float(np.sqrt(budget / total))
     for _ in range(20):
-        res = {c.index: (max(1, int(np.ceil(c.resolution[0] * (fscale if c.index in exact else scale)))),
-                         max(1, int(np.ceil(c.resolution[1] * (fscale if c.index in exact else scale)))))
+        res = {c.index: tuple(max(1, int(np.ceil(r * (fscale if c.index in exact else scale)))) for r in c.resolution)
                for c in live}
         area = sum(w * h for w, h in res.values())
         width = int(min(max_size, max(max(w for w, _ in res.values()), np.ceil(np.sqrt(area * 1.15)))))

@@ -327,10 +327,10 @@ class ClusterReflections(Releasable):
             for layer in range(N_LAYERS):
                 depth = ctx.depth_texture(need)
                 # Fragment outputs: 0 the layer's depth, 1 the pack, 2 the colour pack;
-                # the framebuffer keeps the layer's channel.
-                packs = [(self._pack, layer), (self._colour_pack, layer)]
-                fbo = ctx.framebuffer([self._owns[min(layer, 2)], *(t for t, _ in packs)], depth)
-                fbo.color_mask = ((layer < 2,) * 4, *(tuple(c == ch for c in range(4)) for _, ch in packs))
+                # the framebuffer keeps the layer's channel of both packs.
+                fbo = ctx.framebuffer([self._owns[min(layer, 2)], self._pack, self._colour_pack], depth)
+                channel = tuple(c == layer for c in range(4))
+                fbo.color_mask = ((layer < 2,) * 4, channel, channel)
                 self._atlas.append((fbo, depth))
         return [fbo for fbo, _ in self._atlas]
 
@@ -367,10 +367,6 @@ class ClusterReflections(Releasable):
         for name, key in (("u_tri", "tri_id"), ("u_normal", "normal"), ("u_position", "position"),
                           ("u_color", "color"), ("u_material", "material")):
             UNITS.bind_texture(name, tex[key])
-
-    def _bind_layers(self) -> None:
-        """Bind the atlas layers' colour pack to its sampler."""
-        UNITS.bind_texture("u_colour_pack", self._colour_pack)
 
     def _texture(self, key: str, size: tuple[int, int], components: int = 4) -> moderngl.Texture:
         tex = self._outputs.get(key)
@@ -458,9 +454,9 @@ class ClusterReflections(Releasable):
         block_min, block_max = self._block_bounds(atlas_size)
         UNITS.bind_image("u_out", samples, read=False, write=True)  # after the block-bounds pass (shared unit)
         self._bind_gbuffer(bins, tex)
-        self._bind_layers()
-        for name, blocks in (("u_pack", pack), ("u_block_min", block_min), ("u_block_max", block_max)):
-            UNITS.bind_texture(name, blocks)
+        for name, layers_tex in (("u_pack", pack), ("u_colour_pack", self._colour_pack), ("u_block_min", block_min),
+                                 ("u_block_max", block_max)):
+            UNITS.bind_texture(name, layers_tex)
         p = self.trace_prog
         set_uniform(p, "u_eye", eye)
         set_uniform(p, "u_sun", np.asarray(scene.sun_direction))
