@@ -42,7 +42,7 @@ from gl_passes.cluster_units import UNITS
 from gl_passes.clustering import ClusterStats, decode_ordered
 from gl_passes.context import GLContext
 from gl_passes.readback import StagingBuffer
-from gl_passes.reflective_list import ReflectiveSampleList
+from gl_passes.reflective_list import TILE, ReflectiveSampleList
 from gl_passes.releasable import grown_buffer
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
@@ -51,10 +51,11 @@ from scenes.glossy import glossy_far, lobe_half_angle
 
 EXT_STRIDE = 16
 FRAME_FLOATS = 32  # 8 vec4, layout of ClusterFrame in reflect_common.glsl
+MISC_SPARSE = 29  # misc.y of a stage-0 frame: the cluster's every sample read (stage0_frames)
 MAX_SHIFT = 0.5
 CLIP_DROP = 0.5  # curved clusters: clip plane lowered by CLIP_DROP·d_n below the lowest ray start
 SPACING_FIXED = float(1 << 28)
-EXTENT_GROUP = 256  # cluster_extent.comp's work group (invocations)
+EXTENT_GROUP = 256  # cluster_extent.comp's stage-1 work group (invocations)
 
 
 @dataclass
@@ -176,8 +177,11 @@ def initial_cameras(stats: ClusterStats, camera: Camera, materials: np.ndarray, 
     return cams
 
 
-def stage0_frames(cams: list[ClusterCamera]) -> np.ndarray:
-    """Frames for stage 0: centre e0, plane basis, no clip plane."""
+def stage0_frames(cams: list[ClusterCamera], dense_samples: int | None = None) -> np.ndarray:
+    """Frames for stage 0: centre e0, plane basis, no clip plane; misc.y = 1 for a
+    sparse cluster (fewer than dense_samples G-buffer samples, every cluster when
+    None), whose every sample the extent pass reads (a dense one: one per output
+    pixel, cluster_extent.comp)."""
     rows = []
     for c in cams:
         t1, t2 = plane_basis(c.plane_normal)
@@ -185,7 +189,9 @@ def stage0_frames(cams: list[ClusterCamera]) -> np.ndarray:
         tmp = ClusterCamera(**{**c.__dict__, "center": c.mirrored_eye, "right": t1, "up": t2,
                                "forward": c.plane_normal, "near": 1e-4 * max(d0, 1e-9), "clip_offset": -1e30})
         rows.append(tmp.frame())
-    return np.asarray(rows, np.float32).reshape(-1, FRAME_FLOATS)
+    frames = np.asarray(rows, np.float32).reshape(-1, FRAME_FLOATS)
+    frames[:, MISC_SPARSE] = [dense_samples is None or c.samples < dense_samples for c in cams]
+    return frames
 
 
 def place_centers(cams: list[ClusterCamera], ext: np.ndarray, stats: ClusterStats, diagonal: float,
@@ -335,8 +341,6 @@ class ClusterExtentPass:
 
     def __init__(self, gl: GLContext) -> None:
         self.gl = gl
-        self.progs = tuple(compute_program(gl, "cluster_extent.comp", {**UNITS.defines(), "EXTENT_STAGE": str(k)})
-                           for k in (0, 1))
         self.ext_buf: moderngl.Buffer | None = None
         self.frame_buf: moderngl.Buffer | None = None
         self.staging = StagingBuffer(gl.ctx)  # reads the extents back (ext_buf stays the GPU's)
@@ -352,18 +356,26 @@ class ClusterExtentPass:
         UNITS.bind_storage("Frames", buf)
         return buf
 
-    def run(self, stage: int, frames: np.ndarray, samples: ReflectiveSampleList, eye: np.ndarray) -> np.ndarray:
-        """One invocation per reflective sample of `samples` (built from the bins
-        bound as u_bins). Textures (u_bins, u_tri, u_normal, u_position) and SSBOs
-        (Remap, MeshVerts, MeshFaces) of cluster_units.UNITS must be bound by the
-        caller."""
+    def run(self, stage: int, frames: np.ndarray, samples: ReflectiveSampleList, eye: np.ndarray,
+            ss: int) -> np.ndarray:
+        """Stage 1: one invocation per reflective sample of `samples` (built from the
+        bins bound as u_bins); stage 0: per output pixel of `samples`' tiles, its
+        first sub-sample (G-buffer supersampled ss×ss) when reflective. Textures
+        (u_bins, u_tri, u_normal, u_position) and SSBOs (Remap, MeshVerts,
+        MeshFaces) of cluster_units.UNITS must be bound by the caller."""
         n = len(frames)
         self.upload_frames(frames)
         ext = self._buffer("ext_buf", ext_init(n).tobytes())
         UNITS.bind_storage("Ext", ext)
-        p = self.progs[stage]
+        defines = {**UNITS.defines(), "EXTENT_STAGE": str(stage)}
+        if stage == 0:
+            defines.update(TILE=str(TILE), SS=str(ss), TILE_PIXELS=str(max(-(-TILE // ss), 4)))
+        p = compute_program(self.gl, "cluster_extent.comp", defines)  # cached per stage and ss
         set_uniform(p, "u_eye", np.asarray(eye, np.float64))
-        samples.dispatch(p, EXTENT_GROUP)
+        if stage == 0:
+            samples.dispatch_tiles(p)
+        else:
+            samples.dispatch(p, EXTENT_GROUP)
         self.gl.ctx.memory_barrier()
         raw = self.staging.read(ext, 4 * EXT_STRIDE * max(n, 1))
         return np.frombuffer(raw, np.uint32).reshape(-1, EXT_STRIDE)[:n].copy()

@@ -183,7 +183,11 @@ class ClusterSettings:
     many degrees (0 = off: clusters are the bins); a component of at least
     min_component × the G-buffer's samples is split off (planar ones grouped per
     plane, curved ones each a cluster when split_curved, else back in their bin).
-    Cluster cameras (§4.4): max_shift clamps the e0 → P_c shift 1 − f; resolution_scale
+    Cluster cameras (§4.4): a cluster of at least stage0_dense G-buffer samples places
+    e_c (eq. 6's d_n, d_f) from one sample per output pixel, its first sub-sample (None:
+    every sample; a small cluster's d_n, d_f would move by a larger fraction of
+    themselves, the default is measured in bench/results/reflections_notes.json);
+    max_shift clamps the e0 → P_c shift 1 − f; resolution_scale
     multiplies the texel density derived from the cluster's projected sample spacing;
     max_resolution caps an image's side (texels).
     Cluster depth images (§4.5): atlas_max caps the atlas side (texels); atlas_budget
@@ -224,6 +228,7 @@ class ClusterSettings:
     atlas_max: int = 4096
     atlas_budget: float | None = 4.0
     max_shift: float = cc.MAX_SHIFT
+    stage0_dense: int | None = 4096
     continuity: float = CONTINUITY
     slope: float = SLOPE
     near_steps: int = NEAR_STEPS
@@ -242,6 +247,8 @@ class ClusterSettings:
             raise ValueError("supersample must be >= 1")
         if self.max_resolution < 1 or self.atlas_max < 1:
             raise ValueError("max_resolution and atlas_max must be >= 1")
+        if self.stage0_dense is not None and self.stage0_dense < 1:
+            raise ValueError("stage0_dense must be >= 1 or None")
         if self.atlas_budget is not None and self.atlas_budget <= 0:
             raise ValueError("atlas_budget must be > 0 or None")
         if any(e <= 0 for e in self.lod_errors) or list(self.lod_errors) != sorted(self.lod_errors):
@@ -434,9 +441,9 @@ class ClusterReflections(Releasable):
         atlas_size = (0, 0)
         drawn = 0
         if method == "clusters" and cams:
-            ext0 = self.extent.run(0, cc.stage0_frames(cams), self.clustering.samples, eye)
+            ext0 = self.extent.run(0, cc.stage0_frames(cams, st.stage0_dense), self.clustering.samples, eye, ss)
             cc.place_centers(cams, ext0, stats, scene.diagonal, st.max_shift)
-            ext1 = self.extent.run(1, cc.stage1_frames(cams), self.clustering.samples, eye)
+            ext1 = self.extent.run(1, cc.stage1_frames(cams), self.clustering.samples, eye, ss)
             cc.finish_cameras(cams, ext1, cam, ss, st.resolution_scale, st.max_resolution)
             budget = st.atlas_budget * size[0] * size[1] if st.atlas_budget else None
             atlas_size = cc.pack_atlas(cams, st.atlas_max, budget)

@@ -483,6 +483,37 @@ def test_block_skip_changes_no_hit(gl, refl):
             assert_images_equal(fast.ray_length, slow.ray_length, f"{name}_ray_length")  # NaN = NaN, inf = inf
 
 
+def test_dense_clusters_place_their_camera_from_one_sample_per_pixel(gl):
+    """Stage 0 of the cluster cameras reads a dense cluster's samples one per output
+    pixel (cluster_extent.comp): its start- and end-point boxes are those of a
+    subset of the samples, so eq. 6's d_n and d_f never exceed every sample's and
+    fall short by about a sample spacing of the cluster's width (bound: 4 spacings
+    over a square cluster's side, 1 - 4/sqrt(samples)); clusters are unchanged, and
+    a view whose clusters are all sparse renders bit-identically to every sample."""
+    scene = make_builtin("living_room")
+    cam = flythrough_path(scene.bounds, 8, width=128, height=128)[1]
+    small = flythrough_path(scene.bounds, 8, width=48, height=48)[1]
+    out = {}
+    for dense in (None, 1, ClusterSettings().stage0_dense):
+        with ClusterReflections(gl, ClusterSettings(stage0_dense=dense)) as r:
+            out[dense] = _render(gl, r, scene, cam), _render(gl, r, scene, small)
+    full, sub = out[None][0].cameras, out[1][0].cameras
+    assert len(full) == len(sub) > 10
+    checked = 0
+    for a, b in zip(full, sub, strict=True):
+        assert a.samples == b.samples and np.array_equal(a.plane_point, b.plane_point)
+        assert b.d_n <= a.d_n and b.d_f <= a.d_f
+        if a.samples >= 1024:
+            bound = 1.0 - 4.0 / np.sqrt(a.samples)
+            assert b.d_n >= bound * a.d_n and b.d_f >= bound * a.d_f, (a.samples, b.d_n / a.d_n, b.d_f / a.d_f)
+            checked += 1
+    assert checked >= 2
+    assert any(b.d_f < a.d_f for a, b in zip(full, sub, strict=True))  # the subset is taken
+    default = out[ClusterSettings().stage0_dense][1]
+    assert max(c.samples for c in default.cameras) < ClusterSettings().stage0_dense
+    assert_images_equal(default.color, out[None][1].color, "all_sparse_color")
+
+
 def test_tile_sums_give_the_same_clusters_and_frames(gl, refl):
     """The clustering statistics summed per work group in shared memory first
     (TILE_SUMS, the GPU's path) are the same integer sums as the direct atomics

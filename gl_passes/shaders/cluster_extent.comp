@@ -5,15 +5,24 @@
 // start depths z = (P-c)·Z, the min clipped start depth, the max clipped end depth
 // and (stage 1) the mean projected spacing of neighbouring samples.
 // Stage 0: c = e0, frame = fitting plane basis (d_n, d_f of eq. 6), the mirror rays
-// only (its extents only place e_c: the lobe's rim is left to stage 1);
-// stage 1: c = e_c, frame = the cluster camera (image rectangle, far, resolution).
-// EXTENT_STAGE (0 or 1) is compiled in: a CPU rasteriser runs a branch's code even
-// when no lane takes it.
+// only (its extents only place e_c: the lobe's rim is left to stage 1), and of a
+// dense cluster one sample per output pixel (stage0_frames); stage 1: c = e_c,
+// frame = the cluster camera (image rectangle, far, resolution), every sample and
+// its lobe's rim. EXTENT_STAGE (0 or 1) is compiled in.
 // Reduction: each invocation first reduces its own rays (1, or 9 for glossy) in
 // registers, then one set of atomics into the workgroup's shared record (or the
 // global one for samples of another cluster), then one per workgroup into the
-// global record. One invocation per listed reflective sample (reflective_list.glsl).
+// global record. Stage 1: one invocation per listed reflective sample
+// (reflective_list.glsl); stage 0: one work group per listed tile, one invocation
+// per output pixel whose first sub-sample (SS, the supersampling factor, compiled
+// in) lies in the tile: that sub-sample, and the pixel's others where the first is
+// not in a dense cluster (a fixed set of samples, and stage 0 reduces by min and max
+// only: the same extents whatever order the list's tiles came in).
+#if EXTENT_STAGE == 0  // TILE_PIXELS: max(ceil(TILE / SS), 4), at least STRIDE invocations for the flush
+layout(local_size_x = TILE_PIXELS, local_size_y = TILE_PIXELS) in;
+#else
 layout(local_size_x = 256) in;
+#endif
 #include "reflect_common.glsl"
 #include "reflective_list.glsl"
 layout(binding = UNIT_u_bins) uniform usampler2D u_bins;
@@ -95,6 +104,60 @@ vec2 project_uv(vec3 X, ClusterFrame F) {
     return vec2(dot(q, F.right_far.xyz), dot(q, F.up_len.xyz)) / z;
 }
 
+// The cluster of a sample's bin + 1 (-1: not reflective or no cluster).
+int bin_cluster(uint bin) { return bin > 0u ? remap[bin - 1u] : -1; }
+
+// Sample p's extents (its rays, start depth and, stage 1, projected spacing) into
+// the record of its cluster cid (bin: its u_bins value).
+void extent_sample(ivec2 p, uint bin, int cid, ivec2 size) {
+    g_local = cid == s_cid;
+    g_base = uint(cid) * STRIDE;
+    ClusterFrame F = frames[cid];
+    vec3 P = texelFetch(u_position, p, 0).xyz;
+    vec3 n = normalize(texelFetch(u_normal, p, 0).xyz);
+    vec3 ng = geom_normal(texelFetch(u_tri, p, 0).r);
+    vec3 r = mirror_dir(normalize(P - u_eye), n, ng);
+    float zp = dot(P - F.c_near.xyz, F.fwd_half.xyz);
+    amin(8u, f2o(zp)); amax(9u, f2o(zp));
+    g_box[0] = g_box[1] = vec4(3.0e38, 3.0e38, -3.0e38, -3.0e38);
+    g_z = vec2(3.0e38, -3.0e38);
+    g_any = false;
+    accum_ray(P, r, F, true);
+#if EXTENT_STAGE == 1
+    float half_angle = F.fwd_half.w;
+    if (half_angle > 0.0) {
+        // The lobe's rim (lobe_dir at rho = 1, every 45°), its frame and tilt
+        // worked out once for the eight rays.
+        vec3 t1, t2;
+        lobe_frame(r, t1, t2);
+        float tilt = tan(half_angle);
+        t1 *= tilt;
+        t2 *= tilt;
+        for (int k = 0; k < 8; ++k)
+            accum_ray(P, lift_above(normalize(r + LOBE_RIM[k].x * t1 + LOBE_RIM[k].y * t2), ng), F, true);
+    }
+#endif
+    flush_rays();
+#if EXTENT_STAGE == 1
+    if (zp > 0.0) {
+        vec2 uv = project_uv(P, F);
+        uint n_pairs = 0u;
+        for (int k = 0; k < 2; ++k) {
+            ivec2 q = p + (k == 0 ? ivec2(1, 0) : ivec2(0, 1));
+            if (any(greaterThanEqual(q, size)) || texelFetch(u_bins, q, 0).r != bin) continue;
+            vec3 Pq = texelFetch(u_position, q, 0).xyz;
+            if (dot(Pq - F.c_near.xyz, F.fwd_half.xyz) <= 0.0) continue;
+            float dist = min(length(project_uv(Pq, F) - uv), 15.0);
+            add64(12u, uint(dist * SPACING_FIXED + 0.5));
+            n_pairs += 1u;
+        }
+        if (n_pairs > 0u) {
+            if (g_local) atomicAdd(s_ext[14], n_pairs); else atomicAdd(ext[g_base + 14u], n_pairs);
+        }
+    }
+#endif
+}
+
 void main() {
     if (gl_LocalInvocationIndex < STRIDE) {
         uint k = gl_LocalInvocationIndex;
@@ -104,61 +167,34 @@ void main() {
     }
     if (gl_LocalInvocationIndex == 0u) s_cid = -1;
     barrier();
-    uint i = gl_GlobalInvocationID.x;
-    ivec2 p = i < n_samples ? list_sample(i) : ivec2(0);
     ivec2 size = textureSize(u_bins, 0);
-    uint bin = i < n_samples ? texelFetch(u_bins, p, 0).r : 0u;
-    int cid = bin > 0u ? remap[bin - 1u] : -1;
+#if EXTENT_STAGE == 0
+    ivec2 t0 = list_tile() * TILE, t1 = min(t0 + TILE, size);
+    ivec2 p = (t0 + SS - 1) / SS * SS + ivec2(gl_LocalInvocationID.xy) * SS;  // a pixel's first sub-sample
+    bool listed = all(lessThan(p, t1));
+#else
+    uint i = gl_GlobalInvocationID.x;
+    bool listed = i < n_samples;
+    ivec2 p = listed ? list_sample(i) : ivec2(0);
+#endif
+    uint bin = listed ? texelFetch(u_bins, p, 0).r : 0u;
+    int cid = bin_cluster(bin);
     if (cid >= 0) atomicCompSwap(s_cid, -1, cid);
     barrier();
-    if (cid >= 0) {
-        g_local = cid == s_cid;
-        g_base = uint(cid) * STRIDE;
-        ClusterFrame F = frames[cid];
-        vec3 P = texelFetch(u_position, p, 0).xyz;
-        vec3 n = normalize(texelFetch(u_normal, p, 0).xyz);
-        vec3 ng = geom_normal(texelFetch(u_tri, p, 0).r);
-        vec3 r = mirror_dir(normalize(P - u_eye), n, ng);
-        float zp = dot(P - F.c_near.xyz, F.fwd_half.xyz);
-        amin(8u, f2o(zp)); amax(9u, f2o(zp));
-        g_box[0] = g_box[1] = vec4(3.0e38, 3.0e38, -3.0e38, -3.0e38);
-        g_z = vec2(3.0e38, -3.0e38);
-        g_any = false;
-        accum_ray(P, r, F, true);
-#if EXTENT_STAGE == 1
-        float half_angle = F.fwd_half.w;
-        if (half_angle > 0.0) {
-            // The lobe's rim (lobe_dir at rho = 1, every 45°), its frame and tilt
-            // worked out once for the eight rays.
-            vec3 t1, t2;
-            lobe_frame(r, t1, t2);
-            float tilt = tan(half_angle);
-            t1 *= tilt;
-            t2 *= tilt;
-            for (int k = 0; k < 8; ++k)
-                accum_ray(P, lift_above(normalize(r + LOBE_RIM[k].x * t1 + LOBE_RIM[k].y * t2), ng), F, true);
+    if (cid >= 0) extent_sample(p, bin, cid, size);
+#if EXTENT_STAGE == 0
+    // A pixel whose first sub-sample lies in no cluster or in a sparse one (misc.y,
+    // stage0_frames) adds its other sub-samples of whatever cluster.
+    if (listed && (cid < 0 || frames[cid].misc.y > 0.0)) {
+        for (int j = 0; j < SS; ++j) for (int i = 0; i < SS; ++i) {
+            ivec2 q = p + ivec2(i, j);
+            if (i + j == 0 || any(greaterThanEqual(q, size))) continue;
+            uint bq = texelFetch(u_bins, q, 0).r;
+            int cq = bin_cluster(bq);
+            if (cq >= 0) extent_sample(q, bq, cq, size);
         }
-#endif
-        flush_rays();
-#if EXTENT_STAGE == 1
-        if (zp > 0.0) {
-            vec2 uv = project_uv(P, F);
-            uint n_pairs = 0u;
-            for (int k = 0; k < 2; ++k) {
-                ivec2 q = p + (k == 0 ? ivec2(1, 0) : ivec2(0, 1));
-                if (any(greaterThanEqual(q, size)) || texelFetch(u_bins, q, 0).r != bin) continue;
-                vec3 Pq = texelFetch(u_position, q, 0).xyz;
-                if (dot(Pq - F.c_near.xyz, F.fwd_half.xyz) <= 0.0) continue;
-                float dist = min(length(project_uv(Pq, F) - uv), 15.0);
-                add64(12u, uint(dist * SPACING_FIXED + 0.5));
-                n_pairs += 1u;
-            }
-            if (n_pairs > 0u) {
-                if (g_local) atomicAdd(s_ext[14], n_pairs); else atomicAdd(ext[g_base + 14u], n_pairs);
-            }
-        }
-#endif
     }
+#endif
     barrier();
     if (s_cid >= 0 && gl_LocalInvocationIndex < STRIDE) {
         uint k = gl_LocalInvocationIndex, gb = uint(s_cid) * STRIDE;

@@ -67,7 +67,7 @@ struct ClusterFrame {
     vec4 plane;       // clip plane: dot(n, X) >= w (the fitting plane, shifted to hold all ray starts)
     vec4 rect;        // off-axis image rectangle (u0, v0, u1, v1) in tangent units
     vec4 atlas;       // atlas viewport (x, y, w, h) in texels
-    vec4 misc;        // glossiness, 0, 0, 0
+    vec4 misc;        // glossiness, stage 0: sparse cluster (1: every sample, cluster_extent.comp), 0, 0
 };
 layout(std430, binding = UNIT_Frames) readonly buffer Frames { ClusterFrame frames[]; };
 layout(std430, binding = UNIT_Remap) readonly buffer Remap { int remap[]; };  // raw bin -> cluster (-1 none)
