@@ -192,7 +192,9 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit, const 
     // A ray moving away from the camera never hits a surface in front of its entry
     // point (e.g. the reflector's own far side seen from e_c).
     float zfirst = ie2 < is2 ? (1.0 + 1e-4) / is2 : 0.0;
-    vec2 delta = (e2 - s2) / float(steps);
+    float inv_steps = 1.0 / float(steps);
+    vec2 delta = (e2 - s2) * inv_steps;
+    vec2 inv_delta = 1.0 / delta;
     // Previous step (crossing rule): stored depths and the ray's depth at its centre.
     vec4 prev_d = vec4(0.0);
     float prev_z = 0.0, prev_a = 0.0;
@@ -223,7 +225,7 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit, const 
     for (;;) {
         bool found = false;
         for (; k <= steps; ++k) {
-            ac = float(k) / float(steps);
+            ac = float(k) * inv_steps;
             pix = mix(s2, e2, ac);
             tx = clamp(ivec2(floor(pix)), ivec2(0), top);
             // Block skip: the steps that stay in this block cannot hit when, in every
@@ -235,11 +237,11 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit, const 
             if (all(equal(tx, ivec2(floor(pix))))) {
                 ivec2 cb = (org + tx) / BLOCK;
                 vec2 b0 = vec2(cb * BLOCK - org), b1 = b0 + float(BLOCK);
-                float ex = delta.x > 0.0 ? (b1.x - pix.x) / delta.x : (delta.x < 0.0 ? (pix.x - b0.x) / -delta.x : 1e9);
-                float ey = delta.y > 0.0 ? (b1.y - pix.y) / delta.y : (delta.y < 0.0 ? (pix.y - b0.y) / -delta.y : 1e9);
+                float ex = delta.x > 0.0 ? (b1.x - pix.x) * inv_delta.x : (delta.x < 0.0 ? (b0.x - pix.x) * inv_delta.x : 1e9);
+                float ey = delta.y > 0.0 ? (b1.y - pix.y) * inv_delta.y : (delta.y < 0.0 ? (b0.y - pix.y) * inv_delta.y : 1e9);
                 int last = min(k + int(max(floor(min(ex, ey) - 1e-4), 0.0)), steps);
                 if (last > k) {
-                    float aa = max(0.0, (float(k) - 0.5) / float(steps)), ab = min(1.0, (float(last) + 0.5) / float(steps));
+                    float aa = max(0.0, (float(k) - 0.5) * inv_steps), ab = min(1.0, (float(last) + 0.5) * inv_steps);
                     float zaa = 1.0 / mix(is2, ie2, aa), zab = 1.0 / mix(is2, ie2, ab);
                     float zmax = max(zaa, zab);
                     bvec4 clear = greaterThan(texelFetch(u_block_min, cb, 0), vec4(zmax * (1.0 + 1e-5)));
@@ -247,7 +249,7 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit, const 
                     // Every step's tolerance is at most that of the deepest one (the
                     // ray's depth span per step grows with z²); the crossing rules can
                     // hit surfaces in front of `lower`, so they keep the min test only.
-                    float tmax = u_thickness * zmax * zmax * abs(ie2 - is2) / float(steps) + 1e-4 * zmax;
+                    float tmax = u_thickness * zmax * zmax * abs(ie2 - is2) * inv_steps + 1e-4 * zmax;
                     float lmin = max(min(zaa, zab) - tmax, zfirst) * (1.0 - 1e-5);
                     clear = bvec4(vec4(clear) + vec4(lessThan(texelFetch(u_block_max, cb, 0), vec4(lmin))));
 #endif
@@ -262,15 +264,17 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit, const 
                 }
             }
 #endif
-            alo = max(0.0, (float(k) - 0.5) / float(steps));
-            ahi = min(1.0, (float(k) + 0.5) / float(steps));
+            alo = max(0.0, (float(k) - 0.5) * inv_steps);
+            ahi = min(1.0, (float(k) + 0.5) * inv_steps);
             float za = 1.0 / mix(is2, ie2, alo), zb = 1.0 / mix(is2, ie2, ahi);
             zlo = min(za, zb); zhi = max(za, zb);
             pk = texelFetch(u_pack, org + tx, 0);  // depth: other objects, reflector, reflector 2nd, others 2nd
+#if defined(CROSSING) || defined(SURFACE_CROSSING)
             zc = 1.0 / mix(is2, ie2, ac);
             pd = prev_d; pz = prev_z; pa = prev_a;
             bool pok = prev_ok;
             prev_d = pk; prev_z = zc; prev_a = ac; prev_ok = true;
+#endif
             // Fast reject (the common case): every stored surface behind the ray here
             // (a second surface lies behind its layer's first).
 #ifdef SURFACE_CROSSING
@@ -378,14 +382,18 @@ bool trace(vec3 P, vec3 d, ClusterFrame F, out vec3 col, out float t_hit, const 
             ac = sxa[layer]; pix = mix(s2, e2, ac);
             dtol = max(5e-3 * D, sc_rel * D);
 #endif
-        } else if (xing[layer] && !layer_hit(D, zhi, lower)) {
+        }
+#ifdef CROSSING
+        else if (xing[layer] && !layer_hit(D, zhi, lower)) {
             // Crossed between the previous step's centre and this one: the crossing of
             // the ray's and the surface's inverse depths, both linear between them.
             float gp = 1.0 / pz - 1.0 / pd[layer], gk = 1.0 / zc - 1.0 / D;
             float ax = gp > gk ? pa + (ac - pa) * clamp(gp / (gp - gk), 0.0, 1.0) : ac;
             ac = ax; pix = mix(s2, e2, ax); D = 1.0 / mix(is2, ie2, ax);
             dtol = max(dtol, u_continuity * D);
-        } else {
+        }
+#endif
+        else {
             float ar = ars[layer] > -2.0 ? ars[layer] : refine(layer, org, top, s2, e2, is2, ie2, alo, ahi, D, dtol);
             if (ar >= 0.0) { ac = ar; pix = mix(s2, e2, ar); D = 1.0 / mix(is2, ie2, ar); }
         }
