@@ -126,9 +126,19 @@ def facing_away(eye: np.ndarray, cones: np.ndarray) -> np.ndarray:
     return bound > 1e-6 * np.maximum(np.linalg.norm(d, axis=1), 1e-12)
 
 
+def nearest_first(bounds: np.ndarray, sel: np.ndarray, point: np.ndarray) -> np.ndarray:
+    """The chunk indices `sel` ordered by the distance of their boxes (bounds: (n, 2, 3)
+    min/max) from `point`, nearest first (0 inside a box; ties keep their order)."""
+    sel = np.asarray(sel, np.int64)
+    p = np.asarray(point, np.float64)
+    lo, hi = bounds[sel, 0], bounds[sel, 1]
+    return sel[np.argsort(np.linalg.norm(np.clip(p, lo, hi) - p, axis=1), kind="stable")]
+
+
 def runs(table: ChunkTable, sel: np.ndarray) -> Iterator[tuple[int, int, int]]:
-    """(object, first face, face count) of the runs of consecutive chunks `sel`
-    (ascending chunk indices) of one object each: one draw per run."""
+    """(object, first face, face count) of the runs of consecutive chunks in `sel`
+    (chunk indices in drawing order; ascending stretches of one object each make
+    one run): one draw per run."""
     sel = np.asarray(sel, np.int64)
     if len(sel) == 0:
         return

@@ -14,7 +14,7 @@ from functools import cached_property
 import moderngl
 import numpy as np
 
-from gl_passes.chunks import ChunkTable, boxes_in_frustum, chunk_table, facing_away, runs
+from gl_passes.chunks import ChunkTable, boxes_in_frustum, chunk_table, facing_away, nearest_first, runs
 from gl_passes.context import GLContext
 from gl_passes.indexed import IndexedBuffers
 from scenes.model import Scene
@@ -47,17 +47,22 @@ class SceneGPU(IndexedBuffers):
         return chunk_table(self.scene.vertices, self.scene.faces, self.ranges)
 
     def draw(self, prog: moderngl.Program, objects: Iterable[int] | None = None, materials: bool = True,
-             instances: int = 1, view_proj: np.ndarray | None = None, eye: np.ndarray | None = None) -> int:
+             instances: int = 1, view_proj: np.ndarray | None = None, eye: np.ndarray | None = None,
+             near_first: np.ndarray | None = None) -> int:
         """Draw the given objects (0-based indices; all by default) with `prog`,
         setting u_base (first global face of each draw), u_object (1-based id) and,
         when the program has them, the material uniforms. With `view_proj` (4×4) the
         triangle chunks outside its frustum are skipped, with `eye` (world point;
         only where GL culls back faces) those facing away from it: neither changes
-        a pixel (gl_passes.chunks). Returns the triangles drawn per instance."""
+        a pixel (gl_passes.chunks). With `near_first` (world point) the chunks are
+        drawn in the order of their boxes' distance from it, nearest first, so that
+        a depth-tested pass shades fewer hidden fragments (a rasteriser tests depth
+        before shading); the pixels change only where two surfaces tie in depth.
+        Returns the triangles drawn per instance."""
         self.gl.check_thread()
         vao = self.vao(prog)
         objs = range(len(self.ranges)) if objects is None else objects
-        if view_proj is None and eye is None:
+        if view_proj is None and eye is None and near_first is None:
             pieces: Iterable[tuple[int, int, int]] = ((k, *self.ranges[k]) for k in objs)
         else:
             t = self.chunks
@@ -68,7 +73,8 @@ class SceneGPU(IndexedBuffers):
                 v &= boxes_in_frustum(view_proj, t.bounds, t.corners)
             if eye is not None:
                 v &= ~facing_away(eye, t.cones)
-            pieces = runs(t, np.nonzero(v)[0])
+            sel = np.nonzero(v)[0]
+            pieces = runs(t, sel if near_first is None else nearest_first(t.bounds, sel, near_first))
         drawn, current = 0, -1
         for k, first, count in pieces:
             if count == 0:
