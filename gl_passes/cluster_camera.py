@@ -9,7 +9,9 @@ Per cluster (P_c mean position, n_c mean normal from gl_passes.clustering):
    note: the printed e0 + (P_c − e0)·f would put a planar mirror's camera on the
    mirror). d_n, d_f are the diagonals of the AABBs of the ray start and end points
    centrally projected from e0 onto the fitting plane (GPU pass, stage 0: the mirror
-   rays; stage 1 adds a glossy lobe's rim). The shift
+   rays, of one sub-sample per output pixel in a cluster of at least
+   ClusterSettings.stage0_dense samples, of every sample otherwise; stage 1 adds a
+   glossy lobe's rim). The shift
    1 − f is clamped to [0, MAX_SHIFT]; a planar cluster (all start points on the
    plane, all normals equal) gets exactly e_c = e0;
 4. image rectangle: the AABB of the clipped ray start and end points (glossy: the
