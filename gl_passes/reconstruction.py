@@ -116,7 +116,13 @@ class ReconstructionSettings:
     move a corner makes (1: to the expected edge, 0: none; a diagnostic, the gap
     tables). offset_quads: a diagnostic (tried, not kept; the
     soft-shadow report's gap tables): > 0, an H sample that no sample of I takes as a
-    corner becomes a quad of its own, ± offset_quads pixels around its pixel corner."""
+    corner becomes a quad of its own, ± offset_quads pixels around its pixel corner.
+    offset_evidence: a diagnostic (tried, not kept; the gap tables): the share of
+    the move a tangent-plane corner makes toward the middle of its samples and
+    itself where H's own ray at that corner saw past it (0: none; 1: to the middle,
+    the expected edge); `reconstruct_set` leaves peeling layers after the first
+    without it (their H holds the corner ray's j-th surface, not its first past the
+    sample)."""
 
     kind: Reconstruction = "hybrid"
     plane_tolerance: float = 1.0
@@ -129,6 +135,7 @@ class ReconstructionSettings:
     fetch_order: bool = True
     evidence_pull: float = 1.0
     offset_quads: float = 0.0
+    offset_evidence: float = 0.0
 
     def __post_init__(self) -> None:
         if self.kind not in RECONSTRUCTIONS:
@@ -139,6 +146,8 @@ class ReconstructionSettings:
                 raise ValueError(f"{name} must be a positive number, got {v!r}")
         if not 0.0 <= self.evidence_pull <= 1.0:
             raise ValueError(f"evidence_pull must be within [0, 1], got {self.evidence_pull!r}")
+        if not 0.0 <= self.offset_evidence <= 1.0:
+            raise ValueError(f"offset_evidence must be within [0, 1], got {self.offset_evidence!r}")
         if not 0.0 <= self.offset_quads <= 0.5:
             raise ValueError(f"offset_quads must be within [0, 0.5] pixels, got {self.offset_quads!r}")
 
@@ -293,10 +302,11 @@ class Reconstructor(Releasable):
     def _set_evidence(prog: moderngl.ComputeShader, evidence: Sequence[DepthImage], complete: Sequence[bool],
                       settings: ReconstructionSettings) -> None:
         set_uniform(prog, "u_n_evidence", len(evidence))
-        if not evidence:
-            return
         set_uniform(prog, "u_e_tol", float(settings.evidence_tolerance))
         set_uniform(prog, "u_e_pull", float(settings.evidence_pull))
+        set_uniform(prog, "u_offset_evidence", float(settings.offset_evidence))
+        if not evidence:
+            return
         arrays = {name: np.zeros((MAX_EVIDENCE, 3), np.float32) for name in ("u_e_eye", "u_e_forward",
                                                                                 "u_e_right", "u_e_up")}
         footprint = np.zeros(MAX_EVIDENCE, np.float32)
@@ -499,7 +509,8 @@ def reconstruct_set(gl: GLContext, sampled: SampledSet, settings: Reconstruction
             earlier = images[max(0, i - MAX_EVIDENCE):i] if settings.evidence else []
             first = i - len(earlier)
             complete = [first + j == 0 or sampled.method != "non_redundant" for j in range(len(earlier))]
-            out.append(rec.reconstruct(img, off, settings, earlier, complete))
+            mine = replace(settings, offset_evidence=0.0) if sampled.method == "peeling" and i > 0 else settings
+            out.append(rec.reconstruct(img, off, mine, earlier, complete))
         return out
     finally:
         if own:

@@ -315,6 +315,30 @@ def test_evidence_pulls_a_later_images_fringe_to_the_expected_edge(gl):
     np.testing.assert_allclose(edges["half pull"], [8.7, 9.525], atol=2e-3)  # half way from 9.7 to 9.35
 
 
+def test_offset_evidence_pulls_a_corner_its_own_offset_ray_saw_past(gl):
+    """The 1-D case of the offset-evidence diagnostic, by hand. A band at eye depth 4
+    ends at u = 8.8 over a background at depth 8. Pixel column 8 (centre 8.5) is on
+    the band; H's ray at the corners u = 9 hits the background, so those corners are
+    tangent-plane corners at u = 9 (Alg. 4). With offset_evidence = 1 they move to the
+    middle of the samples and themselves, u = 8.75 (the edge errs by 0.05 px instead
+    of 0.2); with 0.5, half that move, 8.875. The background, whose corners H holds,
+    keeps its own."""
+    band = screen_rects([(-W, 8.8, -H, 2 * H)], 4.0, "band")
+    back = screen_rects([(-W, 2 * W, -H, 2 * H)], 8.0, "back")
+    edges = {}
+    for share in (0.0, 0.5, 1.0):
+        _, [(pos, tri)] = reconstruct(gl, Scene([band, back]), [FRONT],
+                                      settings=replace(HYBRID, offset_evidence=share))
+        uv, depth = FRONT.project(pos[np.unique(tri)].astype(np.float64))
+        inner = (uv[:, 1] > 0.5) & (uv[:, 1] < H - 0.5)
+        on_band = inner & (depth < 6.0)
+        edges[share] = uv[on_band, 0].max()
+        assert np.isclose(uv[inner & (depth > 6.0), 0].min(), 9.0, atol=1e-3)  # the background keeps its corners
+    np.testing.assert_allclose([edges[0.0], edges[0.5], edges[1.0]], [9.0, 8.875, 8.75], atol=2e-3)
+    with pytest.raises(ValueError, match="offset_evidence"):
+        ReconstructionSettings(offset_evidence=1.5)
+
+
 # --- NR: no surface covered twice -------------------------------------------------------
 
 def overdraw(meshes: list[tuple[np.ndarray, np.ndarray]], view: Camera) -> float:

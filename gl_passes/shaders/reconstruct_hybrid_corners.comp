@@ -10,6 +10,10 @@
 // pulled toward its samples where an earlier image of the set saw past it
 // (reconstruct_evidence.glsl). Writes each sample's corner vertex index to
 // u_sample_corner at (2x + cx, 2y + cy) for its corner (x + cx, y + cy).
+// With u_offset_evidence = p > 0 (a diagnostic, tried and not kept), a tangent-plane
+// corner whose own H ray saw past it (H's sample there lies more than u_e_tol pixel
+// footprints beyond it) moves the share p of the way to the middle of its samples
+// and itself: the surface's edge lies between them.
 // With u_offset_quads = e > 0 (a diagnostic, tried and not kept), an H sample that
 // no sample around c takes (a surface seen at the corner but at none of the four
 // pixel centres) becomes a quad of its own, on its tangent plane over the square
@@ -26,6 +30,7 @@ uniform vec3 u_up;      // camera up × tan(fov/2)
 uniform bool u_join;    // share tangent-plane corners between same-surface neighbours
 uniform float u_e_pull; // share of the evidence rule's move applied (1: to the expected edge)
 uniform float u_offset_quads;  // half size (pixels) of an untaken H sample's own quad; 0: none
+uniform float u_offset_evidence;  // share of the move to the middle where H saw past a corner; 0: none
 
 // The point of s's tangent plane on the camera ray through screen point c (pixels
 // of I, corner (0, 0) at the top left), its depth clamped for grazing planes.
@@ -104,7 +109,11 @@ void main() {
         }
         x /= n;
         sp /= n;
-        if (u_n_evidence > 0) x = mix(sp, x, mix(1.0, evidence_keep(sp, x), u_e_pull));
+        float keep = 1.0;
+        if (u_n_evidence > 0) keep = mix(1.0, evidence_keep(sp, x), u_e_pull);
+        if (u_offset_evidence > 0.0 && h.valid && dot(h.position - x, u_forward) > u_e_tol * footprint(x))
+            keep = min(keep, 1.0 - 0.5 * u_offset_evidence);
+        x = mix(sp, x, keep);
         index[g] = atomicAdd(n_vertices, 1u);
         emit_vertex(index[g], x, packUnorm4x8(rgba / n));
     }
