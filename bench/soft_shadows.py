@@ -631,6 +631,11 @@ def _iv(e: dict[str, Any], which: str = "vs_geometry") -> str:
     return f"{e[which]['intensity_mean']:.3f} · {e[which]['visibility_mean']:.3f}"
 
 
+def _iv_sign(e: dict[str, Any]) -> str:
+    """'intensity · visibility (too dark / too bright)' against the geometry truth."""
+    return f"{_iv(e)} ({e['too_dark_mean']:.3f} / {e['too_bright_mean']:.3f})"
+
+
 def gap_report(gap: dict[str, Any]) -> list[str]:
     """The gap part's tables (see `part_gap`)."""
     if not gap:
@@ -659,8 +664,7 @@ def gap_report(gap: dict[str, Any]) -> list[str]:
     for scene, r in gap.items():
         for method in SAMPLING_METHODS:
             steps = [r["runs"]["steps"][method][name] for name, _ in RECONSTRUCTION_STEPS]
-            rows.append([scene, method, *(f"{_iv(e)} ({e['too_dark_mean']:.3f} / {e['too_bright_mean']:.3f})"
-                                          for e in steps)])
+            rows.append([scene, method, *map(_iv_sign, steps)])
     lines += ["### The reconstruction's rules beyond Alg. 4, one at a time", "",
               "`gl_passes.reconstruction`: the **depth gate** (a neighbour of another triangle counts as the "
               "sample's surface only within the corner clamp's depth as well: near a grazing tangent plane every "
@@ -819,15 +823,21 @@ def footprint_sweep_report(gap: dict[str, Any]) -> list[str]:
                      rows), ""]
 
 
+def _variant_runs(gap: dict[str, Any], key: str, values: tuple[float, ...]) -> list[tuple[str, str, list]]:
+    """(scene, method, [default run, run per value]) of a gap sweep stored under `key`
+    ([] for runs from before it)."""
+    out = []
+    for scene, r in gap.items():
+        for method, runs in r["runs"].get(key, {}).items():
+            base = r["runs"]["aim_clamp"]["scene"][method]["runs"][str(GAP_CLAMPS[-1])]
+            out.append((scene, method, [base, *(runs[str(v)] for v in values)]))
+    return out
+
+
 def offset_quads_report(gap: dict[str, Any]) -> list[str]:
     """The gap part's offset-sample quads table ([] for runs from before it)."""
-    rows = []
-    for scene, r in gap.items():
-        oq = r["runs"].get("offset_quads", {})
-        for method, runs in oq.items():
-            base = r["runs"]["aim_clamp"]["scene"][method]["runs"][str(GAP_CLAMPS[-1])]
-            rows.append([scene, method, *(f"{_iv(e)} ({e['too_dark_mean']:.3f} / {e['too_bright_mean']:.3f})"
-                                          for e in (base, *(runs[str(h)] for h in GAP_OFFSET_QUADS)))])
+    rows = [[scene, method, *map(_iv_sign, runs)]
+            for scene, method, runs in _variant_runs(gap, "offset_quads", GAP_OFFSET_QUADS)]
     if not rows:
         return []
     return ["### Offset-sample quads (tried, not kept)", "",
@@ -841,14 +851,8 @@ def offset_quads_report(gap: dict[str, Any]) -> list[str]:
 
 def offset_evidence_report(gap: dict[str, Any]) -> list[str]:
     """The gap part's offset-evidence table, against both truths ([] for runs from before it)."""
-    rows = []
-    for scene, r in gap.items():
-        oe = r["runs"].get("offset_evidence", {})
-        for method, runs in oe.items():
-            base = r["runs"]["aim_clamp"]["scene"][method]["runs"][str(GAP_CLAMPS[-1])]
-            row = (base, *(runs[str(p)] for p in GAP_OFFSET_EVIDENCE))
-            rows.append([scene, method, *(f"{_iv(e)} ({e['too_dark_mean']:.3f} / {e['too_bright_mean']:.3f})"
-                                          for e in row), *(_iv(e, "vs_exact") for e in row)])
+    rows = [[scene, method, *map(_iv_sign, runs), *(_iv(e, "vs_exact") for e in runs)]
+            for scene, method, runs in _variant_runs(gap, "offset_evidence", GAP_OFFSET_EVIDENCE)]
     if not rows:
         return []
     shares = [f"{p:g}" for p in GAP_OFFSET_EVIDENCE]
