@@ -254,6 +254,10 @@ GAP_EVIDENCE_PULLS = (0.5, 0.7, 0.85)
 GAP_OFFSET_QUADS = (0.125, 0.25, 0.5)
 #: Shares of the offset-evidence move the gap part tries (ReconstructionSettings.offset_evidence).
 GAP_OFFSET_EVIDENCE = (0.5, 1.0)
+#: The ReconstructionSettings fields the gap part sweeps one at a time, in this order, with their values.
+GAP_SETTING_SWEEPS: tuple[tuple[str, tuple[float, ...]], ...] = (
+    ("evidence_pull", GAP_EVIDENCE_PULLS), ("offset_quads", GAP_OFFSET_QUADS),
+    ("offset_evidence", GAP_OFFSET_EVIDENCE))
 #: The reconstruction's rules beyond Alg. 4, added one at a time (gap part; the last is the default).
 RECONSTRUCTION_STEPS: tuple[tuple[str, dict[str, bool]], ...] = (
     ("Alg. 4 as printed", {"depth_gate": False, "join_corners": False, "evidence": False}),
@@ -318,8 +322,8 @@ def part_gap(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str, An
     light = default_area_light(bounds, st.scene.sun_direction)
     rec = Reconstructor(gl)
     out: dict[str, Any] = {"aim_clamp": {}, "steps": {}, "union": {}, "per_sample": {}, "rules": {},
-                           "full_evidence": {}, "footprint": {}, "footprint_sweep": {}, "offset_quads": {},
-                           "evidence_pull": {}, "offset_evidence": {}}
+                           "full_evidence": {}, "footprint": {}, "footprint_sweep": {},
+                           **{field: {} for field, _ in GAP_SETTING_SWEEPS}}
     try:
         with SoftShadowPass(gl, ShadowSettings(samples=k, shadow_map_resolution=args.shadow_res)) as sp:
             geo, exact, _ = truths(st, sp, light, k)
@@ -362,21 +366,12 @@ def part_gap(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str, An
                         out["steps"][method][name] = {**errors(bits, geo, exact, st.mask), "triangles": tris}
                     out["union"][method] = [errors(occlusion(sampled, settings, n)[0], geo, exact, st.mask)
                                             for n in range(1, len(sampled.images) + 1)]
-                    out["evidence_pull"][method] = {}
-                    for pull in GAP_EVIDENCE_PULLS:
-                        bits, tris = occlusion(sampled, ReconstructionSettings(evidence_pull=pull))
-                        out["evidence_pull"][method][str(pull)] = {**errors(bits, geo, exact, st.mask),
-                                                                   "triangles": tris}
-                    out["offset_quads"][method] = {}
-                    for half in GAP_OFFSET_QUADS:
-                        bits, tris = occlusion(sampled, ReconstructionSettings(offset_quads=half))
-                        out["offset_quads"][method][str(half)] = {**errors(bits, geo, exact, st.mask),
-                                                                  "triangles": tris}
-                    out["offset_evidence"][method] = {}
-                    for share in GAP_OFFSET_EVIDENCE:
-                        bits, tris = occlusion(sampled, ReconstructionSettings(offset_evidence=share))
-                        out["offset_evidence"][method][str(share)] = {**errors(bits, geo, exact, st.mask),
-                                                                      "triangles": tris}
+                    for field, values in GAP_SETTING_SWEEPS:  # stored under the setting's name
+                        out[field][method] = {}
+                        for value in values:
+                            bits, tris = occlusion(sampled, ReconstructionSettings(**{field: value}))
+                            out[field][method][str(value)] = {**errors(bits, geo, exact, st.mask),
+                                                              "triangles": tris}
                     if method == "non_redundant":
                         # the conventional images of its views as evidence
                         conv = render_set(gl, st.gpu, "conventional", cams, offsets=False)
@@ -631,6 +626,11 @@ def _iv(e: dict[str, Any], which: str = "vs_geometry") -> str:
     return f"{e[which]['intensity_mean']:.3f} · {e[which]['visibility_mean']:.3f}"
 
 
+def _default_run(r: dict[str, Any], method: str) -> dict[str, Any]:
+    """A gap run's errors of `method` with the default reconstruction (aim=scene, clamp 2)."""
+    return r["runs"]["aim_clamp"]["scene"][method]["runs"][str(GAP_CLAMPS[-1])]
+
+
 def _iv_sign(e: dict[str, Any]) -> str:
     """'intensity · visibility (too dark / too bright)' against the geometry truth."""
     return f"{_iv(e)} ({e['too_dark_mean']:.3f} / {e['too_bright_mean']:.3f})"
@@ -723,7 +723,7 @@ def gap_report(gap: dict[str, Any]) -> list[str]:
     rows = []
     for scene, r in gap.items():
         for method in SAMPLING_METHODS:
-            base = r["runs"]["aim_clamp"]["scene"][method]["runs"][str(GAP_CLAMPS[-1])]
+            base = _default_run(r, method)
             rules = r["runs"]["rules"][method]
             rows.append([scene, method, _iv(base), *(f"{_iv(rules[rule])} ({rules[rule]['samples']:,})"
                                                        for rule in GAP_RULES)])
@@ -829,8 +829,7 @@ def _variant_runs(gap: dict[str, Any], key: str, values: tuple[float, ...]) -> l
     out = []
     for scene, r in gap.items():
         for method, runs in r["runs"].get(key, {}).items():
-            base = r["runs"]["aim_clamp"]["scene"][method]["runs"][str(GAP_CLAMPS[-1])]
-            out.append((scene, method, [base, *(runs[str(v)] for v in values)]))
+            out.append((scene, method, [_default_run(r, method), *(runs[str(v)] for v in values)]))
     return out
 
 
@@ -875,11 +874,9 @@ def _offset_evidence_sentence(gap: dict[str, Any]) -> str:
         return ""
     share = GAP_OFFSET_EVIDENCE[-1]
     p = str(share)
-    base = {s: r["runs"]["aim_clamp"]["scene"] for s, r in gap.items()}
 
     def cell(s: str, method: str, truth: str = "vs_geometry") -> str:
-        e0 = base[s][method]["runs"][str(GAP_CLAMPS[-1])]
-        return f"{_iv(e0, truth)} → {_iv(oe[s][method][p], truth)}"
+        return f"{_iv(_default_run(gap[s], method), truth)} → {_iv(oe[s][method][p], truth)}"
     lost = [s for s in oe if not _below(oe[s]["non_redundant"][p], oe[s]["conventional"][p], True)]
     return (f" Offset-image evidence (a corner pulled in where H's own ray saw past it, p = {share:g}; gap "
             "table) moves NR and conventional images against the geometry truth: "
@@ -914,11 +911,9 @@ def _offset_quads_sentence(gap: dict[str, Any], scenes: list[str]) -> str:
     oq = {s: gap[s]["runs"].get("offset_quads") for s in scenes}
     if not all(oq.values()):
         return ""
-    base = {s: gap[s]["runs"]["aim_clamp"]["scene"] for s in scenes}
 
     def cells(s: str, method: str) -> str:
-        e0 = base[s][method]["runs"][str(GAP_CLAMPS[-1])]
-        return " → ".join([_iv(e0), *(_iv(oq[s][method][str(h)]) for h in GAP_OFFSET_QUADS)])
+        return " → ".join([_iv(_default_run(gap[s], method)), *(_iv(oq[s][method][str(h)]) for h in GAP_OFFSET_QUADS)])
     return (" Quads of their own for the offset-image samples no pixel centre takes (gap table, half size "
             + " / ".join(f"{h:g}" for h in GAP_OFFSET_QUADS) + " px) move " + "; ".join(
                 f"{s}'s NR {cells(s, 'non_redundant')} and conventional {cells(s, 'conventional')}" for s in scenes)
