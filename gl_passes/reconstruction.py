@@ -217,6 +217,8 @@ class Reconstructor(Releasable):
         set_uniform(prog, "u_depth_gate", bool(settings.depth_gate))
         set_uniform(prog, "u_join", bool(settings.join_corners))
         set_uniform(prog, "u_offset_quads", float(settings.offset_quads))
+        set_uniform(prog, "u_offset_evidence", float(settings.offset_evidence))
+        set_uniform(prog, "u_e_tol", float(settings.evidence_tolerance))  # both evidence rules' depth test
 
     def _mesh(self, vbo: moderngl.Buffer, ibo: moderngl.Buffer, counters: moderngl.Buffer,
               settings: ReconstructionSettings, n_vertices: int | None = None) -> MeshGPU:
@@ -302,11 +304,9 @@ class Reconstructor(Releasable):
     def _set_evidence(prog: moderngl.ComputeShader, evidence: Sequence[DepthImage], complete: Sequence[bool],
                       settings: ReconstructionSettings) -> None:
         set_uniform(prog, "u_n_evidence", len(evidence))
-        set_uniform(prog, "u_e_tol", float(settings.evidence_tolerance))
-        set_uniform(prog, "u_e_pull", float(settings.evidence_pull))
-        set_uniform(prog, "u_offset_evidence", float(settings.offset_evidence))
         if not evidence:
             return
+        set_uniform(prog, "u_e_pull", float(settings.evidence_pull))
         arrays = {name: np.zeros((MAX_EVIDENCE, 3), np.float32) for name in ("u_e_eye", "u_e_forward",
                                                                                 "u_e_right", "u_e_up")}
         footprint = np.zeros(MAX_EVIDENCE, np.float32)
