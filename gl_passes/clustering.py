@@ -67,7 +67,8 @@ min_samples samples (a readback of their number, root, bin and count);
 `accumulate` writes each sample's segment (raw bin, or n_bins + its component's
 list index) into the bin image and accumulates the per-segment statistics with
 atomics into an SSBO (count; position and normal sums in 64-bit fixed point; the
-plane-offset range), on a GPU summed per work group in shared memory first. Only
+plane-offset range), on a GPU summed per work group in shared memory first, on a
+CPU rasteriser over runs of ACCUMULATE_RUN listed samples in registers. Only
 the per-segment statistics are read back (STATS_STRIDE uints each); empty
 segments are dropped and the clusters numbered 0..n−1 (the remap SSBO, segment →
 cluster, used by later passes).
@@ -100,6 +101,9 @@ PLANAR_SPAN = 1e-5
 FIXED = float(1 << 24)
 GROUP = 16  # work-group side of the passes, and the union-find's tile (TILE in the shaders)
 LIST_GROUP = 256  # work group of the passes over the listed reflective samples (assign, accumulate)
+#: Without tile sums: consecutive listed samples per accumulate invocation, summed in
+#: registers (divides LIST_GROUP; at most 255, so that a run's 2^24 fixed-point sums fit 32 bits).
+ACCUMULATE_RUN = 32
 
 
 @dataclass
@@ -205,7 +209,8 @@ class ClusteringPass:
 
     def __init__(self, gl: GLContext, bin_normal: str = "mirror", tile_sums: bool | None = None) -> None:
         """tile_sums: the statistics summed per work group in shared memory first
-        (cluster_accumulate.comp); None: on a hardware renderer only (same sums)."""
+        (cluster_accumulate.comp), else over runs of ACCUMULATE_RUN samples in
+        registers; None: on a hardware renderer only (same sums)."""
         gl.check_thread()
         if bin_normal not in ("mirror", "shading"):
             raise ValueError(f"bin_normal must be 'mirror' or 'shading', got {bin_normal!r}")
@@ -221,8 +226,9 @@ class ClusteringPass:
         self.roots_prog = compute_program(gl, "cluster_roots.comp", units)
         self.compress_prog = compute_program(gl, "cluster_compress.comp", units)
         self.split_prog = compute_program(gl, "cluster_split.comp", units)
-        self.accumulate_prog = compute_program(gl, "cluster_accumulate.comp",
-                                               {**units, **({"TILE_SUMS": "1"} if self.tile_sums else {})})
+        self.accumulate_prog = compute_program(gl, "cluster_accumulate.comp", {
+            **units, **({"TILE_SUMS": "1"} if self.tile_sums else {"SAMPLE_RUN": str(ACCUMULATE_RUN),
+                                                          "RUN_GROUP": str(LIST_GROUP // ACCUMULATE_RUN)})})
         self.samples = ReflectiveSampleList(gl)  # this frame's reflective samples, listed by the count pass
         self.pass_ms: dict[str, float] = {}  # run(timed=True): milliseconds per pass
         self.bins_tex: moderngl.Texture | None = None
@@ -256,7 +262,7 @@ class ClusteringPass:
             normal_break: float = 0.0, min_samples: int = 1, curved: bool = False,
             timed: bool = False) -> ClusterStats:
         """Cluster the reflective samples of a G-buffer (its textures on the GPU) seen
-        from `eye`; the scene's mesh storage buffers (MeshVerts, MeshFaces) must be
+        from `eye`; the scene's face normals (storage buffer FaceNormals) must be
         bound by the caller. normal_break > 0 (degrees) splits every raw bin into the
         connected components of its samples whose mirror normals differ by at most
         that much between neighbours; components of at least `min_samples` samples

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from gl_passes.cluster_camera import mirror_point
+from gl_passes.cluster_camera import ClusterExtentPass, mirror_point
 from gl_passes.clustering import MAX_PHI_BINS, MAX_THETA_BINS, ClusteringPass, bins_per_reflector
 from gl_passes.reflections import ClusterReflections, ClusterSettings
 from gl_passes.reflective_list import HEADER_BYTES, TILE_HEADER_BYTES, ReflectiveSampleList
@@ -516,11 +516,11 @@ def test_dense_clusters_place_their_camera_from_one_sample_per_pixel(gl):
 
 def test_tile_sums_give_the_same_clusters_and_frames(gl, refl):
     """The clustering statistics summed per work group in shared memory first
-    (TILE_SUMS, the GPU's path) are the same integer sums as the direct atomics
-    (llvmpipe's path): the same cluster statistics and bit-identical frames on both
+    (TILE_SUMS, the GPU's path) are the same integer sums as runs of samples summed
+    in registers (llvmpipe's path): the same cluster statistics and bit-identical frames on both
     bench rooms, whose tiles hold several segments (some past the shared slots)."""
     tiled = ClusteringPass(gl, tile_sums=True)
-    assert tiled.tile_sums and not refl.clustering.tile_sums  # llvmpipe's default: direct atomics
+    assert tiled.tile_sums and not refl.clustering.tile_sums  # llvmpipe's default: runs in registers
     with ClusterReflections(gl) as r:
         r.clustering.release()
         r.clustering = tiled
@@ -534,6 +534,30 @@ def test_tile_sums_give_the_same_clusters_and_frames(gl, refl):
                 assert np.array_equal(ca.plane_point, cb.plane_point)
                 assert np.array_equal(ca.plane_normal, cb.plane_normal)
             assert_images_equal(a.color, b.color, f"{name}_tile_sums_color")
+
+
+def test_sample_runs_give_the_same_cameras_and_frames(gl, refl):
+    """The stage-1 extents reduced in registers over runs of listed samples
+    (llvmpipe's default) are those of one sample per invocation into a shared record
+    per work group (the GPU's path): minima and maxima of the same values and
+    integer spacing sums, so the same cluster cameras and bit-identical frames on
+    both bench rooms, whose runs cross from one cluster into the next."""
+    assert refl.extent.sample_run > 1
+    with ClusterReflections(gl) as r:
+        r.extent.release()
+        r.extent = ClusterExtentPass(gl, sample_run=1)
+        for name in ("living_room", "bathroom"):
+            scene = make_builtin(name)
+            cam = flythrough_path(scene.bounds, 8, width=48, height=48)[1]
+            a, b = _render(gl, refl, scene, cam), _render(gl, r, scene, cam)
+            assert a.n_clusters == b.n_clusters > 10
+            for ca, cb in zip(a.cameras, b.cameras, strict=True):
+                assert (ca.rect, ca.resolution, ca.near, ca.far, ca.spacing) == \
+                    (cb.rect, cb.resolution, cb.near, cb.far, cb.spacing)
+                assert np.array_equal(ca.center, cb.center)
+            assert_images_equal(a.color, b.color, f"{name}_sample_runs_color")
+    with pytest.raises(ValueError, match="sample_run"):
+        ClusterExtentPass(gl, sample_run=3)
 
 
 def test_frame_does_not_depend_on_the_frames_before(gl):

@@ -10,10 +10,20 @@
 // screen, mostly share a few segments: up to SLOTS of them, the rest straight to
 // the SSBO) and adds each slot to the SSBO once, instead of every sample
 // contending for its segment's words (a GPU runs the atomics on one address one
-// after another); llvmpipe, whose
-// barriers and shared atomics cost more than its contention, adds every sample
-// directly. Integer sums: the totals are the same either way, in any order.
+// after another). Without it (llvmpipe, whose barriers and shared atomics cost
+// more than the sums save), each invocation takes SAMPLE_RUN consecutive listed
+// samples (a work group the same 256, dispatched alike), sums the samples of one
+// segment in registers and adds them with one set of atomics when the segment
+// changes and at the end (a segment's words, added to by both of llvmpipe's
+// threads at once, cost a contended atomic each: bench/results/host_costs.md).
+// Integer sums: the totals are the same either way, in any order.
+#ifdef TILE_SUMS
 layout(local_size_x = 256) in;  // one invocation per listed reflective sample
+#define RUN 1u
+#else
+layout(local_size_x = RUN_GROUP) in;  // 256 / SAMPLE_RUN (gl_passes.clustering)
+#define RUN uint(SAMPLE_RUN)
+#endif
 #include "cluster_sample.glsl"
 #include "cluster_labels.glsl"
 #include "reflective_list.glsl"
@@ -42,6 +52,13 @@ void add64_global(uint i, uint lo, uint hi) {
 // ADD_SAMPLE(A, b): one sample (q, qn, off) into the record at A[b..b+STRIDE) of an
 // array A (the SSBO or a shared slot), 64-bit sums by 32-bit atomics with carry.
 #define ADD64(A, i, v) { uint o_ = atomicAdd(A[i], v); if (o_ + (v) < o_) atomicAdd(A[(i) + 1u], 1u); }
+// ADD_RUN(b): a run's sums (cnt, sq, sqn, omin, omax) into the SSBO record at b.
+#define ADD_RUN(b) { \
+    atomicAdd(stats[b], cnt); \
+    for (uint k = 0u; k < 3u; ++k) { ADD64(stats, (b) + 1u + 2u * k, sq[k]); ADD64(stats, (b) + 7u + 2u * k, sqn[k]); } \
+    atomicMin(stats[(b) + 13u], omin); \
+    atomicMax(stats[(b) + 14u], omax); \
+}
 #define ADD_SAMPLE(A, b) { \
     atomicAdd(A[b], 1u); \
     for (uint k = 0u; k < 3u; ++k) { ADD64(A, (b) + 1u + 2u * k, q[k]); ADD64(A, (b) + 7u + 2u * k, qn[k]); } \
@@ -59,11 +76,17 @@ void main() {
     barrier();
 #endif
 
-    bool listed = gl_GlobalInvocationID.x < n_samples;
-    ivec2 p = listed ? list_sample(gl_GlobalInvocationID.x) : ivec2(0);
     ivec2 size = textureSize(u_mnormal, 0);
-    uint raw = listed ? imageLoad(u_bin_image, p).r : 0u;
-    if (raw != 0u) {
+    // The run's sums so far, of segment cur (NONE: none yet); q sums of up to RUN
+    // samples of at most 2^24 each fit 32 bits.
+    uint cur = NONE, cnt = 0u, omin = 0xFFFFFFFFu, omax = 0u;
+    uvec3 sq = uvec3(0u), sqn = uvec3(0u);
+    for (uint r = 0u; r < RUN; ++r) {
+        uint i = gl_GlobalInvocationID.x * RUN + r;
+        bool listed = i < n_samples;
+        ivec2 p = listed ? list_sample(i) : ivec2(0);
+        uint raw = listed ? imageLoad(u_bin_image, p).r : 0u;
+        if (raw == 0u) continue;
         uint seg = raw - 1u;
         if (u_components) {
             uint mark = comp_count[labels[uint(p.y * size.x + p.x)]];
@@ -75,16 +98,26 @@ void main() {
         uvec3 q = uvec3(clamp((P - u_lo) * u_inv_ext, 0.0, 1.0) * FIXED + 0.5);
         uvec3 qn = uvec3(clamp(n * 0.5 + 0.5, 0.0, 1.0) * FIXED + 0.5);
         uint off = f2o(dot(n, P));
-        uint slot = SLOTS;  // the first slot holding seg, or the first free one
 #ifdef TILE_SUMS
+        uint slot = SLOTS;  // the first slot holding seg, or the first free one
         for (uint s = 0u; s < SLOTS; ++s) {
             uint prev = atomicCompSwap(s_seg[s], NONE, seg);
             if (prev == NONE || prev == seg) { slot = s; break; }
         }
-#endif
         if (slot < SLOTS) ADD_SAMPLE(s_stats, slot * STRIDE)
-        else ADD_SAMPLE(stats, seg * STRIDE)  // more segments in this tile than slots, or no TILE_SUMS
+        else ADD_SAMPLE(stats, seg * STRIDE)  // more segments in this tile than slots
+#else
+        if (seg != cur && cur != NONE) {  // another segment: the run so far goes out
+            ADD_RUN(cur * STRIDE);
+            cnt = 0u; sq = sqn = uvec3(0u); omin = 0xFFFFFFFFu; omax = 0u;
+        }
+        cur = seg;
+        cnt += 1u; sq += q; sqn += qn; omin = min(omin, off); omax = max(omax, off);
+#endif
     }
+#ifndef TILE_SUMS
+    if (cur != NONE) ADD_RUN(cur * STRIDE);
+#endif
 #ifdef TILE_SUMS
     memoryBarrierShared();
     barrier();

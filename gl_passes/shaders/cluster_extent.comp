@@ -13,13 +13,20 @@
 // registers, then one set of atomics into the workgroup's shared record (or the
 // global one for samples of another cluster), then one per workgroup into the
 // global record. Stage 1: one invocation per listed reflective sample
-// (reflective_list.glsl); stage 0: one work group per listed tile, one invocation
+// (reflective_list.glsl), or with SAMPLE_RUN > 1 (a CPU rasteriser:
+// gl_passes.cluster_camera) SAMPLE_RUN consecutive listed samples per invocation,
+// reduced in registers while they share a cluster and added to its global record
+// once per cluster met (no shared record, no barriers: on llvmpipe every atomic
+// and barrier of an invocation costs as much as several texel fetches,
+// bench/results/host_costs.md); stage 0: one work group per listed tile, one invocation
 // per output pixel whose first sub-sample (SS, the supersampling factor, compiled
 // in) lies in the tile: that sub-sample, and the pixel's others where the first is
 // not in a dense cluster (a fixed set of samples, and stage 0 reduces by min and max
 // only: the same extents whatever order the list's tiles came in).
 #if EXTENT_STAGE == 0  // TILE_PIXELS: max(ceil(TILE / SS), 4), at least STRIDE invocations for the flush
 layout(local_size_x = TILE_PIXELS, local_size_y = TILE_PIXELS) in;
+#elif SAMPLE_RUN > 1
+layout(local_size_x = RUN_GROUP) in;  // 256 / SAMPLE_RUN (gl_passes.cluster_camera)
 #else
 layout(local_size_x = 256) in;
 #endif
@@ -54,6 +61,16 @@ void add64(uint k, uint v) {
 vec4 g_box[2];   // (umin, vmin, umax, vmax) of start / end points
 vec2 g_z;        // (min clipped start depth, max clipped end depth)
 bool g_any;
+vec2 g_zp;       // (min, max) start depth of the samples, clipped or not
+uint g_sp_lo, g_sp_hi, g_pairs;  // stage 1: projected spacing sum (64-bit fixed point) and pair count
+
+void reset_record() {
+    g_box[0] = g_box[1] = vec4(3.0e38, 3.0e38, -3.0e38, -3.0e38);
+    g_z = vec2(3.0e38, -3.0e38);
+    g_any = false;
+    g_zp = vec2(3.0e38, -3.0e38);
+    g_sp_lo = g_sp_hi = g_pairs = 0u;
+}
 
 void accum_point(vec3 X, int slot, ClusterFrame F) {
     vec3 q = X - F.c_near.xyz;
@@ -98,6 +115,17 @@ void flush_rays() {
     amax(11u, f2o(g_z.y));
 }
 
+// The record's atomics (amin, amax, add64: into the shared or the global record).
+void flush_record() {
+    if (g_zp.x <= g_zp.y) { amin(8u, f2o(g_zp.x)); amax(9u, f2o(g_zp.y)); }
+    flush_rays();
+    if (g_pairs > 0u) {
+        add64(12u, g_sp_lo);
+        if (g_local) { atomicAdd(s_ext[13], g_sp_hi); atomicAdd(s_ext[14], g_pairs); }
+        else { atomicAdd(ext[g_base + 13u], g_sp_hi); atomicAdd(ext[g_base + 14u], g_pairs); }
+    }
+}
+
 vec2 project_uv(vec3 X, ClusterFrame F) {
     vec3 q = X - F.c_near.xyz;
     float z = max(dot(q, F.fwd_half.xyz), 1e-30);
@@ -107,21 +135,17 @@ vec2 project_uv(vec3 X, ClusterFrame F) {
 // The cluster of a sample's bin + 1 (-1: not reflective or no cluster).
 int bin_cluster(uint bin) { return bin > 0u ? remap[bin - 1u] : -1; }
 
-// Sample p's extents (its rays, start depth and, stage 1, projected spacing) into
-// the record of its cluster cid (bin: its u_bins value).
+// Sample p's extents (its rays, start depth and, stage 1, projected spacing) added
+// to the record in registers (reset_record, flush_record) of its cluster cid (bin:
+// its u_bins value).
 void extent_sample(ivec2 p, uint bin, int cid, ivec2 size) {
-    g_local = cid == s_cid;
-    g_base = uint(cid) * STRIDE;
     ClusterFrame F = frames[cid];
     vec3 P = texelFetch(u_position, p, 0).xyz;
     vec3 n = normalize(texelFetch(u_normal, p, 0).xyz);
     vec3 ng = geom_normal(texelFetch(u_tri, p, 0).r);
     vec3 r = mirror_dir(normalize(P - u_eye), n, ng);
     float zp = dot(P - F.c_near.xyz, F.fwd_half.xyz);
-    amin(8u, f2o(zp)); amax(9u, f2o(zp));
-    g_box[0] = g_box[1] = vec4(3.0e38, 3.0e38, -3.0e38, -3.0e38);
-    g_z = vec2(3.0e38, -3.0e38);
-    g_any = false;
+    g_zp = vec2(min(g_zp.x, zp), max(g_zp.y, zp));
     accum_ray(P, r, F, true);
 #if EXTENT_STAGE == 1
     float half_angle = F.fwd_half.w;
@@ -137,27 +161,58 @@ void extent_sample(ivec2 p, uint bin, int cid, ivec2 size) {
             accum_ray(P, lift_above(normalize(r + LOBE_RIM[k].x * t1 + LOBE_RIM[k].y * t2), ng), F, true);
     }
 #endif
-    flush_rays();
 #if EXTENT_STAGE == 1
     if (zp > 0.0) {
         vec2 uv = project_uv(P, F);
-        uint n_pairs = 0u;
         for (int k = 0; k < 2; ++k) {
             ivec2 q = p + (k == 0 ? ivec2(1, 0) : ivec2(0, 1));
             if (any(greaterThanEqual(q, size)) || texelFetch(u_bins, q, 0).r != bin) continue;
             vec3 Pq = texelFetch(u_position, q, 0).xyz;
             if (dot(Pq - F.c_near.xyz, F.fwd_half.xyz) <= 0.0) continue;
             float dist = min(length(project_uv(Pq, F) - uv), 15.0);
-            add64(12u, uint(dist * SPACING_FIXED + 0.5));
-            n_pairs += 1u;
-        }
-        if (n_pairs > 0u) {
-            if (g_local) atomicAdd(s_ext[14], n_pairs); else atomicAdd(ext[g_base + 14u], n_pairs);
+            uint v = uint(dist * SPACING_FIXED + 0.5), lo = g_sp_lo;
+            g_sp_lo += v;
+            if (g_sp_lo < lo) g_sp_hi += 1u;
+            g_pairs += 1u;
         }
     }
 #endif
 }
 
+// One sample's record into the shared record of the work group's cluster or the
+// global one of another cluster.
+void extent_one(ivec2 p, uint bin, int cid, ivec2 size) {
+    g_local = cid == s_cid;
+    g_base = uint(cid) * STRIDE;
+    reset_record();
+    extent_sample(p, bin, cid, size);
+    flush_record();
+}
+
+#if EXTENT_STAGE == 1 && SAMPLE_RUN > 1
+void main() {
+    ivec2 size = textureSize(u_bins, 0);
+    g_local = false;
+    int cur = -1;  // the cluster of the record in registers
+    reset_record();
+    for (uint r = 0u; r < uint(SAMPLE_RUN); ++r) {
+        uint i = gl_GlobalInvocationID.x * uint(SAMPLE_RUN) + r;
+        if (i >= n_samples) break;
+        ivec2 p = list_sample(i);
+        uint bin = texelFetch(u_bins, p, 0).r;
+        int cid = bin_cluster(bin);
+        if (cid < 0) continue;
+        if (cid != cur) {
+            if (cur >= 0) flush_record();
+            cur = cid;
+            g_base = uint(cid) * STRIDE;
+            reset_record();
+        }
+        extent_sample(p, bin, cid, size);
+    }
+    if (cur >= 0) flush_record();
+}
+#else
 void main() {
     if (gl_LocalInvocationIndex < STRIDE) {
         uint k = gl_LocalInvocationIndex;
@@ -181,7 +236,7 @@ void main() {
     int cid = bin_cluster(bin);
     if (cid >= 0) atomicCompSwap(s_cid, -1, cid);
     barrier();
-    if (cid >= 0) extent_sample(p, bin, cid, size);
+    if (cid >= 0) extent_one(p, bin, cid, size);
 #if EXTENT_STAGE == 0
     // A pixel whose first sub-sample lies in no cluster or in a sparse one (misc.y,
     // stage0_frames) adds its other sub-samples of whatever cluster.
@@ -191,7 +246,7 @@ void main() {
             if (i + j == 0 || any(greaterThanEqual(q, size))) continue;
             uint bq = texelFetch(u_bins, q, 0).r;
             int cq = bin_cluster(bq);
-            if (cq >= 0) extent_sample(q, bq, cq, size);
+            if (cq >= 0) extent_one(q, bq, cq, size);
         }
     }
 #endif
@@ -207,3 +262,4 @@ void main() {
         else if (k == 14u) atomicAdd(ext[gb + 14u], v);
     }
 }
+#endif
