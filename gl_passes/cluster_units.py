@@ -18,8 +18,8 @@ UNITS = Units(
     # together (cluster_assign/accumulate, reflect_trace, cluster_block_depth)
     images=(("u_bin_image", "u_mnormal_image"), ("u_out",), ("u_block_min_image", "u_block_max_image")),
     # storage blocks
-    storage=("ObjCount", "BinTable", "BinStats", "Remap", "Ext", "Frames", "MeshVerts", "MeshFaces", "Labels",
-             "CompCount", "SplitList", "SampleList", "TileList", "Resolved"),
+    storage=("ObjCount", "BinTable", "BinStats", "Remap", "Ext", "Frames", "MeshVerts", "MeshFaces", "FaceNormals",
+             "Labels", "CompCount", "SplitList", "SampleList", "TileList", "Resolved"),
     # samplers
     textures=("u_bins", "u_tri", "u_normal", "u_position", "u_colour_pack", "u_color", "u_material", "u_reflected",
               "u_pack", "u_block_min", "u_block_max", "u_obj", "u_prev",

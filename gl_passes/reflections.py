@@ -6,8 +6,10 @@ renders and the benchmarks measure); every texture, image and storage unit of it
 shaders comes from gl_passes.cluster_units.UNITS.
 
 0. per-scene records that do not depend on the camera (cached for CHUNK_CACHE
-   scenes, step "scene_setup", ~0 on a scene's later frames): triangle chunks with
-   AABBs and normal cones, and the levels of detail (meshoptimizer) with theirs;
+   scenes, step "scene_setup", ~0 on a scene's later frames): every triangle's
+   geometric normal (face_normals.comp, read by the later passes' geom_normal),
+   triangle chunks with AABBs and normal cones, and the levels of detail
+   (meshoptimizer) with theirs;
 1. G-buffer at ss×ss supersampling (GBufferPass at ss·W × ss·H);
 2. clustering of the reflective samples on the GPU (gl_passes.clustering, §4.3):
    bins of the mirror normal and reflector, split into the connected components of
@@ -299,6 +301,7 @@ class ClusterReflections(Releasable):
         self.trace_prog = compute_program(gl, "reflect_trace.comp", defines)
         self._units = units  # the resolve is compiled per supersampling factor, in render()
         self.block_prog = compute_program(gl, "cluster_block_depth.comp", {**units, "BLOCK": str(BLOCK)})
+        self.face_normal_prog = compute_program(gl, "face_normals.comp", units)
         self._atlas: list[tuple[moderngl.Framebuffer, moderngl.Texture]] = []  # per layer: framebuffer, depth
         self._owns: list[moderngl.Texture] = []  # layers 0 and 1's own depths, then the peel layers' (unwritten)
         self._pack: moderngl.Texture | None = None  # the layers' depths, written with them
@@ -419,16 +422,14 @@ class ClusterReflections(Releasable):
 
         # 0. camera-independent per-scene records (cached: a later frame of the scene pays nothing)
         cache_hit = self._chunk_cache_hit(scene_gpu)
-        if method == "clusters":
-            self._chunks(scene_gpu)
+        records = self._chunks(scene_gpu, lods=method == "clusters")
         lap("scene_setup")
         # 1. supersampled G-buffer
         tex = self.gbuffer.draw(scene_gpu, ss_cam).textures
         lap("gbuffer")
         # 2. clustering
         eye = np.asarray(cam.eye, np.float64)
-        UNITS.bind_storage("MeshVerts", scene_gpu.vbo)
-        UNITS.bind_storage("MeshFaces", scene_gpu.ibo)
+        UNITS.bind_storage("FaceNormals", records["face_normals"])
         min_samples = max(1, round(st.min_component * ss_cam.width * ss_cam.height))
         stats = self.clustering.run(tex, scene.bounds, len(scene.objects), eye, st.bin_scale, st.bin_rule,
                                     st.normal_break, min_samples, st.split_curved, timed=diagnostics)
@@ -551,30 +552,53 @@ class ClusterReflections(Releasable):
 
     @staticmethod
     def _release_entry(entry: dict) -> None:
-        for lod in entry["lods"]:
+        for lod in entry["lods"] or ():
             for vao in lod["vaos"]:
                 vao.release()
             lod["ibo"].release()
+        if entry["face_normals"] is not None:
+            entry["face_normals"].release()
 
-    def _chunks(self, scene_gpu: SceneGPU) -> dict:
+    def _face_normals(self, scene_gpu: SceneGPU) -> moderngl.Buffer:
+        """(3·F,) float32 storage buffer: every triangle's unit geometric normal
+        (face_normals.comp, from the scene's vertex and index buffers)."""
+        n = len(scene_gpu.scene.faces)
+        buf = self.gl.ctx.buffer(reserve=max(12 * n, 12))
+        UNITS.bind_storage("MeshVerts", scene_gpu.vbo)
+        UNITS.bind_storage("MeshFaces", scene_gpu.ibo)
+        UNITS.bind_storage("FaceNormals", buf)
+        groups = -(-n // 256)
+        row = min(groups, 65535)  # GL's guaranteed work-group count per dimension
+        set_uniform(self.face_normal_prog, "u_faces", n)
+        set_uniform(self.face_normal_prog, "u_row_groups", row)
+        if n:
+            self.face_normal_prog.run(row, -(-groups // row), 1)
+            self.gl.ctx.memory_barrier()
+        return buf
+
+    def _chunks(self, scene_gpu: SceneGPU, lods: bool = True) -> dict:
         """The camera-independent records of a scene (cached per SceneGPU, CHUNK_CACHE
-        scenes): the unit of frustum culling for the cluster images, per-object runs of
+        scenes): under "face_normals" every triangle's geometric normal
+        (_face_normals); the unit of frustum culling for the cluster images, per-object runs of
         at most chunks.CHUNK triangles (finer than SceneGPU.object_bounds, so large objects,
         floors and walls, are mostly culled) with AABBs and normal cones (SceneGPU.chunks); under "lods"
-        the same for each level of detail of settings.lod_errors (× scene diagonal)."""
+        the same for each level of detail of settings.lod_errors (× scene diagonal), built
+        on the first call that asks for them (lods=True: the cluster method)."""
         key = id(scene_gpu)
-        if self._chunk_cache_hit(scene_gpu):
-            return self._chunk_cache[key]
-        old = self._chunk_cache.pop(key, None)
-        if old is not None:
-            self._release_entry(old)
-        scene = scene_gpu.scene
-        cached = {"scene": scene, "vbo": scene_gpu.vbo, "table": scene_gpu.chunks, "lods": []}
-        self._chunk_cache[key] = cached  # registered first: released with the cache whatever follows
-        for rel in self.settings.lod_errors:
-            cached["lods"].append(self._lod_table(scene_gpu, rel * scene.diagonal))
-        while len(self._chunk_cache) > CHUNK_CACHE:
-            self._release_entry(self._chunk_cache.pop(next(iter(self._chunk_cache))))
+        if not self._chunk_cache_hit(scene_gpu):
+            old = self._chunk_cache.pop(key, None)
+            if old is not None:
+                self._release_entry(old)
+            entry = {"scene": scene_gpu.scene, "vbo": scene_gpu.vbo, "table": scene_gpu.chunks, "lods": None,
+                     "face_normals": None}
+            self._chunk_cache[key] = entry  # registered first: released with the cache whatever follows
+            entry["face_normals"] = self._face_normals(scene_gpu)
+            while len(self._chunk_cache) > CHUNK_CACHE:
+                self._release_entry(self._chunk_cache.pop(next(iter(self._chunk_cache))))
+        cached = self._chunk_cache[key]
+        if lods and cached["lods"] is None:
+            cached["lods"] = [self._lod_table(scene_gpu, rel * scene_gpu.scene.diagonal)
+                              for rel in self.settings.lod_errors]
         return cached
 
     def _lod_levels(self, c: ClusterCamera, object_bounds: np.ndarray, errors: list[float]) -> np.ndarray:

@@ -28,7 +28,7 @@ from gl_passes.upload import SceneGPU
 from reference.image_metrics import mean_abs_error, occlusion_error_mask, occlusion_error_percentage
 from reference.raycast import RayCaster
 from reference.reflections import envmap_reflections, raytrace_reflections, reflect
-from scenes import Camera, Material, Scene
+from scenes import Camera, Material, Scene, SceneObject
 from scenes.builtin import make_builtin
 from scenes.camera import flythrough_path
 from scenes.glossy import glossy_far
@@ -558,6 +558,25 @@ def test_sample_runs_give_the_same_cameras_and_frames(gl, refl):
             assert_images_equal(a.color, b.color, f"{name}_sample_runs_color")
     with pytest.raises(ValueError, match="sample_run"):
         ClusterExtentPass(gl, sample_run=3)
+
+
+def test_face_normals_are_the_triangles_unit_normals(gl, refl):
+    """The per-scene geometric normals (face_normals.comp, read by every pass's
+    geom_normal): each triangle's unit CCW normal against numpy's, +y for a
+    degenerate triangle, over the vertex and index buffers of a multi-object scene."""
+    base = planar_mirror_scene()
+    v = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 0, 1], [0, 1, 0]], np.float32)
+    flat = SceneObject("flat", v, [[0, 1, 2], [0, 1, 3], [0, 1, 4]], material=Material())  # first: degenerate
+    scene = Scene([*base.objects, flat], name="face_normals")
+    with SceneGPU(gl, scene) as sg:
+        got = np.frombuffer(refl._chunks(sg, lods=False)["face_normals"].read(), np.float32).reshape(-1, 3)
+    tri = scene.vertices[scene.faces.astype(np.int64)].astype(np.float64)
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    want = np.where(length > 0, n / np.maximum(length, 1e-30), [0.0, 1.0, 0.0])
+    assert got.shape == (len(scene.faces), 3)
+    np.testing.assert_allclose(got, want, atol=1e-6)
+    np.testing.assert_array_equal(got[-3:], [[0, 1, 0], [0, -1, 0], [0, 0, 1]])
 
 
 def test_frame_does_not_depend_on_the_frames_before(gl):

@@ -1,18 +1,12 @@
 // Shared by the cluster/reflection compute shaders (technique 3, Ch. 4).
-// Mesh access for geometric normals, the mirror-direction rules and the glossy
-// lobe of scenes/glossy.py + reference/reflections.py (same formulas).
-layout(std430, binding = UNIT_MeshVerts) readonly buffer MeshVerts { float mesh_v[]; };  // (pos, normal) × V
-layout(std430, binding = UNIT_MeshFaces) readonly buffer MeshFaces { uint mesh_f[]; };   // 3 × F
-
-vec3 mesh_pos(uint i) { return vec3(mesh_v[6u * i], mesh_v[6u * i + 1u], mesh_v[6u * i + 2u]); }
+// Geometric normals, the mirror-direction rules and the glossy lobe of
+// scenes/glossy.py + reference/reflections.py (same formulas).
+layout(std430, binding = UNIT_FaceNormals) readonly buffer FaceNormals { float face_n[]; };  // 3 × F (face_normals.comp)
 
 // Unit geometric normal (CCW front) of triangle id `tri` (1-based).
 vec3 geom_normal(uint tri) {
     uint f = 3u * (tri - 1u);
-    vec3 a = mesh_pos(mesh_f[f]), b = mesh_pos(mesh_f[f + 1u]), c = mesh_pos(mesh_f[f + 2u]);
-    vec3 n = cross(b - a, c - a);
-    float l = length(n);
-    return l > 0.0 ? n / l : vec3(0.0, 1.0, 0.0);
+    return vec3(face_n[f], face_n[f + 1u], face_n[f + 2u]);
 }
 
 // Mirror direction about the shading normal; below-surface rule: reflect about
