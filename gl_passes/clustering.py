@@ -216,7 +216,7 @@ class ClusteringPass:
             raise ValueError(f"bin_normal must be 'mirror' or 'shading', got {bin_normal!r}")
         self.gl = gl
         units = {**UNITS.defines(), "STATS_STRIDE": str(STATS_STRIDE),
-                 "TILE": str(GROUP), "TILE_SIDES": str(2 * GROUP),
+                 "TILE": str(GROUP), "TILE_SIDES": str(2 * GROUP), "TILE_HALF": str(GROUP // 2),
                  **({"SHADING_NORMAL_BINS": "1"} if bin_normal == "shading" else {})}
         self.tile_sums = not gl.is_software if tile_sums is None else bool(tile_sums)
         self.count_prog = compute_program(gl, "cluster_count.comp", units)

@@ -266,6 +266,31 @@ def test_reflective_sample_list_holds_each_reflective_sample_once_tile_by_tile(g
     assert tuple(tile_head[1:4]) == (len(expected), 1, 1)
 
 
+def test_count_pass_lists_each_reflective_sample_once_tile_by_tile(gl, refl):
+    """The list the clustering's count pass builds (one invocation per 2×2 samples
+    of a 16×16 tile) on a G-buffer with partial tiles at the right and top edges:
+    every reflective sample of the G-buffer exactly once, each tile's in one
+    contiguous stretch, and the listed tiles those holding any."""
+    scene = make_builtin("bathroom")
+    cam = flythrough_path(scene.bounds, 8, width=45, height=37)[1]
+    _render(gl, refl, scene, cam)
+    lists = refl.clustering.samples
+    n = int(np.frombuffer(lists.buf.read(size=4), np.uint32)[0])
+    xy = np.frombuffer(lists.buf.read(size=4 * n, offset=HEADER_BYTES), np.uint32)
+    n_tiles = int(np.frombuffer(lists.tiles.read(size=4), np.uint32)[0])
+    tiles = np.frombuffer(lists.tiles.read(size=4 * n_tiles, offset=TILE_HEADER_BYTES), np.uint32)
+    g, refl_px, _ = _gbuffer_samples(gl, scene, cam)
+    h, w = refl_px.shape
+    ys, xs = np.nonzero(refl_px[::-1])  # the G-buffer is read back flipped (row 0 = top)
+    x, y = (xy & 0xFFFF).astype(np.int64), (xy >> 16).astype(np.int64)
+    assert (w, h) == (90, 74) and n == len(ys) > 100
+    assert np.array_equal(np.sort(y * w + x), np.sort(ys * w + xs))
+    tile = (y // 16) * 64 + x // 16
+    assert np.r_[True, tile[1:] != tile[:-1]].sum() == len(np.unique(tile))
+    listed = (tiles >> 16).astype(np.int64) * 64 + (tiles & 0xFFFF)
+    assert np.array_equal(np.sort(listed), np.unique((ys // 16) * 64 + xs // 16))
+
+
 # --- planar mirror ----------------------------------------------------------------
 def test_planar_mirror_camera_is_the_mirrored_eye_and_matches_reference(gl, refl):
     scene = planar_mirror_scene()

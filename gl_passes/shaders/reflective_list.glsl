@@ -29,15 +29,14 @@ ivec2 list_tile() { return list_unpack(tile_xy[gl_WorkGroupID.x]); }  // this wo
 #ifdef LIST_WRITER
 shared uint s_listed_;
 shared uint s_list_base_;
-// Called by every invocation of a 16×16 work group over the sample grid, in
-// uniform control flow (it holds barriers): lists p when `listed`, the group's
-// samples in one contiguous stretch (in invocation order on a CPU rasteriser, so
-// neighbours stay neighbours), and the group's tile when it listed any.
-void list_tile_samples(bool listed, ivec2 p) {
-    if (gl_LocalInvocationIndex == 0u) s_listed_ = 0u;
-    barrier();
-    uint slot = listed ? atomicAdd(s_listed_, 1u) : 0u;
-    barrier();
+// A work group over one 16×16 tile lists its samples in one contiguous stretch (in
+// invocation order on a CPU rasteriser, so neighbours stay neighbours) and the tile
+// when it listed any, in three phases between which the caller puts barriers:
+// list_begin() | list_reserve(n) per invocation: the first of its n slots |
+// list_publish() | list_slot(k): the list index of slot k, for list_put.
+void list_begin() { if (gl_LocalInvocationIndex == 0u) s_listed_ = 0u; }
+uint list_reserve(uint n) { return n > 0u ? atomicAdd(s_listed_, n) : 0u; }
+void list_publish() {
     if (gl_LocalInvocationIndex == 0u && s_listed_ > 0u) {
         s_list_base_ = atomicAdd(n_samples, s_listed_);
         uint end = s_list_base_ + s_listed_;
@@ -47,7 +46,18 @@ void list_tile_samples(bool listed, ivec2 p) {
         tile_xy[t] = gl_WorkGroupID.x | (gl_WorkGroupID.y << 16);
         atomicMax(dispatch_tiles[0], t + 1u);
     }
+}
+void list_put(uint slot, ivec2 p) { sample_xy[s_list_base_ + slot] = uint(p.x) | (uint(p.y) << 16); }
+
+// One sample per invocation of a 16×16 work group, in uniform control flow (it
+// holds barriers): lists p when `listed`.
+void list_tile_samples(bool listed, ivec2 p) {
+    list_begin();
     barrier();
-    if (listed) sample_xy[s_list_base_ + slot] = uint(p.x) | (uint(p.y) << 16);
+    uint slot = list_reserve(listed ? 1u : 0u);
+    barrier();
+    list_publish();
+    barrier();
+    if (listed) list_put(slot, p);
 }
 #endif
