@@ -58,7 +58,7 @@ MAX_SHIFT = 0.5
 CLIP_DROP = 0.5  # curved clusters: clip plane lowered by CLIP_DROP·d_n below the lowest ray start
 SPACING_FIXED = float(1 << 28)
 EXTENT_GROUP = 256  # listed samples per stage-1 work group of cluster_extent.comp
-EXTENT_RUN = 32  # on a CPU rasteriser: consecutive listed samples per stage-1 invocation (divides EXTENT_GROUP)
+EXTENT_RUN = 32  # on a CPU rasteriser: consecutive listed samples per extent invocation (divides EXTENT_GROUP)
 
 
 @dataclass
@@ -343,10 +343,10 @@ class ClusterExtentPass:
     """Runs cluster_extent.comp (both stages) and reads back the (n, 16) extents."""
 
     def __init__(self, gl: GLContext, sample_run: int | None = None) -> None:
-        """sample_run: listed samples per stage-1 invocation, reduced in registers
-        (cluster_extent.comp; 1: one per invocation into a shared record per work
-        group); None: EXTENT_RUN on a software renderer, 1 otherwise (the same
-        extents either way)."""
+        """sample_run: listed samples per invocation of either stage, reduced in
+        registers (cluster_extent.comp; 1: stage 1 one sample, stage 0 one output
+        pixel per invocation, into a shared record per work group); None:
+        EXTENT_RUN on a software renderer, 1 otherwise (the same extents either way)."""
         self.gl = gl
         run = (EXTENT_RUN if gl.is_software else 1) if sample_run is None else int(sample_run)
         if run < 1 or EXTENT_GROUP % run:
@@ -370,22 +370,23 @@ class ClusterExtentPass:
     def run(self, stage: int, frames: np.ndarray, samples: ReflectiveSampleList, eye: np.ndarray,
             ss: int) -> np.ndarray:
         """Stage 1: per reflective sample of `samples` (built from the bins bound as
-        u_bins; sample_run of them per invocation); stage 0: per output pixel of
-        `samples`' tiles, its first sub-sample (G-buffer supersampled ss×ss) when
-        reflective. Textures (u_bins, u_tri, u_normal, u_position) and SSBOs (Remap,
-        FaceNormals) of cluster_units.UNITS must be bound by the caller."""
+        u_bins); stage 0: per output pixel of `samples`' tiles, its first sub-sample
+        (G-buffer supersampled ss×ss) when reflective, its others too where the first
+        is in no dense cluster (with sample_run > 1: runs of listed samples).
+        Textures (u_bins, u_tri, u_normal, u_position) and SSBOs (Remap, FaceNormals)
+        of cluster_units.UNITS must be bound by the caller."""
         n = len(frames)
         self.upload_frames(frames)
         ext = self._buffer("ext_buf", ext_init(n).tobytes())
         UNITS.bind_storage("Ext", ext)
-        defines = {**UNITS.defines(), "EXTENT_STAGE": str(stage)}
-        if stage == 0:
-            defines.update(TILE=str(TILE), SS=str(ss), TILE_PIXELS=str(max(-(-TILE // ss), 4)))
-        else:
-            defines.update(SAMPLE_RUN=str(self.sample_run), RUN_GROUP=str(EXTENT_GROUP // self.sample_run))
+        tiles = stage == 0 and self.sample_run == 1  # stage 0 on a GPU: per listed tile
+        defines = {**UNITS.defines(), "EXTENT_STAGE": str(stage), "SAMPLE_RUN": str(self.sample_run),
+                   "RUN_GROUP": str(EXTENT_GROUP // self.sample_run), "SS": str(ss)}
+        if tiles:
+            defines.update(TILE=str(TILE), TILE_PIXELS=str(max(-(-TILE // ss), 4)))
         p = compute_program(self.gl, "cluster_extent.comp", defines)  # cached per stage and ss
         set_uniform(p, "u_eye", np.asarray(eye, np.float64))
-        if stage == 0:
+        if tiles:
             samples.dispatch_tiles(p)
         else:
             samples.dispatch(p, EXTENT_GROUP)

@@ -562,19 +562,24 @@ def test_tile_sums_give_the_same_clusters_and_frames(gl, refl):
 
 
 def test_sample_runs_give_the_same_cameras_and_frames(gl, refl):
-    """The stage-1 extents reduced in registers over runs of listed samples
-    (llvmpipe's default) are those of one sample per invocation into a shared record
-    per work group (the GPU's path): minima and maxima of the same values and
-    integer spacing sums, so the same cluster cameras and bit-identical frames on
-    both bench rooms, whose runs cross from one cluster into the next."""
+    """The extents of both stages reduced in registers over runs of listed samples
+    (llvmpipe's default) are those of one sample (stage 1) or output pixel (stage 0)
+    per invocation into a shared record per work group (the GPU's path): minima and
+    maxima of the same values and integer spacing sums, so the same cluster cameras
+    and bit-identical frames on both bench rooms, whose runs cross from one cluster
+    into the next, with dense and sparse clusters (stage 0's rule) at the default
+    ClusterSettings.stage0_dense and at 1 (every cluster dense)."""
     assert refl.extent.sample_run > 1
-    with ClusterReflections(gl) as r:
-        r.extent.release()
-        r.extent = ClusterExtentPass(gl, sample_run=1)
-        for name in ("living_room", "bathroom"):
+    dense = ClusterSettings(stage0_dense=1)
+    with ClusterReflections(gl) as r, ClusterReflections(gl, dense) as rd, ClusterReflections(gl, dense) as rd1:
+        for one in (r, rd1):
+            one.extent.release()
+            one.extent = ClusterExtentPass(gl, sample_run=1)
+        for name, (runs, single) in (("living_room", (refl, r)), ("bathroom", (refl, r)),
+                                     ("living_room", (rd, rd1))):
             scene = make_builtin(name)
             cam = flythrough_path(scene.bounds, 8, width=48, height=48)[1]
-            a, b = _render(gl, refl, scene, cam), _render(gl, r, scene, cam)
+            a, b = _render(gl, runs, scene, cam), _render(gl, single, scene, cam)
             assert a.n_clusters == b.n_clusters > 10
             for ca, cb in zip(a.cameras, b.cameras, strict=True):
                 assert (ca.rect, ca.resolution, ca.near, ca.far, ca.spacing) == \

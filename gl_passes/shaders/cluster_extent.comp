@@ -13,20 +13,22 @@
 // registers, then one set of atomics into the workgroup's shared record (or the
 // global one for samples of another cluster), then one per workgroup into the
 // global record. Stage 1: one invocation per listed reflective sample
-// (reflective_list.glsl), or with SAMPLE_RUN > 1 (a CPU rasteriser:
-// gl_passes.cluster_camera) SAMPLE_RUN consecutive listed samples per invocation,
-// reduced in registers while they share a cluster and added to its global record
-// once per cluster met (no shared record, no barriers: on llvmpipe every atomic
-// and barrier of an invocation costs as much as several texel fetches,
-// bench/results/host_costs.md); stage 0: one work group per listed tile, one invocation
+// (reflective_list.glsl); stage 0: one work group per listed tile, one invocation
 // per output pixel whose first sub-sample (SS, the supersampling factor, compiled
 // in) lies in the tile: that sub-sample, and the pixel's others where the first is
 // not in a dense cluster (a fixed set of samples, and stage 0 reduces by min and max
-// only: the same extents whatever order the list's tiles came in).
-#if EXTENT_STAGE == 0  // TILE_PIXELS: max(ceil(TILE / SS), 4), at least STRIDE invocations for the flush
-layout(local_size_x = TILE_PIXELS, local_size_y = TILE_PIXELS) in;
-#elif SAMPLE_RUN > 1
+// only: the same extents whatever order the list's tiles came in). With
+// SAMPLE_RUN > 1 (a CPU rasteriser: gl_passes.cluster_camera), either stage takes
+// SAMPLE_RUN consecutive listed samples per invocation (stage 0 skipping the
+// samples of a pixel whose first sub-sample is in a dense cluster, but that one:
+// the same set), reduced in registers while they share a cluster, whose frame is
+// read once, and added to its global record once per cluster met (no shared
+// record, no barriers: on llvmpipe every atomic and barrier of an invocation costs
+// as much as several texel fetches, bench/results/host_costs.md).
+#if SAMPLE_RUN > 1
 layout(local_size_x = RUN_GROUP) in;  // 256 / SAMPLE_RUN (gl_passes.cluster_camera)
+#elif EXTENT_STAGE == 0  // TILE_PIXELS: max(ceil(TILE / SS), 4), at least STRIDE invocations for the flush
+layout(local_size_x = TILE_PIXELS, local_size_y = TILE_PIXELS) in;
 #else
 layout(local_size_x = 256) in;
 #endif
@@ -136,10 +138,9 @@ vec2 project_uv(vec3 X, ClusterFrame F) {
 int bin_cluster(uint bin) { return bin > 0u ? remap[bin - 1u] : -1; }
 
 // Sample p's extents (its rays, start depth and, stage 1, projected spacing) added
-// to the record in registers (reset_record, flush_record) of its cluster cid (bin:
-// its u_bins value).
-void extent_sample(ivec2 p, uint bin, int cid, ivec2 size) {
-    ClusterFrame F = frames[cid];
+// to the record in registers (reset_record, flush_record) of its cluster, whose
+// frame is F (bin: its u_bins value).
+void extent_sample(ivec2 p, uint bin, ClusterFrame F, ivec2 size) {
     vec3 P = texelFetch(u_position, p, 0).xyz;
     vec3 n = normalize(texelFetch(u_normal, p, 0).xyz);
     vec3 ng = geom_normal(texelFetch(u_tri, p, 0).r);
@@ -185,15 +186,16 @@ void extent_one(ivec2 p, uint bin, int cid, ivec2 size) {
     g_local = cid == s_cid;
     g_base = uint(cid) * STRIDE;
     reset_record();
-    extent_sample(p, bin, cid, size);
+    extent_sample(p, bin, frames[cid], size);
     flush_record();
 }
 
-#if EXTENT_STAGE == 1 && SAMPLE_RUN > 1
+#if SAMPLE_RUN > 1
 void main() {
     ivec2 size = textureSize(u_bins, 0);
     g_local = false;
-    int cur = -1;  // the cluster of the record in registers
+    int cur = -1;  // the cluster of the record in registers, and its frame
+    ClusterFrame F;
     reset_record();
     for (uint r = 0u; r < uint(SAMPLE_RUN); ++r) {
         uint i = gl_GlobalInvocationID.x * uint(SAMPLE_RUN) + r;
@@ -202,13 +204,21 @@ void main() {
         uint bin = texelFetch(u_bins, p, 0).r;
         int cid = bin_cluster(bin);
         if (cid < 0) continue;
+#if EXTENT_STAGE == 0
+        ivec2 first = p / SS * SS;  // its pixel's first sub-sample
+        if (p != first) {
+            int cf = bin_cluster(texelFetch(u_bins, first, 0).r);
+            if (cf >= 0 && frames[cf].misc.y <= 0.0) continue;  // a dense cluster's: that one alone
+        }
+#endif
         if (cid != cur) {
             if (cur >= 0) flush_record();
             cur = cid;
             g_base = uint(cid) * STRIDE;
+            F = frames[cid];
             reset_record();
         }
-        extent_sample(p, bin, cid, size);
+        extent_sample(p, bin, F, size);
     }
     if (cur >= 0) flush_record();
 }
