@@ -182,6 +182,42 @@ def test_clusters_are_the_components_of_continuous_normal_field(gl, case):
         assert len(np.unique(ours[face])) == 1 and int((ours == ours[face][0]).sum()) == int(face.sum())
 
 
+def _label_components(gl, bins: np.ndarray, normals: np.ndarray, break_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """The block union-find (ClusteringPass.label_components) on a raw-bin image
+    (H, W) uint32 (bin + 1) and mirror normals (H, W, 4): every sample's label
+    (H, W) int64 and comp_count (H·W,). Numpy row = GL row: labels index the same."""
+    h, w = bins.shape
+    idx = np.arange(h * w).reshape(h, w)
+    cp = ClusteringPass(gl)
+    bins_tex = gl.ctx.texture((w, h), 1, np.ascontiguousarray(bins, np.uint32).tobytes(), dtype="u4")
+    normal_tex = gl.ctx.texture((w, h), 4, np.ascontiguousarray(normals, np.float32).tobytes(), dtype="f4")
+    try:
+        cp.buffer("labels", np.where(bins > 0, idx, 0xFFFFFFFF).astype(np.uint32).tobytes())
+        cp.buffer("comp_count", np.zeros(h * w, np.uint32).tobytes())
+        cp.samples.build(bins_tex)
+        cp.label_components(bins_tex, normal_tex, break_deg)
+        labels = np.frombuffer(cp.buffer("labels").read(size=4 * h * w), np.uint32).reshape(h, w).astype(np.int64)
+        count = np.frombuffer(cp.buffer("comp_count").read(size=4 * h * w), np.uint32)
+    finally:
+        for obj in (bins_tex, normal_tex, cp):
+            obj.release()
+    return labels, count
+
+
+def test_union_find_joins_stretches_through_a_non_transitive_edge(gl):
+    """Normal-field connection is not transitive: upper samples A, B (normals 0°
+    and 12°, beyond a 10° break from each other) each connect to the lower C, D (5°,
+    7°), which connect to each other. The merge pass points each row's connected
+    stretch at its first sample and unites stretches through an upper edge only
+    where the left neighbour's does not already: here D's edge to B is the only one
+    into B's stretch, so all four must come out as one component."""
+    bins = np.ones((2, 2), np.uint32)
+    angle = np.radians([[0.0, 12.0], [5.0, 7.0]])  # row 0 (upper): A, B; row 1: C, D
+    normals = np.stack([np.sin(angle), np.zeros_like(angle), np.cos(angle), np.zeros_like(angle)], axis=-1)
+    labels, count = _label_components(gl, bins, normals, 10.0)
+    assert labels.tolist() == [[0, 0], [0, 0]] and count[0] == 4
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_block_union_find_labels_the_components_of_a_random_maze(gl, seed):
     """The block union-find (cluster_merge/border/roots/compress.comp) on a raw-bin
@@ -208,19 +244,7 @@ def test_block_union_find_labels_the_components_of_a_random_maze(gl, seed):
         lab, n = nd_label(key == k)
         truth[lab > 0] = lab[lab > 0] + truth.max()
     idx = np.arange(h * w).reshape(h, w)
-    cp = ClusteringPass(gl)
-    bins_tex = gl.ctx.texture((w, h), 1, bins.tobytes(), dtype="u4")  # numpy row = GL row: labels index the same
-    normal_tex = gl.ctx.texture((w, h), 4, normals.tobytes(), dtype="f4")
-    try:
-        cp.buffer("labels", np.where(bins > 0, idx, 0xFFFFFFFF).astype(np.uint32).tobytes())
-        cp.buffer("comp_count", np.zeros(h * w, np.uint32).tobytes())
-        cp.samples.build(bins_tex)
-        cp.label_components(bins_tex, normal_tex, 10.0)
-        labels = np.frombuffer(cp.buffer("labels").read(size=4 * h * w), np.uint32).reshape(h, w).astype(np.int64)
-        count = np.frombuffer(cp.buffer("comp_count").read(size=4 * h * w), np.uint32)
-    finally:
-        for obj in (bins_tex, normal_tex, cp):
-            obj.release()
+    labels, count = _label_components(gl, bins, normals, 10.0)
     refl = bins > 0
     assert np.all(labels[~refl] == 0xFFFFFFFF)
     least = np.full(truth.max() + 1, h * w)
