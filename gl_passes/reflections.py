@@ -597,8 +597,9 @@ class ClusterReflections(Releasable):
                 self._release_entry(self._chunk_cache.pop(next(iter(self._chunk_cache))))
         cached = self._chunk_cache[key]
         if lods and cached["lods"] is None:
-            cached["lods"] = [self._lod_table(scene_gpu, rel * scene_gpu.scene.diagonal)
-                              for rel in self.settings.lod_errors]
+            cached["lods"] = []  # filled in place: what is built is released with the cache whatever follows
+            for rel in self.settings.lod_errors:
+                cached["lods"].append(self._lod_table(scene_gpu, rel * scene_gpu.scene.diagonal))
         return cached
 
     def _lod_levels(self, c: ClusterCamera, object_bounds: np.ndarray, errors: list[float]) -> np.ndarray:
