@@ -44,7 +44,7 @@ from gl_passes.cluster_units import UNITS
 from gl_passes.clustering import ClusterStats, decode_ordered
 from gl_passes.context import GLContext
 from gl_passes.readback import StagingBuffer
-from gl_passes.reflective_list import TILE, ReflectiveSampleList
+from gl_passes.reflective_list import LIST_RUN, TILE, ReflectiveSampleList, run_defines
 from gl_passes.releasable import grown_buffer
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
@@ -58,7 +58,6 @@ MAX_SHIFT = 0.5
 CLIP_DROP = 0.5  # curved clusters: clip plane lowered by CLIP_DROP·d_n below the lowest ray start
 SPACING_FIXED = float(1 << 28)
 EXTENT_GROUP = 256  # listed samples per stage-1 work group of cluster_extent.comp
-EXTENT_RUN = 32  # on a CPU rasteriser: consecutive listed samples per extent invocation (divides EXTENT_GROUP)
 
 
 @dataclass
@@ -346,11 +345,11 @@ class ClusterExtentPass:
         """sample_run: listed samples per invocation of either stage, reduced in
         registers (cluster_extent.comp; 1: stage 1 one sample, stage 0 one output
         pixel per invocation, into a shared record per work group); None:
-        EXTENT_RUN on a software renderer, 1 otherwise (the same extents either way)."""
+        reflective_list.LIST_RUN on a software renderer, 1 otherwise (the same
+        extents either way)."""
         self.gl = gl
-        run = (EXTENT_RUN if gl.is_software else 1) if sample_run is None else int(sample_run)
-        if run < 1 or EXTENT_GROUP % run:
-            raise ValueError(f"sample_run must divide {EXTENT_GROUP}, got {run}")
+        run = (LIST_RUN if gl.is_software else 1) if sample_run is None else int(sample_run)
+        self._run_defines = run_defines(run, "sample_run")  # a stage-1 work group: EXTENT_GROUP samples
         self.sample_run = run
         self.ext_buf: moderngl.Buffer | None = None
         self.frame_buf: moderngl.Buffer | None = None
@@ -380,8 +379,7 @@ class ClusterExtentPass:
         ext = self._buffer("ext_buf", ext_init(n).tobytes())
         UNITS.bind_storage("Ext", ext)
         tiles = stage == 0 and self.sample_run == 1  # stage 0 on a GPU: per listed tile
-        defines = {**UNITS.defines(), "EXTENT_STAGE": str(stage), "SAMPLE_RUN": str(self.sample_run),
-                   "RUN_GROUP": str(EXTENT_GROUP // self.sample_run), "SS": str(ss)}
+        defines = {**UNITS.defines(), "EXTENT_STAGE": str(stage), "SS": str(ss), **self._run_defines}
         if tiles:
             defines.update(TILE=str(TILE), TILE_PIXELS=str(max(-(-TILE // ss), 4)))
         p = compute_program(self.gl, "cluster_extent.comp", defines)  # cached per stage and ss

@@ -68,7 +68,7 @@ min_samples samples (a readback of their number, root, bin and count);
 list index) into the bin image and accumulates the per-segment statistics with
 atomics into an SSBO (count; position and normal sums in 64-bit fixed point; the
 plane-offset range), on a GPU summed per work group in shared memory first, on a
-CPU rasteriser over runs of ACCUMULATE_RUN listed samples in registers. Only
+CPU rasteriser over runs of reflective_list.LIST_RUN listed samples in registers. Only
 the per-segment statistics are read back (STATS_STRIDE uints each); empty
 segments are dropped and the clusters numbered 0..n−1 (the remap SSBO, segment →
 cluster, used by later passes).
@@ -86,7 +86,7 @@ import numpy as np
 from gl_passes.cluster_units import UNITS
 from gl_passes.context import GLContext
 from gl_passes.readback import StagingBuffer, read_texture
-from gl_passes.reflective_list import ReflectiveSampleList
+from gl_passes.reflective_list import LIST_RUN, ReflectiveSampleList, run_defines
 from gl_passes.releasable import grown_buffer
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
@@ -101,9 +101,6 @@ PLANAR_SPAN = 1e-5
 FIXED = float(1 << 24)
 GROUP = 16  # work-group side of the passes, and the union-find's tile (TILE in the shaders)
 LIST_GROUP = 256  # work group of the passes over the listed reflective samples (assign, accumulate)
-#: Without tile sums: consecutive listed samples per accumulate invocation, summed in
-#: registers (divides LIST_GROUP; at most 255, so that a run's 2^24 fixed-point sums fit 32 bits).
-ACCUMULATE_RUN = 32
 
 
 @dataclass
@@ -209,7 +206,7 @@ class ClusteringPass:
 
     def __init__(self, gl: GLContext, bin_normal: str = "mirror", tile_sums: bool | None = None) -> None:
         """tile_sums: the statistics summed per work group in shared memory first
-        (cluster_accumulate.comp), else over runs of ACCUMULATE_RUN samples in
+        (cluster_accumulate.comp), else over runs of LIST_RUN samples in
         registers; None: on a hardware renderer only (same sums)."""
         gl.check_thread()
         if bin_normal not in ("mirror", "shading"):
@@ -227,8 +224,7 @@ class ClusteringPass:
         self.compress_prog = compute_program(gl, "cluster_compress.comp", units)
         self.split_prog = compute_program(gl, "cluster_split.comp", units)
         self.accumulate_prog = compute_program(gl, "cluster_accumulate.comp", {
-            **units, **({"TILE_SUMS": "1"} if self.tile_sums else {"SAMPLE_RUN": str(ACCUMULATE_RUN),
-                                                          "RUN_GROUP": str(LIST_GROUP // ACCUMULATE_RUN)})})
+            **units, **({"TILE_SUMS": "1"} if self.tile_sums else run_defines(LIST_RUN))})
         self.samples = ReflectiveSampleList(gl)  # this frame's reflective samples, listed by the count pass
         self.pass_ms: dict[str, float] = {}  # run(timed=True): milliseconds per pass
         self.bins_tex: moderngl.Texture | None = None

@@ -24,6 +24,19 @@ TILE_HEADER_BYTES = 16  # n_tiles, dispatch_tiles[3]
 DISPATCH_OFFSET = {64: 4, 256: 16}  # byte offset of the indirect dispatch triple per group size
 TILE_DISPATCH_OFFSET = 4  # byte offset of dispatch_tiles
 TILE = 16  # the lists' tile side (the clustering's work groups)
+#: On a CPU rasteriser, consecutive listed samples per invocation of the passes that
+#: reduce runs of them in registers (the clustering's accumulate pass, the cluster
+#: cameras' extent passes); at most 255, so that a run's 2^24 fixed-point sums fit 32 bits.
+LIST_RUN = 32
+
+
+def run_defines(run: int, name: str = "run") -> dict[str, str]:
+    """SAMPLE_RUN and RUN_GROUP (its invocations per work group) of a pass taking `run`
+    consecutive listed samples per invocation, dispatched with dispatch(prog, 256);
+    name: the caller's name for `run`, in the error."""
+    if run < 1 or 256 % run:
+        raise ValueError(f"{name} must divide 256, got {run}")
+    return {"SAMPLE_RUN": str(run), "RUN_GROUP": str(256 // run)}
 
 
 class ReflectiveSampleList(Releasable):

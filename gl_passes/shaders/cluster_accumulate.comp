@@ -49,21 +49,16 @@ void add64_global(uint i, uint lo, uint hi) {
     if (old + lo < old) hi += 1u;
     if (hi != 0u) atomicAdd(stats[i + 1u], hi);
 }
-// ADD_SAMPLE(A, b): one sample (q, qn, off) into the record at A[b..b+STRIDE) of an
-// array A (the SSBO or a shared slot), 64-bit sums by 32-bit atomics with carry.
+// ADD_RECORD(A, b, n, s, sn, lo, hi): n samples with position sums s, normal sums sn
+// and plane-offset range [lo, hi] into the record at A[b..b+STRIDE) of an array A
+// (the SSBO or a shared slot), 64-bit sums by 32-bit atomics with carry. One
+// sample: ADD_RECORD(A, b, 1u, q, qn, off, off).
 #define ADD64(A, i, v) { uint o_ = atomicAdd(A[i], v); if (o_ + (v) < o_) atomicAdd(A[(i) + 1u], 1u); }
-// ADD_RUN(b): a run's sums (cnt, sq, sqn, omin, omax) into the SSBO record at b.
-#define ADD_RUN(b) { \
-    atomicAdd(stats[b], cnt); \
-    for (uint k = 0u; k < 3u; ++k) { ADD64(stats, (b) + 1u + 2u * k, sq[k]); ADD64(stats, (b) + 7u + 2u * k, sqn[k]); } \
-    atomicMin(stats[(b) + 13u], omin); \
-    atomicMax(stats[(b) + 14u], omax); \
-}
-#define ADD_SAMPLE(A, b) { \
-    atomicAdd(A[b], 1u); \
-    for (uint k = 0u; k < 3u; ++k) { ADD64(A, (b) + 1u + 2u * k, q[k]); ADD64(A, (b) + 7u + 2u * k, qn[k]); } \
-    atomicMin(A[(b) + 13u], off); \
-    atomicMax(A[(b) + 14u], off); \
+#define ADD_RECORD(A, b, n, s, sn, lo, hi) { \
+    atomicAdd(A[b], n); \
+    for (uint k = 0u; k < 3u; ++k) { ADD64(A, (b) + 1u + 2u * k, s[k]); ADD64(A, (b) + 7u + 2u * k, sn[k]); } \
+    atomicMin(A[(b) + 13u], lo); \
+    atomicMax(A[(b) + 14u], hi); \
 }
 
 void main() {
@@ -104,11 +99,11 @@ void main() {
             uint prev = atomicCompSwap(s_seg[s], NONE, seg);
             if (prev == NONE || prev == seg) { slot = s; break; }
         }
-        if (slot < SLOTS) ADD_SAMPLE(s_stats, slot * STRIDE)
-        else ADD_SAMPLE(stats, seg * STRIDE)  // more segments in this tile than slots
+        if (slot < SLOTS) ADD_RECORD(s_stats, slot * STRIDE, 1u, q, qn, off, off)
+        else ADD_RECORD(stats, seg * STRIDE, 1u, q, qn, off, off)  // more segments in this tile than slots
 #else
         if (seg != cur && cur != NONE) {  // another segment: the run so far goes out
-            ADD_RUN(cur * STRIDE);
+            ADD_RECORD(stats, cur * STRIDE, cnt, sq, sqn, omin, omax)
             cnt = 0u; sq = sqn = uvec3(0u); omin = 0xFFFFFFFFu; omax = 0u;
         }
         cur = seg;
@@ -116,7 +111,7 @@ void main() {
 #endif
     }
 #ifndef TILE_SUMS
-    if (cur != NONE) ADD_RUN(cur * STRIDE);
+    if (cur != NONE) ADD_RECORD(stats, cur * STRIDE, cnt, sq, sqn, omin, omax)
 #endif
 #ifdef TILE_SUMS
     memoryBarrierShared();

@@ -194,9 +194,8 @@ void extent_one(ivec2 p, uint bin, int cid, ivec2 size) {
 void main() {
     ivec2 size = textureSize(u_bins, 0);
     g_local = false;
-    int cur = -1;  // the cluster of the record in registers, and its frame
+    int cur = -1;  // the cluster of the record in registers (reset when it changes), and its frame
     ClusterFrame F;
-    reset_record();
     for (uint r = 0u; r < uint(SAMPLE_RUN); ++r) {
         uint i = gl_GlobalInvocationID.x * uint(SAMPLE_RUN) + r;
         if (i >= n_samples) break;

@@ -33,7 +33,7 @@ shared uint s_list_base_;
 // invocation order on a CPU rasteriser, so neighbours stay neighbours) and the tile
 // when it listed any, in three phases between which the caller puts barriers:
 // list_begin() | list_reserve(n) per invocation: the first of its n slots |
-// list_publish() | list_slot(k): the list index of slot k, for list_put.
+// list_publish() | list_put(slot, p) for each of its slots.
 void list_begin() { if (gl_LocalInvocationIndex == 0u) s_listed_ = 0u; }
 uint list_reserve(uint n) { return n > 0u ? atomicAdd(s_listed_, n) : 0u; }
 void list_publish() {
