@@ -107,16 +107,23 @@ class DepthImageRenderer(Releasable):
     axes (the pixel's corners at ½) to land on texels of the same earlier image
     holding the fragment's triangle — a pixel straddling an earlier image's outline
     of its surface then keeps that surface, which a reconstruction needs: its quad
-    covers the whole pixel. A diagnostic of the soft-shadow benchmark's gap part,
-    not a method of the thesis."""
+    covers the whole pixel. occluded_margin m > 0 narrows it to occlusion seams: a
+    point off I_j's triangle then keeps the fragment only where I_j's texel holds
+    another surface nearer to V_j than the point by more than m of its depth (I_j's
+    view of the surface was blocked there), not where I_j saw past it or saw
+    nothing. Diagnostics of the soft-shadow benchmark's gap part, not methods of
+    the thesis."""
 
     def __init__(self, gl: GLContext, vs_project: bool | None = None, tri_from_geom: bool = False,
-                 cull_back_faces: bool = True, footprint: float = 0.0) -> None:
+                 cull_back_faces: bool = True, footprint: float = 0.0, occluded_margin: float = 0.0) -> None:
         gl.check_thread()
         if not 0.0 <= footprint <= 0.5:
             raise ValueError(f"footprint must be in [0, 0.5] pixels, got {footprint!r}")
+        if occluded_margin < 0.0 or (occluded_margin and not footprint):
+            raise ValueError(f"occluded_margin must be ≥ 0 and needs footprint > 0, got {occluded_margin!r}")
         self.gl = gl
         self.footprint = float(footprint)
+        self.occluded_margin = float(occluded_margin)
         self.cull_back_faces = cull_back_faces
         self.vs_project = vs_project
         self.tri_from_geom = tri_from_geom
@@ -148,8 +155,12 @@ class DepthImageRenderer(Releasable):
             defines["VS_PROJECT"] = "1"
         if self.footprint:
             defines["FOOTPRINT"] = repr(float(self.footprint))
+        if self.occluded_margin:
+            defines["OCCLUDED_MARGIN"] = repr(self.occluded_margin)
         prog = self._program(**defines)
         set_uniform(prog, "u_prev_id", tuple(range(n_prev)) if n_prev > 1 else 0)  # sampler j ↔ unit j
+        if self.occluded_margin:  # depth sampler j ↔ unit n_prev + j
+            set_uniform(prog, "u_prev_depth", tuple(range(n_prev, 2 * n_prev)) if n_prev > 1 else 1)
         return prog
 
     # --- targets -------------------------------------------------------------------
@@ -229,9 +240,12 @@ class DepthImageRenderer(Releasable):
         for i, cam in enumerate(cameras):
             prog = self.nr_program(i) if i else self.conv_prog
             if i:
-                for j in range(i):  # I_j's ids on texture unit j
+                for j in range(i):  # I_j's ids on texture unit j (its depths on unit i + j)
                     prev = cameras[j]
-                    self._size_targets((prev.width, prev.height)).slot(j)[1].use(location=j)
+                    depth_tex, tri_tex, _ = self._size_targets((prev.width, prev.height)).slot(j)
+                    tri_tex.use(location=j)
+                    if self.occluded_margin:
+                        depth_tex.use(location=i + j)
                 prog["u_prev_texel"].write(texel[:i].tobytes())
                 prog["u_prev_size"].write(sizes[:i].tobytes())
             t = self._draw(prog, scene_gpu, cam, i)

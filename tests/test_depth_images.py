@@ -527,3 +527,56 @@ def test_footprint_redundancy_keeps_pixels_that_straddle_an_earlier_outline(gl, 
         kept_ref = ref[i].tri_id[conv[i].mask] == conv[i].tri_id[conv[i].mask]
         assert kept_ref[sure_ref & centre_ref].sum() <= 2
     assert straddling > 50  # pixels Alg. 3 drops and the footprint rule keeps
+
+
+def occlusion_seam_redundant(images: list[DepthImage], target: DepthImage, margin: float,
+                             px_margin: float = 1e-2) -> tuple[np.ndarray, np.ndarray]:
+    """Per sample of `target`: (redundant by footprint ½ with occluded_margin
+    `margin`, the rule's decision is sure): redundant when some image holds the
+    centre's triangle and none of the 4 pixel corners lands on that image's texel of
+    another surface nearer than the corner by more than `margin` of its depth. Sure:
+    every point ≥ px_margin px from a texel edge and no depth within 2 % of the margin."""
+    offsets = [(-0.5, -0.5), (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5)]
+    centre_pts = pixel_corner_points(target, 0.0, 0.0)
+    corners = [pixel_corner_points(target, du, dv) for du, dv in offsets]
+    tris = target.tri_id[target.mask]
+    redundant, sure = np.zeros(len(tris), bool), np.ones(len(tris), bool)
+    for prev in images:
+        inside, t = lookup(prev, centre_pts)
+        red = inside & (t == tris)
+        sure &= lookup(prev, centre_pts, px_margin)[0] | ~inside
+        for pts in corners:
+            inside, t = lookup(prev, pts)
+            px, z = prev.camera.project(pts)
+            cols, rows = np.floor(px).astype(int).clip(0, [prev.camera.width - 1, prev.camera.height - 1]).T
+            other = inside & (t != tris) & (t != 0)
+            nearer = prev.depth[rows, cols] < z * (1 - margin)
+            red &= ~(other & nearer)
+            sure &= (lookup(prev, pts, px_margin)[0] | ~inside) \
+                & ~(other & (np.abs(prev.depth[rows, cols] - z * (1 - margin)) < 0.02 * z))
+        redundant |= red
+    return redundant, sure
+
+
+def test_occluded_margin_keeps_only_straddles_of_occlusion_seams(gl, clutter):
+    """footprint = ½ with occluded_margin: a pixel that straddles an earlier image's
+    outline of its surface keeps the surface only where that image saw another,
+    nearer surface (an occlusion seam), not where it saw past or saw nothing (both
+    kinds of straddle occur in the clutter)."""
+    sg, cams, ref, conv = clutter["sg"], clutter["cams"], clutter["nr"], clutter["conv"]
+    with di.DepthImageRenderer(gl, footprint=0.5, occluded_margin=0.003) as r:
+        out = di.non_redundant(gl, sg, cams, renderer=r)
+    assert_images_equal(out[0].depth, ref[0].depth, "depth")
+    seams = saw_past = 0
+    for i in range(1, len(out)):
+        m = conv[i].mask
+        kept = out[i].tri_id[m] == conv[i].tri_id[m]  # the first hit survived
+        redundant, sure = occlusion_seam_redundant(out[:i], conv[i], 0.003)
+        assert kept[sure & redundant].sum() <= 2  # redundant by the rule: dropped
+        assert (~kept[sure & ~redundant]).sum() <= max(2, conv[i].n_samples // 1000)  # otherwise kept
+        centre, whole, _ = footprint_held(out[:i], conv[i])
+        seams += int((sure & centre & ~redundant).sum())  # Alg. 3 drops these
+        saw_past += int((sure & ~whole & redundant).sum())  # the full footprint rule keeps these
+    assert seams > 20 and saw_past > 20
+    with pytest.raises(ValueError, match="occluded_margin"):
+        di.DepthImageRenderer(gl, occluded_margin=0.003)

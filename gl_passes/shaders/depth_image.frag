@@ -3,8 +3,8 @@
 // redundancy test (Alg. 1 + Alg. 3), or one depth-peeling layer (§2.3.1).
 // Mode by #define: (none) = conventional; NON_REDUNDANT with N_PREV = i for
 // image i (a constant, so the test loop unrolls and sampler indices are
-// constant), optionally FOOTPRINT = f (the footprint diagnostic of
-// DepthImageRenderer); PEEL. The triangle id comes from gl_PrimitiveID (no
+// constant), optionally FOOTPRINT = f and OCCLUDED_MARGIN = m (the footprint
+// diagnostics of DepthImageRenderer); PEEL. The triangle id comes from gl_PrimitiveID (no
 // geometry shader) unless TRI_FROM_GEOM (depth_image.geom). A discarded fragment writes
 // no depth, so the depth test keeps the nearest fragment that passed the test
 // (Alg. 1: "if s is not redundant write s").
@@ -32,6 +32,9 @@ flat in uint g_tri;
 // world → texel-space clip matrices T_j = S_j·VP_j (S_j maps NDC xy to [0, size]).
 uniform usampler2D u_prev_id[N_PREV];
 uniform vec2 u_prev_size[N_PREV];
+#ifdef OCCLUDED_MARGIN
+uniform sampler2D u_prev_depth[N_PREV];  // I_j's eye-space depths
+#endif
 #ifndef VS_PROJECT
 uniform mat4 u_prev_texel[N_PREV];
 #endif
@@ -68,6 +71,9 @@ void main() {
         // taken here in uniform control flow).
         vec2 qxy = c.xy / c.w;
         vec2 hx = FOOTPRINT * dFdx(qxy), hy = FOOTPRINT * dFdy(qxy);
+#ifdef OCCLUDED_MARGIN
+        float wx = FOOTPRINT * dFdx(c.w), wy = FOOTPRINT * dFdy(c.w);
+#endif
 #endif
         if (c.w > 0.0) {  // in front of V_j
             vec3 q = c.xyz / c.w;  // (texel x, texel y, NDC z) in I_j
@@ -79,8 +85,19 @@ void main() {
 #ifdef FOOTPRINT
                 for (int k = 0; k < 4 && held; ++k) {
                     vec2 p = q.xy + ((k & 1) == 0 ? -hx : hx) + (k < 2 ? -hy : hy);
+#ifdef OCCLUDED_MARGIN
+                    // occlusion seams only: a point off the triangle keeps the fragment
+                    // where I_j holds another surface nearer than the point (w: its depth)
+                    if (all(greaterThanEqual(p, vec2(0.0))) && all(lessThan(p, size))) {
+                        uint t = texelFetch(u_prev_id[j], ivec2(p), 0).r;
+                        float w = c.w + ((k & 1) == 0 ? -wx : wx) + (k < 2 ? -wy : wy);
+                        held = t == tri || t == 0u
+                               || texelFetch(u_prev_depth[j], ivec2(p), 0).r >= w * (1.0 - OCCLUDED_MARGIN);
+                    }
+#else
                     held = all(greaterThanEqual(p, vec2(0.0))) && all(lessThan(p, size))
                            && texelFetch(u_prev_id[j], ivec2(p), 0).r == tri;
+#endif
                 }
 #endif
                 redundant = redundant || held;
