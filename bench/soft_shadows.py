@@ -28,7 +28,10 @@ joins whatever is there):
            (8 or 2 footprints) for every method; the union of 1…4 images (too dark /
            too bright); a single image's error per light sample against the light
            sample's distance from the capturing eye (a corner vs the centre); and two
-           redundancy rules for NR's later images, tried and not kept.
+           redundancy rules for NR's later images, tried and not kept;
+  holes    where NR's extra too-bright light samples come from, and two ways to give
+           NR back re-captures where its earlier images leave a surface open
+           (`bench.shadow_holes`, k = --sweep-k).
 
     python -m bench.soft_shadows --part table8 --scenes nest,grass,city,tree
     python -m bench.soft_shadows --report-only
@@ -41,16 +44,17 @@ import json
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from bench.common import RESULTS_DIR, machine_info, machine_markdown, md_table, progress, write_json, write_text
+from bench.shadow_holes import holes_report, part_holes
+from bench.shadow_stage import Stage, errors, stage_scene, truths
 from gl_passes.context import GLContext, create_gl_context
 from gl_passes.depth_images import DepthImageRenderer
-from gl_passes.gbuffer import GBufferPass
 from gl_passes.reconstruction import (
     RECONSTRUCTIONS,
     SAMPLING_METHODS,
@@ -61,18 +65,15 @@ from gl_passes.reconstruction import (
     render_set,
 )
 from gl_passes.shadows import ShadowSettings, SoftShadowPass
-from gl_passes.upload import SceneGPU
-from reference.raycast import RayCaster
-from reference.shadows import error_maps, error_picture, light_visibility, shadow_errors, visible_counts
-from scenes.camera import Camera, look_at_scene
+from reference.shadows import error_picture, shadow_errors, visible_counts
 from scenes.depth_image import DepthImage
 from scenes.lights import AIMS, PEEL_LAYERS, default_area_light, light_diagonal, reference_cameras
-from scenes.model import AreaLight, Scene
+from scenes.model import AreaLight
 from scenes.shading import area_light_shade
 
 OUT = RESULTS_DIR / "soft_shadows"
 SCENES = ("nest", "grass", "city", "tree")
-PARTS = ("table8", "table9", "table10", "fig20", "peeling", "layered", "gap")
+PARTS = ("table8", "table9", "table10", "fig20", "peeling", "layered", "gap", "holes")
 #: The thesis's Table 8 (intensity mean/max, visibility mean/max) for NR, conventional, peeling.
 THESIS_TABLE8 = {
     "nest": {"non_redundant": (3.00, 106, 6.31, 110), "conventional": (5.62, 179, 7.72, 179),
@@ -87,36 +88,6 @@ THESIS_TABLE9_1024 = {
     "city": {"non_redundant": (1.60, 2.07), "conventional": (3.46, 3.64), "peeling": (11.3, 12.6)},
     "tree": {"non_redundant": (9.21, 17.5), "conventional": (13.7, 21.1), "peeling": (10.9, 18.7)},
 }
-OUTPUT_RES = 512
-
-
-@dataclass
-class Stage:
-    """One scene ready for shadow queries: its GPU copy, the receivers of the
-    output view (G-buffer points, normals, mask, albedo) and the Embree caster."""
-
-    scene: Scene
-    gpu: SceneGPU
-    caster: RayCaster
-    view: Camera
-    points: np.ndarray
-    normals: np.ndarray
-    mask: np.ndarray
-    albedo: np.ndarray
-
-
-def stage_scene(gl: GLContext, scene: Scene) -> Stage:
-    gpu = SceneGPU(gl, scene)
-    view = look_at_scene(scene.bounds, width=OUTPUT_RES, height=OUTPUT_RES)
-    gb = GBufferPass(gl)
-    try:
-        buf = gb.render(gpu, view)
-    finally:
-        gb.release()
-    albedo = scene.materials[buf.obj_id, :3]
-    return Stage(scene, gpu, RayCaster(scene), view, buf.position, buf.normal, buf.mask, albedo)
-
-
 def approximate(gl: GLContext, st: Stage, sp: SoftShadowPass, light: AreaLight, method: str,
                 kinds: tuple[str, ...], res: int) -> dict[str, dict[str, Any]]:
     """Alg. 5 with each reconstruction kind of `method`'s images: bits, triangles,
@@ -143,25 +114,6 @@ def approximate(gl: GLContext, st: Stage, sp: SoftShadowPass, light: AreaLight, 
             for m in meshes:
                 m.release()
     return out
-
-
-def truths(st: Stage, sp: SoftShadowPass, light: AreaLight, k: int) -> tuple[np.ndarray, np.ndarray, dict]:
-    """(geometry-shadow-map bits, exact Embree bits, their seconds)."""
-    t0 = time.perf_counter()
-    geo = sp.visibility([st.gpu], st.scene.bounds, st.points, st.normals, st.mask, light).bits
-    t1 = time.perf_counter()
-    exact = light_visibility(st.caster, st.points, st.normals, st.mask, light, k)
-    return geo, exact, {"geometry_shadows": t1 - t0, "exact_embree": time.perf_counter() - t1}
-
-
-def errors(bits: np.ndarray, geo: np.ndarray, exact: np.ndarray, mask: np.ndarray) -> dict[str, Any]:
-    """§3.4.2 errors against both truths, and the mean wrong decisions against the
-    geometry truth split by sign (too dark: samples shadowed that the truth lights)."""
-    _, signed = error_maps(bits, geo)
-    s = signed[mask].astype(np.float64)
-    return {"vs_geometry": shadow_errors(bits, geo, mask), "vs_exact": shadow_errors(bits, exact, mask),
-            "too_dark_mean": float(np.clip(-s, 0, None).mean()) if s.size else 0.0,
-            "too_bright_mean": float(np.clip(s, 0, None).mean()) if s.size else 0.0}
 
 
 # --- parts ----------------------------------------------------------------------------
@@ -636,6 +588,11 @@ def _iv_sign(e: dict[str, Any]) -> str:
     return f"{_iv(e)} ({e['too_dark_mean']:.3f} / {e['too_bright_mean']:.3f})"
 
 
+def iv_sign_triangles(e: dict[str, Any]) -> str:
+    """'intensity · visibility (too dark / too bright; triangles)' against the geometry truth."""
+    return f"{_iv(e)} ({e['too_dark_mean']:.3f} / {e['too_bright_mean']:.3f}; {e['triangles'] / 1e6:.2f} M)"
+
+
 def gap_report(gap: dict[str, Any]) -> list[str]:
     """The gap part's tables (see `part_gap`)."""
     if not gap:
@@ -681,8 +638,7 @@ def gap_report(gap: dict[str, Any]) -> list[str]:
     for scene, r in gap.items():
         if r["runs"].get("footprint"):
             last = RECONSTRUCTION_STEPS[-1][0]
-            rows.append([scene, *(f"{_iv(e)} ({e['too_dark_mean']:.3f} / {e['too_bright_mean']:.3f}; "
-                                  f"{e['triangles'] / 1e6:.2f} M)" for e in (
+            rows.append([scene, *(iv_sign_triangles(e) for e in (
                 r["runs"]["steps"]["non_redundant"][last], r["runs"]["full_evidence"], r["runs"]["footprint"],
                 r["runs"]["steps"]["conventional"][last]))])
     if rows:
@@ -1007,9 +963,11 @@ def reading(data: dict[str, dict[str, Any]]) -> list[str]:
                     "complete images trim each other's outlines). Not because NR's evidence is incomplete: with "
                     "the conventional images of its four views as evidence, NR's visibility error moves "
                     + ", ".join(f"{s} {nr1[s]:.3f} → {full[s]['vs_geometry']['visibility_mean']:.3f}"
-                                for s in lost) + ". It is Alg. 3's test at the pixel centre: an NR pixel that "
-                    "straddles an earlier image's outline of a blade, with its centre on the earlier image's "
-                    "sample, keeps what lies behind, and the straddled part of the blade gets no quad (too bright, "
+                                for s in lost) + ". It is what Alg. 3 removes by design: conventional images "
+                    "hold four copies of each blade, NR one (where NR's extra too-bright samples come from: the "
+                    "holes tables below). One place it shows: an NR pixel that straddles an earlier image's "
+                    "outline of a blade, with its centre on the earlier image's sample, keeps what lies behind, "
+                    "and the straddled part of the blade gets no quad (too bright, "
                     + ", ".join(f"{s}: NR {nr_st[s]['too_bright_mean']:.3f} vs conventional "
                                 f"{cv_st[s]['too_bright_mean']:.3f}" for s in lost)
                     + "). Footprint redundancy (whole pixel, diagnostic table) closes those holes (too bright "
@@ -1238,6 +1196,7 @@ def write_report(data: dict[str, dict[str, Any]], info: dict[str, Any] | None) -
                                             for n in names)])
         lines += [md_table(["scene", "light distance", *names], rows), ""]
     lines += gap_report(data["gap"])
+    lines += holes_report(data["holes"], iv_sign_triangles)
     ly = data["layered"].get("grass")
     if ly:
         r = ly["runs"]
@@ -1306,7 +1265,7 @@ def main(argv: list[str] | None = None) -> int:
                     _save(part, "grass", args, info, runs, time.perf_counter() - t0)
                     continue
                 fn = {"table8": part_table8, "table9": part_table9, "table10": part_table10,
-                      "peeling": part_peeling, "gap": part_gap}[part]
+                      "peeling": part_peeling, "gap": part_gap, "holes": part_holes}[part]
                 for name in args.scenes:
                     st = stage_scene(gl, make_builtin(name))
                     try:

@@ -3,6 +3,8 @@ bench.rig_spread, bench.sampling, bench.tessellation) on hand-made numbers and a
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from bench.sampling_report import layer_table, useful_table
@@ -346,3 +348,64 @@ def test_reflection_report_names_failed_frames():
     assert failed_lines(None) == [] and failed_lines([]) == []
     assert failed_lines([{"scene": "living_room", "res": 2048, "error": "clustering lost reflective samples"}]) == [
         "- living_room 2048²: the frame failed: clustering lost reflective samples", ""]
+
+
+def test_shadow_holes_occluder_classes_and_ray_hits_by_hand():
+    """A wall at eye depth 5 seen by a 1×7 image. I_0 holds it in pixels 0–1, a
+    later image in pixel 3. Rays from behind the wall meet it on the centre rays of
+    pixels 0 (at I_0's texel), 2 (next to I_0's pixel 1), 4 (next to the later
+    image's pixel 3) and 6 (no sample within 1.5 footprints); a fifth ray passes
+    beside the wall and is not counted."""
+    from bench.shadow_holes import classify_occluders, reconstruction_hits
+    from reference.raycast import RayCaster
+    from scenes.model import Scene, SceneObject
+
+    i0 = _flat_image(np.array([1, 1, 0, 0, 0, 0, 0]), np.array([5.0, 5, 0, 0, 0, 0, 0]))
+    i1 = _flat_image(np.array([0, 0, 0, 9, 0, 0, 0]), np.array([0.0, 0, 0, 5, 0, 0, 0]))
+    wall_v = np.array([[-3, -1, -5], [3, -1, -5], [3, 1, -5], [-3, 1, -5]], np.float32)
+    wall = SceneObject("wall", wall_v, np.array([[0, 1, 2], [0, 2, 3]], np.uint32))
+    caster = RayCaster(Scene([wall], name="wall"))
+    x = i0.camera.pixel_directions()[0][[0, 2, 4, 6]]
+    targets = np.concatenate([x * (5.0 / -x[:, 2:3]), [[10.0, 0.0, -5.0]]])  # the last: beside the wall
+    origins = targets + np.array([0.0, 0.0, -5.0])
+    rays = (origins, np.tile([0.0, 0.0, 1.0], (5, 1)), np.full(5, 10.0))
+    shares = classify_occluders(caster, rays, [i0, i1])
+    assert shares["rays"] == 4
+    assert [shares[c] for c in ("at I_0", "next to I_0", "later image", "none")] == [0.25] * 4
+    assert reconstruction_hits(rays, [(wall_v, wall.faces)]) == 0.8
+    assert reconstruction_hits(rays, [(wall_v, np.zeros((0, 3), np.uint32))]) == 0.0
+
+
+def test_recapture_gaps_fills_exactly_a_hole_of_the_first_reconstruction(gl):
+    """Two images from one camera of a wall filling its view: NR's second image is
+    empty (every fragment is pixel-redundant). With a 4×3 block of the first image's
+    samples removed, its reconstruction leaves exactly those pixels open (each quad
+    covers its own pixel), so the second image gets the conventional image's samples
+    there and nowhere else."""
+    from bench.shadow_holes import recapture_gaps
+    from gl_passes.reconstruction import ReconstructionSettings, Reconstructor, render_set
+    from gl_passes.upload import SceneGPU
+    from scenes.model import Scene, SceneObject
+
+    cam = Camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), fov=40.0, width=24, height=20, near=1.0, far=20.0)
+    wall = SceneObject("wall", np.array([[-9, -9, 0], [9, -9, 0], [9, 9, 0], [-9, 9, 0]], np.float32),
+                       np.array([[0, 1, 2], [0, 2, 3]], np.uint32))
+    with SceneGPU(gl, Scene([wall], name="wall")) as sg:
+        nr = render_set(gl, sg, "non_redundant", [cam, cam])
+        conv = render_set(gl, sg, "conventional", [cam, cam], offsets=False)
+    assert nr.images[0].n_samples == 24 * 20 and nr.images[1].n_samples == 0
+    hole = np.zeros((20, 24), bool)
+    hole[8:11, 5:9] = True
+    first = nr.images[0]
+    cut = replace(first, tri_id=np.where(hole, 0, first.tri_id).astype(np.uint32),
+                  depth=np.where(hole, np.inf, first.depth).astype(np.float32))
+    rec = Reconstructor(gl)
+    try:
+        out, added = recapture_gaps(gl, replace(nr, images=[cut, nr.images[1]]), conv, ReconstructionSettings(), rec)
+        whole, none_added = recapture_gaps(gl, nr, conv, ReconstructionSettings(), rec)
+    finally:
+        rec.release()
+    assert added == hole.sum() and out.images[0] is cut
+    np.testing.assert_array_equal(out.images[1].mask, hole)
+    np.testing.assert_array_equal(out.images[1].position[hole], conv.images[1].position[hole])
+    assert none_added == 0 and whole.images[1].n_samples == 0

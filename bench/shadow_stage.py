@@ -1,0 +1,69 @@
+"""The staging the soft-shadow benchmark's parts share (bench.soft_shadows,
+bench.shadow_holes): a scene with the receivers of its output view, its two truths
+(geometry shadow maps, exact Embree rays) and the §3.4.2 errors against both."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from gl_passes.context import GLContext
+from gl_passes.gbuffer import GBufferPass
+from gl_passes.shadows import SoftShadowPass
+from gl_passes.upload import SceneGPU
+from reference.raycast import RayCaster
+from reference.shadows import error_maps, light_visibility, shadow_errors
+from scenes.camera import Camera, look_at_scene
+from scenes.model import AreaLight, Scene
+
+#: Output view resolution (square), the receivers of every part.
+OUTPUT_RES = 512
+
+
+@dataclass
+class Stage:
+    """One scene ready for shadow queries: its GPU copy, the receivers of the
+    output view (G-buffer points, normals, mask, albedo) and the Embree caster."""
+
+    scene: Scene
+    gpu: SceneGPU
+    caster: RayCaster
+    view: Camera
+    points: np.ndarray
+    normals: np.ndarray
+    mask: np.ndarray
+    albedo: np.ndarray
+
+
+def stage_scene(gl: GLContext, scene: Scene) -> Stage:
+    gpu = SceneGPU(gl, scene)
+    view = look_at_scene(scene.bounds, width=OUTPUT_RES, height=OUTPUT_RES)
+    gb = GBufferPass(gl)
+    try:
+        buf = gb.render(gpu, view)
+    finally:
+        gb.release()
+    albedo = scene.materials[buf.obj_id, :3]
+    return Stage(scene, gpu, RayCaster(scene), view, buf.position, buf.normal, buf.mask, albedo)
+
+
+def truths(st: Stage, sp: SoftShadowPass, light: AreaLight, k: int) -> tuple[np.ndarray, np.ndarray, dict]:
+    """(geometry-shadow-map bits, exact Embree bits, their seconds)."""
+    t0 = time.perf_counter()
+    geo = sp.visibility([st.gpu], st.scene.bounds, st.points, st.normals, st.mask, light).bits
+    t1 = time.perf_counter()
+    exact = light_visibility(st.caster, st.points, st.normals, st.mask, light, k)
+    return geo, exact, {"geometry_shadows": t1 - t0, "exact_embree": time.perf_counter() - t1}
+
+
+def errors(bits: np.ndarray, geo: np.ndarray, exact: np.ndarray, mask: np.ndarray) -> dict[str, Any]:
+    """§3.4.2 errors against both truths, and the mean wrong decisions against the
+    geometry truth split by sign (too dark: samples shadowed that the truth lights)."""
+    _, signed = error_maps(bits, geo)
+    s = signed[mask].astype(np.float64)
+    return {"vs_geometry": shadow_errors(bits, geo, mask), "vs_exact": shadow_errors(bits, exact, mask),
+            "too_dark_mean": float(np.clip(-s, 0, None).mean()) if s.size else 0.0,
+            "too_bright_mean": float(np.clip(s, 0, None).mean()) if s.size else 0.0}
