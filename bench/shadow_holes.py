@@ -102,8 +102,7 @@ def recapture_gaps(gl: GLContext, nr: SampledSet, conv: SampledSet, settings: Re
             dist = np.linalg.norm(d, axis=1)
             hits = caster.intersect(np.broadcast_to(eye, d.shape), d / dist[:, None], 2 * dist,
                                     cull_back_faces=False)
-            foot = 2 * np.tan(np.radians(first.camera.fov) / 2) / first.camera.height
-            open_ = ~(np.abs(hits.t - dist) <= tolerance * foot * dist)
+            open_ = ~(np.abs(hits.t - dist) <= tolerance * first.camera.pixel_footprint * dist)
         r, c = rows[open_], cols[open_]
         fields = {f: getattr(own, f).copy() for f in ("color", "depth", "normal", "position", "tri_id")}
         for f, a in fields.items():
@@ -147,7 +146,7 @@ def classify_occluders(caster: RayCaster, rays: tuple[np.ndarray, ...], images: 
     for j, img in enumerate(images):
         cam = img.camera
         px, z = cam.project(x)
-        foot = 2 * np.tan(np.radians(cam.fov) / 2) / cam.height * z
+        foot = cam.pixel_footprint * z
         col, row = np.floor(px[:, 0]).astype(np.int64), np.floor(px[:, 1]).astype(np.int64)
         for reach, cls in ((0, 0 if j == 0 else 2), (1, 1 if j == 0 else 2)):
             near = np.zeros(len(x), bool)

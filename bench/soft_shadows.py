@@ -246,7 +246,7 @@ def drop_redundant(images: list[DepthImage], rule: str, plane_tol: float = 1.0,
             inside = (z > 0) & (x >= 0) & (y >= 0) & (x < cam.width) & (y < cam.height)
             x, y = x.clip(0, cam.width - 1), y.clip(0, cam.height - 1)
             t, q, n = prev.tri_id[y, x], prev.position[y, x].astype(np.float64), prev.normal[y, x]
-            foot = 2 * np.tan(np.radians(cam.fov) / 2) / cam.height
+            foot = cam.pixel_footprint
             zq = (q - eye) @ cam.basis()[2]
             held = inside & (t > 0)
             drop |= held & ((t == tri) | (np.abs(np.einsum("ij,ij->i", n, s - q)) <= plane_tol * foot * zq))

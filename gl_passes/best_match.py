@@ -110,5 +110,5 @@ def set_kf_uniforms(prog: moderngl.Program | moderngl.ComputeShader, keyframe: K
     """The keyframe uniforms of reuse_common.glsl: size, pixel angle, tolerance."""
     cam = keyframe.camera
     set_uniform(prog, "u_kf_size", tuple(int(x) for x in keyframe.target.size))
-    set_uniform(prog, "u_pixel_angle", float(2 * np.tan(np.radians(cam.fov) / 2) / cam.height))
+    set_uniform(prog, "u_pixel_angle", cam.pixel_footprint)
     set_uniform(prog, "u_plane_tol", float(plane_tol))

@@ -211,7 +211,7 @@ class Reconstructor(Releasable):
         set_uniform(prog, "u_forward", f)
         set_uniform(prog, "u_right", r * t * camera.aspect)
         set_uniform(prog, "u_up", u * t)
-        set_uniform(prog, "u_footprint", float(2 * t / camera.height))
+        set_uniform(prog, "u_footprint", camera.pixel_footprint)
         set_uniform(prog, "u_plane_tol", float(settings.plane_tolerance))
         set_uniform(prog, "u_max_extent", float(settings.max_corner_extent))
         set_uniform(prog, "u_depth_gate", bool(settings.depth_gate))
@@ -319,7 +319,7 @@ class Reconstructor(Releasable):
             arrays["u_e_forward"][j] = f
             arrays["u_e_right"][j] = r * t * cam.aspect
             arrays["u_e_up"][j] = u * t
-            footprint[j] = 2 * t / cam.height
+            footprint[j] = cam.pixel_footprint
             flag[j] = int(full)
         for name, values in (*arrays.items(), ("u_e_footprint", footprint), ("u_e_complete", flag)):
             prog[name].write(values.tobytes())

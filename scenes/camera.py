@@ -71,6 +71,11 @@ class Camera:
     def aspect(self) -> float:
         return self.width / self.height
 
+    @property
+    def pixel_footprint(self) -> float:
+        """World size of one pixel per unit of eye depth (pixels are square)."""
+        return float(2 * np.tan(np.radians(self.fov) / 2) / self.height)
+
     def view_matrix(self) -> np.ndarray:
         """(4,4) world → eye (gluLookAt)."""
         r, u, f = self.basis()
