@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from bench.common import md_table
-from bench.shadow_stage import Stage, errors, truths
+from bench.shadow_stage import Stage, errors, iv, iv_sign_triangles, truths
 from gl_passes.context import GLContext
 from gl_passes.depth_images import DepthImageRenderer
 from gl_passes.reconstruction import (
@@ -48,7 +48,7 @@ from reference.raycast import RayCaster
 from reference.shadows import shadow_errors, surface_offset
 from scenes.depth_image import DepthImage
 from scenes.lights import default_area_light, reference_cameras
-from scenes.model import Scene, SceneObject
+from scenes.model import AreaLight, Scene, SceneObject
 
 #: Relative depth margin of the occlusion-seam rule (a nearer surface by more than 0.3 % of the depth).
 SEAM_MARGIN = 0.003
@@ -119,7 +119,7 @@ def _unpack(bits: np.ndarray, mask: np.ndarray, k: int) -> np.ndarray:
     return ((words[:, s >> 5] >> (s & 31).astype(np.uint32)) & 1).astype(bool)
 
 
-def shadow_rays(st: Any, light: Any, k: int, pairs: np.ndarray,
+def shadow_rays(st: Stage, light: AreaLight, k: int, pairs: np.ndarray,
                 rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(origins, unit directions, lengths) of the exact truth's occlusion rays for
     (pixel index into the mask's pixels, light sample) pairs, at most HOLE_RAYS of
@@ -196,15 +196,14 @@ def part_holes(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str, 
                         m.release()
                 return {**errors(bits, truth, exact, st.mask), "triangles": tris}, bits
 
-            sets = {m: render_set(gl, st.gpu, m, reference_cameras(light, bounds, m, args.ref_res))
-                    for m in ("non_redundant", "conventional")}
+            cams = {m: reference_cameras(light, bounds, m, args.ref_res) for m in ("non_redundant", "conventional")}
+            sets = {m: render_set(gl, st.gpu, m, c) for m, c in cams.items()}
             bits, parts = {}, {}
             for m, sampled in sets.items():
                 parts[m] = []
                 out["runs"][m], bits[m] = measure(sampled, parts[m])
             with DepthImageRenderer(gl, footprint=0.5, occluded_margin=SEAM_MARGIN) as r:
-                seams = render_set(gl, st.gpu, "non_redundant",
-                                   reference_cameras(light, bounds, "non_redundant", args.ref_res), renderer=r)
+                seams = render_set(gl, st.gpu, "non_redundant", cams["non_redundant"], renderer=r)
             out["runs"]["seams"], _ = measure(seams)
             regained, added = recapture_gaps(gl, sets["non_redundant"], sets["conventional"], settings, rec)
             out["runs"]["recapture"], _ = measure(regained)
@@ -235,8 +234,8 @@ def part_holes(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str, 
     return out
 
 
-def holes_report(holes: dict[str, Any], fmt: Any) -> list[str]:
-    """The part's section of bench/results/soft_shadows.md ([] without runs); fmt(errors) → cell."""
+def holes_report(holes: dict[str, Any]) -> list[str]:
+    """The part's section of bench/results/soft_shadows.md ([] without runs)."""
     if not holes:
         return []
     k = next(iter(holes.values()))["args"]["sweep_k"]
@@ -266,8 +265,8 @@ def holes_report(holes: dict[str, Any], fmt: Any) -> list[str]:
               "reconstructions of the images before it, seen from its eye, miss that surface at the pixel centre "
               f"by more than {RECAPTURE_TOLERANCE:g} footprints). Cells: mean intensity · visibility error "
               "against the geometry truth (too dark / too bright; triangles).", ""]
-    rows = [[s, *(fmt(r["runs"]["runs"][n]) for n in ("non_redundant", "seams", "recapture", "conventional"))]
-            for s, r in holes.items()]
+    rows = [[s, *(iv_sign_triangles(r["runs"]["runs"][n])
+                  for n in ("non_redundant", "seams", "recapture", "conventional"))] for s, r in holes.items()]
     lines += [md_table(["scene", "NR (default)", "NR, occlusion seams", "NR, reconstruction-aware",
                         "conventional"], rows), ""]
     lines += _reading(holes)
@@ -308,8 +307,3 @@ def _reading(holes: dict[str, Any]) -> list[str]:
             "baseline's) and covers more of the truth's texel centres, at the price of more too-dark samples. "
             f"Re-capturing where NR's earlier images leave a surface open takes back at most {regained:.3f} of "
             f"the {gap(r):.3f}.", ""]
-
-
-def iv(e: dict[str, Any]) -> str:
-    """'intensity · visibility' mean errors."""
-    return f"{e['intensity_mean']:.3f} · {e['visibility_mean']:.3f}"

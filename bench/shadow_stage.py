@@ -67,3 +67,14 @@ def errors(bits: np.ndarray, geo: np.ndarray, exact: np.ndarray, mask: np.ndarra
     return {"vs_geometry": shadow_errors(bits, geo, mask), "vs_exact": shadow_errors(bits, exact, mask),
             "too_dark_mean": float(np.clip(-s, 0, None).mean()) if s.size else 0.0,
             "too_bright_mean": float(np.clip(s, 0, None).mean()) if s.size else 0.0}
+
+
+def iv(x: dict[str, Any]) -> str:
+    """'intensity · visibility' mean errors of one set of §3.4.2 errors (`shadow_errors`)."""
+    return f"{x['intensity_mean']:.3f} · {x['visibility_mean']:.3f}"
+
+
+def iv_sign_triangles(e: dict[str, Any]) -> str:
+    """'intensity · visibility (too dark / too bright; triangles)' of an `errors` run, against the geometry truth."""
+    return (f"{iv(e['vs_geometry'])} ({e['too_dark_mean']:.3f} / {e['too_bright_mean']:.3f}; "
+            f"{e['triangles'] / 1e6:.2f} M)")

@@ -52,7 +52,7 @@ import numpy as np
 
 from bench.common import RESULTS_DIR, machine_info, machine_markdown, md_table, progress, write_json, write_text
 from bench.shadow_holes import holes_report, part_holes
-from bench.shadow_stage import Stage, errors, stage_scene, truths
+from bench.shadow_stage import Stage, errors, iv, iv_sign_triangles, stage_scene, truths
 from gl_passes.context import GLContext, create_gl_context
 from gl_passes.depth_images import DepthImageRenderer
 from gl_passes.reconstruction import (
@@ -575,7 +575,7 @@ def criteria(data: dict[str, dict[str, Any]]) -> list[str]:
 
 def _iv(e: dict[str, Any], which: str = "vs_geometry") -> str:
     """'intensity · visibility' mean errors of one run."""
-    return f"{e[which]['intensity_mean']:.3f} · {e[which]['visibility_mean']:.3f}"
+    return iv(e[which])
 
 
 def _default_run(r: dict[str, Any], method: str) -> dict[str, Any]:
@@ -586,11 +586,6 @@ def _default_run(r: dict[str, Any], method: str) -> dict[str, Any]:
 def _iv_sign(e: dict[str, Any]) -> str:
     """'intensity · visibility (too dark / too bright)' against the geometry truth."""
     return f"{_iv(e)} ({e['too_dark_mean']:.3f} / {e['too_bright_mean']:.3f})"
-
-
-def iv_sign_triangles(e: dict[str, Any]) -> str:
-    """'intensity · visibility (too dark / too bright; triangles)' against the geometry truth."""
-    return f"{_iv(e)} ({e['too_dark_mean']:.3f} / {e['too_bright_mean']:.3f}; {e['triangles'] / 1e6:.2f} M)"
 
 
 def gap_report(gap: dict[str, Any]) -> list[str]:
@@ -1196,7 +1191,7 @@ def write_report(data: dict[str, dict[str, Any]], info: dict[str, Any] | None) -
                                             for n in names)])
         lines += [md_table(["scene", "light distance", *names], rows), ""]
     lines += gap_report(data["gap"])
-    lines += holes_report(data["holes"], iv_sign_triangles)
+    lines += holes_report(data["holes"])
     ly = data["layered"].get("grass")
     if ly:
         r = ly["runs"]
