@@ -1,6 +1,7 @@
 """The staging the soft-shadow benchmark's parts share (bench.soft_shadows,
 bench.shadow_holes): a scene with the receivers of its output view, its two truths
-(geometry shadow maps, exact Embree rays) and the §3.4.2 errors against both."""
+(geometry shadow maps, exact Embree rays), the §3.4.2 errors against both and
+the report's cell formats of them."""
 
 from __future__ import annotations
 
