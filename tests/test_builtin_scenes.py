@@ -382,3 +382,28 @@ def test_rooms_contain_their_contents(name: str) -> None:
         walls = next(o for o in s.objects if o.name in ("walls", "white_walls"))
         lo, hi = walls.vertices.min(axis=0), walls.vertices.max(axis=0)
         assert np.all(s.bounds[0] >= lo - 1e-6) and np.all(s.bounds[1][[0, 2]] <= hi[[0, 2]] + 1e-6)
+
+
+def test_grass_blade_width_scales_blades_only() -> None:
+    """grass.build(blade_width=w): at 1 the built-in scene itself; at 2 every blade
+    triangle's area doubles (a ribbon's vertices are its centre line ± half width ×
+    a fixed side vector, so each triangle's area is linear in the width), the ground
+    stays."""
+    from scenes.builtin import builtin_rng, grass
+
+    def area(o) -> float:
+        v = o.vertices.astype(np.float64)[o.faces.astype(np.int64)]
+        return float(0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1).sum())
+
+    base = make_builtin("grass", 0.1)
+    same = grass.build(0.1, builtin_rng("grass"), blade_width=1.0)
+    wide = grass.build(0.1, builtin_rng("grass"), blade_width=2.0)
+    for a, b, c in zip(base.objects, same.objects, wide.objects, strict=True):
+        assert np.array_equal(a.vertices, b.vertices) and np.array_equal(a.faces, c.faces)
+        if a.name == "ground":
+            assert np.array_equal(a.vertices, c.vertices)
+        else:
+            assert area(c) == pytest.approx(2.0 * area(a), rel=1e-5)
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="blade_width"):
+            grass.build(0.1, builtin_rng("grass"), blade_width=bad)

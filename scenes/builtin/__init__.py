@@ -35,7 +35,8 @@ _MODULES: dict[str, ModuleType] = {
     "bathroom": bathroom, "cornell": cornell, "mirror": mirror,
 }
 
-__all__ = ["BUILTIN_NAMES", "MAX_DETAIL", "MIN_DETAIL", "builtin_info", "estimate_triangles", "make_builtin"]
+__all__ = ["BUILTIN_NAMES", "MAX_DETAIL", "MIN_DETAIL", "builtin_info", "builtin_rng", "estimate_triangles",
+           "make_builtin"]
 
 
 def _check_name(name: object) -> ModuleType:
@@ -64,6 +65,12 @@ def _check_seed(seed: object) -> int:
     return s
 
 
+def builtin_rng(name: str, seed: int = 0) -> np.random.Generator:
+    """The generator ``make_builtin(name, …, seed)`` builds its scene with (seeded
+    with (seed, crc32(name))); for variants of a scene's own build options."""
+    return np.random.default_rng([_check_seed(seed), zlib.crc32(name.encode("utf-8"))])
+
+
 def make_builtin(name: str, detail: float = 1.0, seed: int = 0) -> Scene:
     """Build the built-in scene ``name`` (one of ``BUILTIN_NAMES``).
 
@@ -73,9 +80,7 @@ def make_builtin(name: str, detail: float = 1.0, seed: int = 0) -> Scene:
     """
     module = _check_name(name)
     d = _check_detail(detail)
-    s = _check_seed(seed)
-    rng = np.random.default_rng([s, zlib.crc32(name.encode("utf-8"))])
-    scene = module.build(d, rng)
+    scene = module.build(d, builtin_rng(name, seed))
     scene.name = name
     return scene
 

@@ -33,9 +33,9 @@ def estimate_triangles(detail: float) -> int:
     return 2 * n * g.ribbon_triangles(SEGMENTS, pointed=True) + g.grid_triangles(res, res)
 
 
-def _blades(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Blade centre lines (n, SEGMENTS+1, 3), half widths (n, SEGMENTS+1) and side
-    vectors (n, 3) for ``geometry.ribbons`` (front = side × up)."""
+def _blades(n: int, rng: np.random.Generator, blade_width: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Blade centre lines (n, SEGMENTS+1, 3), half widths (n, SEGMENTS+1, scaled by
+    blade_width) and side vectors (n, 3) for ``geometry.ribbons`` (front = side × up)."""
     clumped = rng.random(n) < 0.5
     n_clumps = max(1, n // 40)
     centres = rng.uniform(-HALF * 0.9, HALF * 0.9, (n_clumps, 2))
@@ -44,7 +44,7 @@ def _blades(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, n
     base = np.where(clumped[:, None], centres[which] + rng.normal(0.0, 0.08, (n, 2)), base)
     base = np.clip(base, -HALF, HALF)
     height = np.clip(rng.lognormal(np.log(0.26), 0.3, n), 0.12, 0.5)
-    width = rng.uniform(0.0025, 0.005, n)  # half width at the base
+    width = rng.uniform(0.0025, 0.005, n) * blade_width  # half width at the base
     azimuth = rng.uniform(0.0, 2.0 * np.pi, n)  # lean direction
     lean0 = rng.uniform(0.0, 0.35, n)  # radians from vertical at the base
     curl = rng.uniform(0.2, 1.3, n) * (height / 0.3)  # extra bend toward the tip
@@ -68,9 +68,13 @@ def _blades(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, n
     return paths, half_widths, sides
 
 
-def build(detail: float, rng: np.random.Generator) -> Scene:
+def build(detail: float, rng: np.random.Generator, blade_width: float = 1.0) -> Scene:
+    """The grass scene; blade_width scales every blade's width (a variant for the
+    soft-shadow benchmark; the blades keep their centre lines and count)."""
+    if not (np.isfinite(blade_width) and blade_width > 0):
+        raise ValueError(f"blade_width must be positive and finite, got {blade_width!r}")
     n = g.scaled_count(BLADES_PER_DETAIL, detail)
-    paths, half_widths, sides = _blades(n, rng)
+    paths, half_widths, sides = _blades(n, rng, blade_width)
     shade = rng.random(n) < 0.5  # two shades of green, by blade
     res = g.scaled_res(GROUND_RES, detail)
     ground = g.grid((-HALF, 0.0, -HALF), (0.0, 0.0, 2 * HALF), (2 * HALF, 0.0, 0.0), res, res)
