@@ -409,3 +409,52 @@ def test_recapture_gaps_fills_exactly_a_hole_of_the_first_reconstruction(gl):
     np.testing.assert_array_equal(out.images[1].mask, hole)
     np.testing.assert_array_equal(out.images[1].position[hole], conv.images[1].position[hole])
     assert none_added == 0 and whole.images[1].n_samples == 0
+
+
+def _budget_run(res: int, samples: int, vis: float, inten: float) -> dict:
+    e = {"intensity_mean": inten, "visibility_mean": vis, "intensity_max": 1.0, "visibility_max": 1.0}
+    return {"vs_geometry": e, "vs_exact": e, "too_dark_mean": 0.1, "too_bright_mean": 0.2, "resolution": res,
+            "samples": samples, "triangles": 2 * samples}
+
+
+def test_equal_sample_resolution_and_budget_tables_by_hand():
+    from bench.shadow_budget import budget_criterion_row, budget_report, equal_sample_resolution
+
+    # samples grow with the pixel count: a quarter of the samples at half the side
+    assert equal_sample_resolution(1024, 1_000_000, 250_000) == 512
+    assert equal_sample_resolution(1024, 1_212_133, 544_664) == 686  # grass's counts: 1024·√0.4493
+    args = {"sweep_k": 4, "ref_res": 1024}
+    budget = {
+        "a": {"args": args, "runs": {"non_redundant": _budget_run(1024, 500, 1.0, 0.5),
+                                     "conventional": _budget_run(1024, 1000, 0.9, 0.6),
+                                     "conventional_equal_samples": _budget_run(724, 500, 1.2, 0.7)}},
+        "b": {"args": args, "runs": {"non_redundant": _budget_run(1024, 500, 1.0, 0.8),
+                                     "conventional": _budget_run(1024, 1000, 0.9, 0.6),
+                                     "conventional_equal_samples": _budget_run(724, 500, 1.2, 0.7)}},
+    }
+    row = budget_criterion_row(budget)
+    assert row[1] == "1/2"  # b: NR's intensity 0.8 is above 0.7
+    assert row[2] == "a 0.500 · 1.000 vs 0.700 · 1.200, b 0.800 · 1.000 vs 0.700 · 1.200"
+    assert budget_criterion_row({}) == [] and budget_report({}, {}) == []
+    widths = {"grass": {"args": args, "runs": {
+        "1": {m: _budget_run(1024, 9, v, 0.5) for m, v in (("non_redundant", 1.1), ("conventional", 1.0),
+                                                           ("peeling", 1.3))},
+        "subpixel": {"C_0": _budget_run(1024, 9, 1.0, 0.5),
+                     "C_0 shifted": {**_budget_run(1024, 9, 1.0, 0.5), "too_bright_mean": 0.05}}}}}
+    text = "\n".join(budget_report(budget, widths))
+    assert "| a | conventional, NR's samples | 724² | 500 | 0.700 · 1.200 (0.100 / 0.200; 0.00 M) | 0.700 · 1.200 |" \
+        in text
+    assert "| × 1 | 0.500 · 1.100 (0.100 / 0.200; 0.00 M) |" in text and "| +10.0% |" in text
+    assert "× subpixel" not in text and "| C_0 shifted | 0.500 · 1.000 (0.100 / 0.050; 0.00 M) |" in text
+    assert "conventional's at × 1: +0.100)" in text and "falls 0.200 → 0.050" in text
+    assert "(a 2.0×, b 2.0×)" in text and "exceeds NR's on every scene: a +20%, b +20%." in text
+
+
+def test_subpixel_shifted_moves_the_image_centre_by_the_shift():
+    from bench.shadow_budget import subpixel_shifted
+
+    cam = Camera((1.0, 2.0, 5.0), (0.0, 0.5, 0.0), fov=40.0, width=64, height=48)
+    target = np.array([cam.target])
+    np.testing.assert_allclose(cam.project(target)[0], [[32.0, 24.0]], atol=1e-6)
+    for (dx, dy), moved in (((0.5, 0.0), (31.5, 24.0)), ((0.0, 0.5), (32.0, 24.5)), ((0.5, 0.5), (31.5, 24.5))):
+        np.testing.assert_allclose(subpixel_shifted(cam, dx, dy).project(target)[0], [moved], atol=0.01)
