@@ -2,8 +2,9 @@
 blades (soft-shadow benchmark, parts `budget` and `widths`).
 
 Table 8 compares the image sets at one reference resolution, where conventional
-images hold about twice NR's samples (four complete views of every surface the
-corners share). Per scene, at k = --sweep-k, against both truths:
+images hold more samples than NR's (four complete views of every surface the
+corners share; the counts are in the report). Per scene, at k = --sweep-k, against
+both truths:
 
 - budget: NR images at --ref-res, conventional images at --ref-res, and
   conventional images at the resolution whose four images hold as many samples as
@@ -102,8 +103,7 @@ def part_widths(gl: GLContext, args: argparse.Namespace) -> dict[str, Any]:
     """The grass scene with blades BLADE_WIDTHS times as wide: each set's errors."""
     out: dict[str, Any] = {}
     for w in BLADE_WIDTHS:
-        scene = grass.build(1.0, builtin_rng("grass"), blade_width=w)
-        scene.name = "grass"
+        scene = grass.build(1.0, builtin_rng("grass"), blade_width=w)  # named "grass"
         st = stage_scene(gl, scene)
         try:
             light = default_area_light(scene.bounds, scene.sun_direction)
