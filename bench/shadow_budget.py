@@ -27,13 +27,13 @@ from typing import Any
 import numpy as np
 
 from bench.common import md_table
-from bench.shadow_stage import Stage, errors, iv, iv_sign_triangles, stage_scene, truths
+from bench.shadow_stage import Stage, approximate, errors, iv, iv_sign_triangles, stage_scene, truths
 from gl_passes.context import GLContext
-from gl_passes.reconstruction import ReconstructionSettings, reconstruct_set, render_set
 from gl_passes.shadows import ShadowSettings, SoftShadowPass
 from scenes.builtin import builtin_rng, grass
 from scenes.camera import Camera
-from scenes.lights import PEEL_LAYERS, default_area_light, reference_cameras
+from scenes.lights import default_area_light, reference_cameras
+from scenes.model import AreaLight
 
 #: Blade-width factors of the widths part (1 = the built-in grass).
 BLADE_WIDTHS = (1.0, 2.0, 4.0)
@@ -47,13 +47,9 @@ def subpixel_shifted(camera: Camera, dx: float, dy: float) -> Camera:
     """`camera` turned by a fraction of a pixel: its target moves dx, dy pixel
     footprints along its right and up axes, so the scene point at the image centre
     moves by −dx columns and +dy rows (to within 0.01 px)."""
-    eye, target = np.asarray(camera.eye), np.asarray(camera.target)
-    forward = target - eye
-    dist = float(np.linalg.norm(forward))
-    right = np.cross(forward / dist, np.asarray(camera.up))
-    right /= np.linalg.norm(right)
-    up = np.cross(right, forward / dist)
-    step = camera.pixel_footprint * dist
+    right, up, _ = camera.basis()
+    target = np.asarray(camera.target)
+    step = camera.pixel_footprint * float(np.linalg.norm(target - np.asarray(camera.eye)))
     return replace(camera, target=tuple(target + step * (dx * right + dy * up)))
 
 
@@ -63,23 +59,14 @@ def equal_sample_resolution(res: int, samples: int, target: int) -> int:
     return max(1, int(round(res * np.sqrt(target / max(samples, 1)))))
 
 
-def _measure(gl: GLContext, st: Stage, sp: SoftShadowPass, method: str, res: int,
+def _measure(gl: GLContext, st: Stage, sp: SoftShadowPass, light: AreaLight, method: str, res: int,
              truth: tuple[np.ndarray, np.ndarray], cameras: list[Camera] | None = None) -> dict[str, Any]:
-    """One set's hybrid reconstruction at `res`² (from Alg. 5's reference cameras
-    unless `cameras`): §3.4.2 errors against (geometry, exact) truth, samples and
-    triangles."""
-    light = default_area_light(st.scene.bounds, st.scene.sun_direction)
-    cams = cameras or reference_cameras(light, st.scene.bounds, method, res)
-    sampled = render_set(gl, st.gpu, method, cams, layers=PEEL_LAYERS)
-    meshes = reconstruct_set(gl, sampled, ReconstructionSettings())
-    try:
-        bits = sp.visibility(meshes, st.scene.bounds, st.points, st.normals, st.mask, light).bits
-        tris = sum(m.n_triangles for m in meshes)
-    finally:
-        for m in meshes:
-            m.release()
-    return {**errors(bits, *truth, st.mask), "resolution": res, "triangles": tris,
-            "samples": sum(img.n_samples for img in sampled.images)}
+    """One set's hybrid reconstruction at `res`² (`approximate`; Alg. 5's reference
+    cameras unless `cameras`): §3.4.2 errors against (geometry, exact) truth,
+    samples and triangles."""
+    r = approximate(gl, st, sp, light, method, ("hybrid",), res, cameras)["hybrid"]
+    return {**errors(r["bits"], *truth, st.mask), "resolution": res, "triangles": r["triangles"],
+            "samples": r["samples"]}
 
 
 def part_budget(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str, Any]:
@@ -89,13 +76,13 @@ def part_budget(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str,
     light = default_area_light(st.scene.bounds, st.scene.sun_direction)
     with SoftShadowPass(gl, ShadowSettings(samples=k, shadow_map_resolution=args.shadow_res)) as sp:
         geo, exact, _ = truths(st, sp, light, k)
-        nr = _measure(gl, st, sp, "non_redundant", args.ref_res, (geo, exact))
-        conv = _measure(gl, st, sp, "conventional", args.ref_res, (geo, exact))
+        nr = _measure(gl, st, sp, light, "non_redundant", args.ref_res, (geo, exact))
+        conv = _measure(gl, st, sp, light, "conventional", args.ref_res, (geo, exact))
         res = equal_sample_resolution(args.ref_res, conv["samples"], nr["samples"])
-        equal = _measure(gl, st, sp, "conventional", res, (geo, exact))
+        equal = _measure(gl, st, sp, light, "conventional", res, (geo, exact))
         refined = equal_sample_resolution(res, equal["samples"], nr["samples"])
         if refined != res:
-            equal = _measure(gl, st, sp, "conventional", refined, (geo, exact))
+            equal = _measure(gl, st, sp, light, "conventional", refined, (geo, exact))
     return {"non_redundant": nr, "conventional": conv, "conventional_equal_samples": equal}
 
 
@@ -109,11 +96,12 @@ def part_widths(gl: GLContext, args: argparse.Namespace) -> dict[str, Any]:
             light = default_area_light(scene.bounds, scene.sun_direction)
             with SoftShadowPass(gl, ShadowSettings(samples=args.sweep_k, shadow_map_resolution=args.shadow_res)) as sp:
                 geo, exact, _ = truths(st, sp, light, args.sweep_k)
-                out[f"{w:g}"] = {m: _measure(gl, st, sp, m, args.ref_res, (geo, exact)) for m in WIDTH_METHODS}
+                out[f"{w:g}"] = {m: _measure(gl, st, sp, light, m, args.ref_res, (geo, exact))
+                                 for m in WIDTH_METHODS}
                 if w == 1.0:
                     c0 = reference_cameras(light, scene.bounds, "conventional", args.ref_res)[0]
                     shifted = [c0, *(subpixel_shifted(c0, dx, dy) for dx, dy in SUBPIXEL_SHIFTS)]
-                    out["subpixel"] = {n: _measure(gl, st, sp, "conventional", args.ref_res, (geo, exact), c)
+                    out["subpixel"] = {n: _measure(gl, st, sp, light, "conventional", args.ref_res, (geo, exact), c)
                                        for n, c in (("C_0", [c0]), ("C_0 shifted", shifted))}
         finally:
             st.gpu.release()

@@ -1,7 +1,8 @@
 """The staging the soft-shadow benchmark's parts share (bench.soft_shadows,
-bench.shadow_holes): a scene with the receivers of its output view, its two truths
-(geometry shadow maps, exact Embree rays), the §3.4.2 errors against both and
-the report's cell formats of them."""
+bench.shadow_holes, bench.shadow_budget): a scene with the receivers of its output
+view, its two truths (geometry shadow maps, exact Embree rays), Alg. 5 with a set's
+reconstructions (`approximate`), the §3.4.2 errors against both truths and the
+report's cell formats of them."""
 
 from __future__ import annotations
 
@@ -13,11 +14,13 @@ import numpy as np
 
 from gl_passes.context import GLContext
 from gl_passes.gbuffer import GBufferPass
+from gl_passes.reconstruction import ReconstructionSettings, reconstruct_set, render_set
 from gl_passes.shadows import SoftShadowPass
 from gl_passes.upload import SceneGPU
 from reference.raycast import RayCaster
 from reference.shadows import error_maps, light_visibility, shadow_errors
 from scenes.camera import Camera, look_at_scene
+from scenes.lights import PEEL_LAYERS, reference_cameras
 from scenes.model import AreaLight, Scene
 
 #: Output view resolution (square), the receivers of every part.
@@ -58,6 +61,36 @@ def truths(st: Stage, sp: SoftShadowPass, light: AreaLight, k: int) -> tuple[np.
     t1 = time.perf_counter()
     exact = light_visibility(st.caster, st.points, st.normals, st.mask, light, k)
     return geo, exact, {"geometry_shadows": t1 - t0, "exact_embree": time.perf_counter() - t1}
+
+
+def approximate(gl: GLContext, st: Stage, sp: SoftShadowPass, light: AreaLight, method: str,
+                kinds: tuple[str, ...], res: int, cameras: list[Camera] | None = None) -> dict[str, dict[str, Any]]:
+    """Alg. 5 with each reconstruction kind of `method`'s images, taken from Alg. 5's
+    reference cameras at res² unless `cameras`: bits, triangles, samples and the time
+    of step 1 (reference images), 2 (reconstruction), 3 (shadows)."""
+    bounds = st.scene.bounds
+    t0 = time.perf_counter()
+    sampled = render_set(gl, st.gpu, method, cameras or reference_cameras(light, bounds, method, res),
+                         layers=PEEL_LAYERS)
+    gl.ctx.finish()
+    step1 = time.perf_counter() - t0
+    out = {}
+    for kind in kinds:
+        t0 = time.perf_counter()
+        meshes = reconstruct_set(gl, sampled, ReconstructionSettings(kind=kind))
+        gl.ctx.finish()
+        step2 = time.perf_counter() - t0
+        try:
+            t0 = time.perf_counter()
+            res_ = sp.visibility(meshes, bounds, st.points, st.normals, st.mask, light)
+            step3 = time.perf_counter() - t0
+            out[kind] = {"bits": res_.bits, "triangles": sum(m.n_triangles for m in meshes),
+                         "samples": sum(img.n_samples for img in sampled.images),
+                         "seconds": {"reference_images": step1, "reconstruction": step2, "shadows": step3}}
+        finally:
+            for m in meshes:
+                m.release()
+    return out
 
 
 def errors(bits: np.ndarray, geo: np.ndarray, exact: np.ndarray, mask: np.ndarray) -> dict[str, Any]:

@@ -57,7 +57,7 @@ import numpy as np
 from bench.common import RESULTS_DIR, machine_info, machine_markdown, md_table, progress, write_json, write_text
 from bench.shadow_budget import budget_criterion_row, budget_report, part_budget, part_widths
 from bench.shadow_holes import holes_report, part_holes
-from bench.shadow_stage import Stage, errors, iv, iv_sign_triangles, stage_scene, truths
+from bench.shadow_stage import Stage, approximate, errors, iv, iv_sign_triangles, stage_scene, truths
 from gl_passes.context import GLContext, create_gl_context
 from gl_passes.depth_images import DepthImageRenderer
 from gl_passes.reconstruction import (
@@ -93,34 +93,6 @@ THESIS_TABLE9_1024 = {
     "city": {"non_redundant": (1.60, 2.07), "conventional": (3.46, 3.64), "peeling": (11.3, 12.6)},
     "tree": {"non_redundant": (9.21, 17.5), "conventional": (13.7, 21.1), "peeling": (10.9, 18.7)},
 }
-def approximate(gl: GLContext, st: Stage, sp: SoftShadowPass, light: AreaLight, method: str,
-                kinds: tuple[str, ...], res: int) -> dict[str, dict[str, Any]]:
-    """Alg. 5 with each reconstruction kind of `method`'s images: bits, triangles,
-    and the time of step 1 (reference images), 2 (reconstruction), 3 (shadows)."""
-    bounds = st.scene.bounds
-    t0 = time.perf_counter()
-    sampled = render_set(gl, st.gpu, method, reference_cameras(light, bounds, method, res), layers=PEEL_LAYERS)
-    gl.ctx.finish()
-    step1 = time.perf_counter() - t0
-    out = {}
-    for kind in kinds:
-        t0 = time.perf_counter()
-        meshes = reconstruct_set(gl, sampled, ReconstructionSettings(kind=kind))
-        gl.ctx.finish()
-        step2 = time.perf_counter() - t0
-        try:
-            t0 = time.perf_counter()
-            res_ = sp.visibility(meshes, bounds, st.points, st.normals, st.mask, light)
-            step3 = time.perf_counter() - t0
-            out[kind] = {"bits": res_.bits, "triangles": sum(m.n_triangles for m in meshes),
-                         "samples": sum(img.n_samples for img in sampled.images),
-                         "seconds": {"reference_images": step1, "reconstruction": step2, "shadows": step3}}
-        finally:
-            for m in meshes:
-                m.release()
-    return out
-
-
 # --- parts ----------------------------------------------------------------------------
 
 def part_table8(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str, Any]:
@@ -1266,8 +1238,8 @@ def main(argv: list[str] | None = None) -> int:
             for part in args.part or []:
                 if part in ("fig20", "layered", "widths"):
                     t0 = time.perf_counter()
-                    runs = {"fig20": lambda: part_fig20(args), "layered": lambda: part_layered(gl, args),
-                            "widths": lambda: part_widths(gl, args)}[part]()
+                    runs = part_fig20(args) if part == "fig20" else \
+                        {"layered": part_layered, "widths": part_widths}[part](gl, args)
                     _save(part, "grass", args, info, runs, time.perf_counter() - t0)
                     continue
                 fn = {"table8": part_table8, "table9": part_table9, "table10": part_table10,
