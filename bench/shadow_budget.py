@@ -8,7 +8,10 @@ both truths:
 
 - budget: NR images at --ref-res, conventional images at --ref-res, and
   conventional images at the resolution whose four images hold as many samples as
-  NR's (found from the sample ratio and refined once: `equal_sample_resolution`);
+  NR's (found from the sample ratio and refined once: `equal_sample_resolution`), and
+  at the resolution where their mean visibility error meets NR's (the break-even:
+  `break_even_resolution`, a few secant steps on log error against log resolution),
+  with how many samples they hold there;
 - widths (grass only): the grass scene with every blade BLADE_WIDTHS times as wide
   (`scenes.builtin.grass.build(blade_width=…)`, the same centre lines and count),
   NR, conventional and peeling images at --ref-res: does the grass gap between NR
@@ -21,6 +24,8 @@ both truths:
 from __future__ import annotations
 
 import argparse
+import math
+from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
@@ -41,6 +46,12 @@ BLADE_WIDTHS = (1.0, 2.0, 4.0)
 WIDTH_METHODS = ("non_redundant", "conventional", "peeling")
 #: Sub-pixel shifts (x, y pixels) of the copies of C_0's view in the widths part.
 SUBPIXEL_SHIFTS = ((0.5, 0.0), (0.0, 0.5), (0.5, 0.5))
+#: Break-even search: at most this many resolutions measured beyond the part's own, and
+#: the relative distance from NR's visibility error at which it stops, and the largest
+#: resolution it measures, in multiples of --ref-res (Table 9's largest).
+BREAK_EVEN_STEPS = 3
+BREAK_EVEN_TOLERANCE = 0.01
+BREAK_EVEN_MAX_SCALE = 1.5
 
 
 def subpixel_shifted(camera: Camera, dx: float, dy: float) -> Camera:
@@ -57,6 +68,40 @@ def equal_sample_resolution(res: int, samples: int, target: int) -> int:
     """The square resolution at which a set that holds `samples` samples at `res`²
     would hold `target` (samples grow with the pixel count)."""
     return max(1, int(round(res * np.sqrt(target / max(samples, 1)))))
+
+
+def break_even_resolution(measure: Callable[[int], float], target: float, points: dict[int, float], max_res: int,
+                          steps: int = BREAK_EVEN_STEPS, tolerance: float = BREAK_EVEN_TOLERANCE) -> int:
+    """The square resolution at which a set's error `measure(res)` meets `target`.
+
+    points: resolutions already measured → their errors (at least two; the
+    resolutions `measure` adds are written into it). Each step fits err = a·res^(−p)
+    through the two measured points nearest the target on either side (or the two
+    nearest it when none lies beyond it) and measures the resolution the fit gives
+    (at most `max_res`, at least half the smallest measured), until an error lies
+    within `tolerance` (relative) of the target, the fit repeats a measured
+    resolution or `steps` are spent. Returns the measured resolution whose error is
+    nearest the target (the caller tells whether it is within `tolerance`)."""
+    def near(res: int) -> bool:
+        return abs(points[res] - target) <= tolerance * target
+
+    for _ in range(steps):
+        if any(near(r) for r in points):
+            break
+        above = sorted((r for r in points if points[r] > target), key=lambda r: points[r] - target)
+        below = sorted((r for r in points if points[r] < target), key=lambda r: target - points[r])
+        pair = (above[0], below[0]) if above and below else sorted(points, key=lambda r: abs(points[r] - target))[:2]
+        (r0, e0), (r1, e1) = ((r, points[r]) for r in pair)
+        slope = math.log(e0 / e1) / math.log(r1 / r0) if r0 != r1 and e0 > 0 and e1 > 0 else 0.0
+        if slope <= 0:  # the error does not fall with resolution between them: halve the bracket
+            res = round(math.sqrt(r0 * r1))
+        else:
+            res = round(r0 * (e0 / target) ** (1 / slope))
+        res = min(max(res, min(points) // 2, 1), max_res)
+        if res in points:
+            break
+        points[res] = measure(res)
+    return min(points, key=lambda r: abs(points[r] - target))
 
 
 def _measure(gl: GLContext, st: Stage, sp: SoftShadowPass, light: AreaLight, method: str, res: int,
@@ -83,7 +128,17 @@ def part_budget(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str,
         refined = equal_sample_resolution(res, equal["samples"], nr["samples"])
         if refined != res:
             equal = _measure(gl, st, sp, light, "conventional", refined, (geo, exact))
-    return {"non_redundant": nr, "conventional": conv, "conventional_equal_samples": equal}
+        runs = {r["resolution"]: r for r in (conv, equal)}
+
+        def visibility(res: int) -> float:
+            runs[res] = _measure(gl, st, sp, light, "conventional", res, (geo, exact))
+            return runs[res]["vs_geometry"].visibility_mean
+
+        points = {r: e["vs_geometry"].visibility_mean for r, e in runs.items()}
+        even = break_even_resolution(visibility, nr["vs_geometry"].visibility_mean, points,
+                                     round(BREAK_EVEN_MAX_SCALE * args.ref_res))
+    return {"non_redundant": nr, "conventional": conv, "conventional_equal_samples": equal,
+            "conventional_break_even": {**runs[even], "searched": {str(r): v for r, v in sorted(points.items())}}}
 
 
 def part_widths(gl: GLContext, args: argparse.Namespace) -> dict[str, Any]:
@@ -130,13 +185,17 @@ def budget_report(budget: dict[str, Any], widths: dict[str, Any]) -> list[str]:
         first = next(iter(budget.values()))["args"]
         lines += [f"### NR and conventional images at an equal sample count (hybrid, k = {first['sweep_k']})", "",
                   f"NR images at {first['ref_res']}² against conventional images at {first['ref_res']}² and at the "
-                  "resolution whose four images hold as many samples as NR's (`bench/shadow_budget.py`). Cells: "
+                  "resolution whose four images hold as many samples as NR's, and at the resolution where their mean "
+                  "visibility error meets NR's (`bench/shadow_budget.py`). Cells: "
                   "mean intensity · visibility error against the geometry truth (too dark / too bright; "
                   "triangles), then against the exact truth.", ""]
         rows = []
         for s, r in budget.items():
             for key, label in (("non_redundant", "NR"), ("conventional", "conventional"),
-                               ("conventional_equal_samples", "conventional, NR's samples")):
+                               ("conventional_equal_samples", "conventional, NR's samples"),
+                               ("conventional_break_even", "conventional, NR's visibility error")):
+                if key not in r["runs"]:
+                    continue
                 e = r["runs"][key]
                 rows.append([s, label, f"{e['resolution']}²", f"{e['samples']:,}", iv_sign_triangles(e),
                              iv(e["vs_exact"])])
@@ -176,9 +235,22 @@ def _budget_reading(budget: dict[str, Any]) -> str:
                        for s, r in budget.items())
     over = {s: vis(r, "conventional_equal_samples") / vis(r, "non_redundant") - 1 for s, r in budget.items()}
     where = "exceeds NR's on every scene" if all(v > 0 for v in over.values()) else "against NR's"
-    return (f"Reading: at one resolution conventional images hold more samples than NR's ({ratios}): every "
+    text = (f"Reading: at one resolution conventional images hold more samples than NR's ({ratios}): every "
             "surface the corners share is sampled up to four times. Given NR's sample count, conventional images' "
             f"mean visibility error {where}: " + ", ".join(f"{s} {v:+.0%}" for s, v in over.items()) + ".")
+    even = {s: r["runs"] for s, r in budget.items() if "conventional_break_even" in r["runs"]}
+    if even:
+        def at(s: str, runs: dict[str, Any]) -> str:
+            e, target = runs["conventional_break_even"], vis(budget[s], "non_redundant")
+            ratio = e["samples"] / runs["non_redundant"]["samples"]
+            found = abs(e["vs_geometry"]["visibility_mean"] - target) <= BREAK_EVEN_TOLERANCE * target
+            return (f"{s} at {e['resolution']}² ({ratio:.1f}× NR's samples)" if found else
+                    f"{s} not by {e['resolution']}² ({ratio:.1f}× NR's samples, "
+                    f"{e['vs_geometry']['visibility_mean']:.3f} against NR's {target:.3f})")
+        text += (" The resolution at which conventional images' mean visibility error meets NR's (within "
+                 f"{BREAK_EVEN_TOLERANCE:.0%}; searched up to {BREAK_EVEN_MAX_SCALE:g}× the reference resolution, "
+                 "last row per scene): " + ", ".join(at(s, runs) for s, runs in even.items()) + ".")
+    return text
 
 
 def _widths_reading(runs: dict[str, Any], sub: dict[str, Any] | None) -> str:

@@ -32,8 +32,9 @@ joins whatever is there):
   holes    where NR's extra too-bright light samples come from, and two ways to give
            NR back re-captures where its earlier images leave a surface open
            (`bench.shadow_holes`, k = --sweep-k);
-  budget   NR against conventional images of NR's sample count (`bench.shadow_budget`,
-           k = --sweep-k);
+  budget   NR against conventional images of NR's sample count, and the resolution
+           at which conventional images meet NR's visibility error
+           (`bench.shadow_budget`, k = --sweep-k);
   widths   grass with blades 1, 2 and 4 times as wide (`bench.shadow_budget`,
            k = --sweep-k).
 
@@ -940,7 +941,8 @@ def reading(data: dict[str, dict[str, Any]]) -> list[str]:
                                 for s in lost) + ". It is what Alg. 3 removes by design: conventional images "
                     "hold up to four copies of each blade's outline, NR one (where NR's extra too-bright samples come "
                     "from: the holes tables below; the gap stays with blades 2 and 4 times as wide, and at NR's "
-                    "sample count conventional images are worse on every scene: budget tables). One place it shows: "
+                    "sample count conventional images are worse on every scene, and they meet NR's visibility "
+                    "error only with more of them: budget tables). One place it shows: "
                     "an NR pixel that straddles an earlier image's "
                     "outline of a blade, with its centre on the earlier image's sample, keeps what lies behind, "
                     "and the straddled part of the blade gets no quad (too bright, "

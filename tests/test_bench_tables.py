@@ -448,6 +448,40 @@ def test_equal_sample_resolution_and_budget_tables_by_hand():
     assert "× subpixel" not in text and "| C_0 shifted | 0.500 · 1.000 (0.100 / 0.050; 0.00 M) |" in text
     assert "conventional's at × 1: +0.100)" in text and "falls 0.200 → 0.050" in text
     assert "(a 2.0×, b 2.0×)" in text and "exceeds NR's on every scene: a +20%, b +20%." in text
+    assert "last row per scene" not in text  # runs from before the break-even search
+    budget["a"]["runs"]["conventional_break_even"] = _budget_run(1100, 600, 1.005, 0.6)
+    budget["b"]["runs"]["conventional_break_even"] = _budget_run(1536, 1100, 1.1, 0.6)
+    text = "\n".join(budget_report(budget, {}))
+    assert "| a | conventional, NR's visibility error | 1100² | 600 | 0.600 · 1.005 (0.100 / 0.200; 0.00 M) |" in text
+    assert ("(within 1%; searched up to 1.5× the reference resolution, last row per scene): a at 1100² (1.2× NR's "
+            "samples), b not by 1536² (2.2× NR's samples, 1.100 against NR's 1.000).") in text
+
+
+def test_break_even_resolution_by_hand():
+    from bench.shadow_budget import break_even_resolution
+
+    calls: list[int] = []
+
+    def inverse(res: int) -> float:  # err = 800 / res: the fit through two points is exact
+        calls.append(res)
+        return 800.0 / res
+
+    points = {512: 800 / 512, 1024: 800 / 1024}
+    assert break_even_resolution(inverse, 1.0, points, max_res=1536) == 800 and calls == [800]
+    calls.clear()  # already within 1 % of the target: nothing measured
+    assert break_even_resolution(inverse, 0.785, {512: 1.5625, 1024: 0.78125}, max_res=1536) == 1024 and calls == []
+
+    def floor(res: int) -> float:  # never reaches 0.5: one step to max_res, then the fit repeats it
+        calls.append(res)
+        return 1.0 + 100.0 / res
+
+    points = {512: floor(512), 1024: floor(1024)}
+    calls.clear()
+    assert break_even_resolution(floor, 0.5, points, max_res=1536) == 1536 and calls == [1536]
+    # an error that rises with resolution between the two: the bracket's geometric mean (√(512·2048))
+    calls.clear()
+    assert break_even_resolution(inverse, 1.0, {512: 1.5, 2048: 1.6}, max_res=4096, steps=1) == 1024
+    assert calls == [1024]
 
 
 def test_subpixel_shifted_moves_the_image_centre_by_the_shift():
