@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from bench.common import md_table
-from bench.shadow_stage import Stage, errors, iv, iv_sign_triangles, truths
+from bench.shadow_stage import Stage, errors, iv, iv_sign_triangles, truths, unpack_visibility
 from gl_passes.context import GLContext
 from gl_passes.depth_images import DepthImageRenderer
 from gl_passes.reconstruction import (
@@ -110,13 +110,6 @@ def recapture_gaps(gl: GLContext, nr: SampledSet, conv: SampledSet, settings: Re
         images.append(replace(own, **fields))
         added += len(r)
     return SampledSet(nr.method, images, nr.offsets), added
-
-
-def _unpack(bits: np.ndarray, mask: np.ndarray, k: int) -> np.ndarray:
-    """(pixels, k²) bool visibility of the mask's pixels."""
-    words = bits[mask]
-    s = np.arange(k * k)
-    return ((words[:, s >> 5] >> (s & 31).astype(np.uint32)) & 1).astype(bool)
 
 
 def shadow_rays(st: Stage, light: AreaLight, k: int, pairs: np.ndarray,
@@ -217,8 +210,8 @@ def part_holes(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str, 
                                       **{m: measure(sets[m], None, sp_fine, geo_fine)[0] for m in sets}}
     finally:
         rec.release()
-    g, x = _unpack(geo, st.mask, k), _unpack(exact, st.mask, k)
-    nr, cv = _unpack(bits["non_redundant"], st.mask, k), _unpack(bits["conventional"], st.mask, k)
+    g, x, nr, cv = (unpack_visibility(b[st.mask], k * k)
+                    for b in (geo, exact, bits["non_redundant"], bits["conventional"]))
     agree = g == x
     pixels = max(int(st.mask.sum()), 1)
     only = {"nr_bright": nr & ~cv & ~g, "conv_bright": cv & ~nr & ~g,

@@ -93,6 +93,13 @@ def approximate(gl: GLContext, st: Stage, sp: SoftShadowPass, light: AreaLight, 
     return out
 
 
+def unpack_visibility(words: np.ndarray, n_samples: int) -> np.ndarray:
+    """(..., n_samples) bool: bit s % 32 of word s // 32 of visibility words
+    (..., ceil(n_samples/32)) uint32 (the layout of `ShadowResult.bits`)."""
+    s = np.arange(n_samples)
+    return ((words[..., s >> 5] >> (s & 31).astype(np.uint32)) & 1).astype(bool)
+
+
 def errors(bits: np.ndarray, geo: np.ndarray, exact: np.ndarray, mask: np.ndarray) -> dict[str, Any]:
     """§3.4.2 errors against both truths, and the mean wrong decisions against the
     geometry truth split by sign (too dark: samples shadowed that the truth lights)."""

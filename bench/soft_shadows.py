@@ -58,7 +58,16 @@ import numpy as np
 from bench.common import RESULTS_DIR, machine_info, machine_markdown, md_table, progress, write_json, write_text
 from bench.shadow_budget import budget_criterion_row, budget_report, part_budget, part_widths
 from bench.shadow_holes import holes_report, part_holes
-from bench.shadow_stage import Stage, approximate, errors, iv, iv_sign_triangles, stage_scene, truths
+from bench.shadow_stage import (
+    Stage,
+    approximate,
+    errors,
+    iv,
+    iv_sign_triangles,
+    stage_scene,
+    truths,
+    unpack_visibility,
+)
 from gl_passes.context import GLContext, create_gl_context
 from gl_passes.depth_images import DepthImageRenderer
 from gl_passes.reconstruction import (
@@ -239,8 +248,8 @@ def drop_redundant(images: list[DepthImage], rule: str, plane_tol: float = 1.0,
 
 def per_sample_errors(bits: np.ndarray, truth: np.ndarray, mask: np.ndarray, k: int) -> np.ndarray:
     """(k²,) mean over the mask's pixels of the wrong decisions for each light sample."""
-    x = np.bitwise_xor(bits, truth)[mask]
-    return np.array([((x[:, s >> 5] >> np.uint32(s & 31)) & 1).mean() if len(x) else 0.0 for s in range(k * k)])
+    wrong = unpack_visibility(np.bitwise_xor(bits, truth)[mask], k * k)
+    return wrong.mean(axis=0) if len(wrong) else np.zeros(k * k)
 
 
 def part_gap(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str, Any]:

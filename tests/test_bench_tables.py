@@ -309,6 +309,15 @@ def test_drop_redundant_by_hand():
     assert i1.tri_id[0].tolist() == [2, 7, 8, 0, 9]  # the input is not changed
 
 
+def test_unpack_visibility_by_hand():
+    from bench.shadow_stage import unpack_visibility
+
+    words = np.array([[1 | (1 << 31), 1 << 1], [0, 1 << 3]], np.uint32)  # samples 0, 31, 33 / 35 of 36
+    got = unpack_visibility(words, 36)
+    assert got.shape == (2, 36) and got.dtype == bool
+    assert np.flatnonzero(got[0]).tolist() == [0, 31, 33] and np.flatnonzero(got[1]).tolist() == [35]
+
+
 def test_per_sample_errors_by_hand():
     from bench.soft_shadows import per_sample_errors
 
