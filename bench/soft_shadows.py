@@ -36,7 +36,10 @@ joins whatever is there):
            at which conventional images meet NR's visibility error
            (`bench.shadow_budget`, k = --sweep-k);
   widths   grass with blades 1, 2 and 4 times as wide (`bench.shadow_budget`,
-           k = --sweep-k).
+           k = --sweep-k);
+  bias     the shadow maps' bias: the geometry shadow maps against the exact truth
+           over a grid of settings, and acne on a tilted plane (`bench.shadow_bias`,
+           k = --sweep-k; the previous default and the default again at k = --k).
 
     python -m bench.soft_shadows --part table8 --scenes nest,grass,city,tree
     python -m bench.soft_shadows --report-only
@@ -56,6 +59,7 @@ from typing import Any
 import numpy as np
 
 from bench.common import RESULTS_DIR, machine_info, machine_markdown, md_table, progress, write_json, write_text
+from bench.shadow_bias import PREVIOUS, bias_report, part_bias, setting_key, shadow_bias_of
 from bench.shadow_budget import budget_criterion_row, budget_report, part_budget, part_widths
 from bench.shadow_holes import holes_report, part_holes
 from bench.shadow_stage import (
@@ -88,7 +92,8 @@ from scenes.shading import area_light_shade
 
 OUT = RESULTS_DIR / "soft_shadows"
 SCENES = ("nest", "grass", "city", "tree")
-PARTS = ("table8", "table9", "table10", "fig20", "peeling", "layered", "gap", "holes", "budget", "widths")
+PARTS = ("table8", "table9", "table10", "fig20", "peeling", "layered", "gap", "holes", "budget", "widths",
+         "bias")
 #: The thesis's Table 8 (intensity mean/max, visibility mean/max) for NR, conventional, peeling.
 THESIS_TABLE8 = {
     "nest": {"non_redundant": (3.00, 106, 6.31, 110), "conventional": (5.62, 179, 7.72, 179),
@@ -1059,6 +1064,13 @@ def crossover_lines(levels: list[dict[str, Any]]) -> list[str]:
 OUT_GPU = RESULTS_DIR / "soft_shadows_gpu"
 
 
+def _bias_key(saved: dict[str, Any]) -> str:
+    """'normal offset/depth bias/depth slope' a part was run with (runs saved before
+    the bias was recorded used PREVIOUS)."""
+    b = saved["args"].get("shadow_bias")
+    return setting_key(ShadowSettings(**b) if b else PREVIOUS)
+
+
 def gpu_section(cpu_t8: dict[str, Any]) -> list[str]:
     """Markdown: Table 11 and Fig. 20 on the GPU machine (OUT_GPU), and how far its
     Table 8 errors are from this machine's; [] when nothing was measured there."""
@@ -1071,13 +1083,20 @@ def gpu_section(cpu_t8: dict[str, Any]) -> list[str]:
              *(f"- {part}: measured {m['date']} at commit {m['commit']}: `{m['command']}`"
                for part, m in measured.items()), ""]
     if t8:
-        diffs = [abs(e[which][key] - cpu_t8[scene]["methods"][method][kind][which][key])
-                 for scene, r in t8.items() if scene in cpu_t8
-                 for method, kinds in r["methods"].items() for kind, e in kinds.items()
-                 for which in ("vs_geometry", "vs_exact") for key in ("intensity_mean", "visibility_mean")]
-        lines += [f"Table 8's mean errors there differ from this machine's by at most {max(diffs):.3f} light "
-                  "samples per pixel (rasterisation and float order), so every verdict above holds there too. "
-                  "Table 11 there (seconds):", "", table11(t8), ""]
+        bias = {_bias_key(r) for r in t8.values()}
+        if bias == {_bias_key(r) for r in cpu_t8.values()}:
+            diffs = [abs(e[which][key] - cpu_t8[scene]["methods"][method][kind][which][key])
+                     for scene, r in t8.items() if scene in cpu_t8
+                     for method, kinds in r["methods"].items() for kind, e in kinds.items()
+                     for which in ("vs_geometry", "vs_exact") for key in ("intensity_mean", "visibility_mean")]
+            lines.append(f"Table 8's mean errors there differ from this machine's by at most {max(diffs):.3f} "
+                         "light samples per pixel (rasterisation and float order), so every verdict above holds "
+                         "there too. Table 11 there (seconds):")
+        else:
+            lines.append(f"Measured there with the shadow maps' bias {', '.join(sorted(bias))} (normal offset / "
+                         "depth bias / depth slope), not this machine's, so its errors are not compared here. "
+                         "Table 11 there (seconds):")
+        lines += ["", table11(t8), ""]
     f20 = OUT_GPU / "fig20_grass.json"
     if f20.exists():
         lv = json.loads(f20.read_text())["runs"]["levels"]
@@ -1094,11 +1113,17 @@ def write_report(data: dict[str, dict[str, Any]], info: dict[str, Any] | None) -
              "(`scenes.lights.default_area_light`); reference images from its corners (NR, conventional) or "
              "its centre (peeling), each camera looking at the scene box's centre with the fov that just holds "
              "the box (`scenes.lights.reference_cameras`); output 512² from `look_at_scene`; shadow maps "
-             "square, one per light sample, looking along the light's axis (`gl_passes.shadows`); hybrid "
+             "square, one per light sample, looking along the light's axis, with the bias of `ShadowSettings` "
+             "(normal offset / depth bias / slope-scaled depth bias: " + setting_key(ShadowSettings()) + " texels, "
+             "chosen against the exact truth: the bias section) (`gl_passes.shadows`); hybrid "
              "reconstruction with the defaults of `ReconstructionSettings` (tangent-plane corners clamped at 2 "
              "pixel footprints; depth gate, joined corners and evidence on, for every set alike). Errors in "
              "cells: intensity mean/max · visibility mean/max over the output pixels that hold a surface "
              "(§3.4.2), in light samples.", ""]
+    stale = sorted({part for part, scenes in data.items() if part != "bias"  # its settings are explicit
+                    for saved in scenes.values() if _bias_key(saved) != setting_key(ShadowSettings())})
+    if stale:
+        lines += [f"Measured with another shadow-map bias than the default (to run again): {', '.join(stale)}.", ""]
     if info:
         lines += ["## Machine", "", machine_markdown(info), "",
                   "The machine is shared (2 cores): timings (Table 11, Fig. 20) are one run's, not medians of quiet "
@@ -1185,6 +1210,7 @@ def write_report(data: dict[str, dict[str, Any]], info: dict[str, Any] | None) -
     lines += gap_report(data["gap"])
     lines += holes_report(data["holes"])
     lines += budget_report(data["budget"], data["widths"])
+    lines += bias_report(data["bias"])
     ly = data["layered"].get("grass")
     if ly:
         r = ly["runs"]
@@ -1255,7 +1281,7 @@ def main(argv: list[str] | None = None) -> int:
                     continue
                 fn = {"table8": part_table8, "table9": part_table9, "table10": part_table10,
                       "peeling": part_peeling, "gap": part_gap, "holes": part_holes,
-                      "budget": part_budget}[part]
+                      "budget": part_budget, "bias": part_bias}[part]
                 for name in args.scenes:
                     st = stage_scene(gl, make_builtin(name))
                     try:
@@ -1274,12 +1300,12 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _save(part: str, scene: str, args: argparse.Namespace, info: dict, runs: Any, seconds: float) -> None:
+    """Write a part's runs with its arguments and the shadow maps' default bias."""
+    saved = {**{k: v for k, v in vars(args).items() if k != "part"}, "shadow_bias": shadow_bias_of(ShadowSettings())}
     if part == "table8":
-        runs = {**runs, "args": {k: v for k, v in vars(args).items() if k != "part"}}
-        write_json(OUT / f"{part}_{scene}.json", {**runs, "seconds": seconds})
+        write_json(OUT / f"{part}_{scene}.json", {**runs, "args": saved, "seconds": seconds})
         return
-    write_json(OUT / f"{part}_{scene}.json", {"args": {k: v for k, v in vars(args).items() if k != "part"},
-                                              "runs": runs, "seconds": seconds})
+    write_json(OUT / f"{part}_{scene}.json", {"args": saved, "runs": runs, "seconds": seconds})
 
 
 if __name__ == "__main__":

@@ -501,3 +501,39 @@ def test_subpixel_shifted_moves_the_image_centre_by_the_shift():
     np.testing.assert_allclose(cam.project(target)[0], [[32.0, 24.0]], atol=1e-6)
     for (dx, dy), moved in (((0.5, 0.0), (31.5, 24.0)), ((0.0, 0.5), (32.0, 24.5)), ((0.5, 0.5), (31.5, 24.5))):
         np.testing.assert_allclose(subpixel_shifted(cam, dx, dy).project(target)[0], [moved], atol=0.01)
+
+
+def test_shadow_bias_choice_by_hand():
+    """bench.shadow_bias.choose: the least worst ratio to each scene's lowest
+    visibility error over the grid, among settings without acne."""
+    from bench.shadow_bias import bias_report, choose, setting_key
+    from gl_passes.shadows import ShadowSettings
+
+    def sweep(values: dict[str, float], acne: dict[str, list[int]]) -> dict:
+        return {"sweep_k": 4, "k": 16, "final": {},
+                "sweep": {k: {"visibility_mean": v, "intensity_mean": v / 2, "acne_degrees": acne.get(k, [])}
+                          for k, v in values.items()}}
+
+    x, y, z = "0.5/1/0", "0.25/1/0", "0.25/1/0.5"
+    acne = {x: [80, 88]}
+    bias = {"a": sweep({x: 1.0, y: 1.2, z: 1.1}, acne), "b": sweep({x: 2.0, y: 2.0, z: 3.0}, acne)}
+    # x is best on both scenes but has acne; y: worst 1.2 / 1.0; z: 3.0 / 2.0 = 1.5
+    assert choose(bias) == (y, 1.2)
+    assert choose({s: sweep({x: 1.0}, acne) for s in "ab"}) is None
+    default = setting_key(ShadowSettings())
+    assert setting_key(ShadowSettings(normal_offset=0.125, depth_bias=1.0, depth_slope=0.5)) == "0.125/1/0.5"
+    part = {s: {"runs": r} for s, r in bias.items()}
+    text = "\n".join(bias_report(part))
+    assert f"is NOT the choice of this sweep ({y}, worst 1.20)" in text and "80°, 88°" in text
+    chosen = {s: {"runs": sweep({default: v, x: v * 0.9}, acne)} for s, v in (("a", 1.0), ("b", 2.0))}
+    assert f"bias ({default}) is the choice" in "\n".join(bias_report(chosen))
+
+
+def test_soft_shadow_parts_name_their_shadow_bias():
+    """A saved part names the shadow-map bias it ran with; runs saved before the
+    bias was recorded ran with bench.shadow_bias.PREVIOUS."""
+    from bench.soft_shadows import _bias_key
+
+    assert _bias_key({"args": {}}) == "0.75/1/0"
+    assert _bias_key({"args": {"shadow_bias": {"normal_offset": 0.125, "depth_bias": 1.0,
+                                               "depth_slope": 0.5}}}) == "0.125/1/0.5"

@@ -5,9 +5,11 @@
 //   * s on or behind P's tangent plane (dot(n, s - P) <= 0): not visible (the rule
 //     shared with the Embree reference);
 //   * bias: P is moved u_normal_offset texels along n, and is lit when its light-space
-//     depth is at most the map's depth + u_depth_bias texels, where one texel is the
-//     world size of a shadow-map texel at P's depth along the light's axis
-//     (u_light[i].w * depth); depths are linear (eye-space z of the light camera);
+//     depth is at most the map's depth + (u_depth_bias + u_depth_slope * tan t) texels,
+//     t the angle between n and the direction to s (tan t clamped at MAX_TAN_T): a
+//     surface tilted by t from s changes depth by tan t texels across one texel. One
+//     texel is the world size of a shadow-map texel at P's depth along the light's
+//     axis (u_light[i].w * depth); depths are linear (eye-space z of the light camera);
 //   * P outside the map, or in front of an empty texel: lit (nothing occludes it).
 // Each invocation owns one point's words, so no atomics are needed.
 layout(local_size_x = 64) in;
@@ -28,6 +30,10 @@ uniform int u_res;                         // texels per map side
 uniform uint u_n_points;
 uniform float u_normal_offset;            // texels
 uniform float u_depth_bias;                // texels
+uniform float u_depth_slope;               // texels per unit tan t
+
+// tan t at which the slope-scaled depth bias stops growing (t = 89.4 degrees).
+const float MAX_TAN_T = 100.0;
 
 float linear_depth(float d, vec2 nf) {
     float z_ndc = 2.0 * d - 1.0;
@@ -38,6 +44,8 @@ bool lit(vec3 p, vec3 n, int i) {
     vec3 s = u_light[i].xyz;
     if (dot(n, s - p) <= 0.0) return false;
     float texel = u_light[i].w * dot(p - s, u_forward);
+    float cos_t = dot(n, normalize(s - p));
+    float tan_t = min(sqrt(max(1.0 - cos_t * cos_t, 0.0)) / cos_t, MAX_TAN_T);
     vec3 q = p + n * (u_normal_offset * texel);
     vec4 c = u_light_vp[i] * vec4(q, 1.0);
     if (c.w <= 0.0) return true;
@@ -47,7 +55,7 @@ bool lit(vec3 p, vec3 n, int i) {
     xy += ivec2(i % u_tiles, i / u_tiles) * u_res;
     float d = texelFetch(u_depth, xy, 0).r;
     if (d >= 1.0) return true;
-    return c.w <= linear_depth(d, u_clip[i]) + u_depth_bias * texel;
+    return c.w <= linear_depth(d, u_clip[i]) + (u_depth_bias + u_depth_slope * tan_t) * texel;
 }
 
 void main() {
