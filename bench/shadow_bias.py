@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from bench.common import md_table, progress
-from bench.shadow_stage import Stage
+from bench.shadow_stage import Stage, unpack_visibility
 from gl_passes.context import GLContext
 from gl_passes.mesh_gpu import MeshGPU
 from gl_passes.shadows import ShadowSettings, SoftShadowPass
@@ -91,9 +91,7 @@ def grazing_lit(gl: GLContext, settings: ShadowSettings, degrees: float) -> tupl
     with MeshGPU.from_arrays(gl, quad, [[0, 1, 2], [0, 2, 3]]) as mesh, SoftShadowPass(gl, s) as sp:
         r = sp.visibility([mesh], (quad.min(0) - 0.01, quad.max(0) + 0.01), points, normals,
                           np.ones((n, n), bool), light)
-    words = r.bits.reshape(-1, 1)
-    lit = ((words >> np.arange(GRAZING_K**2, dtype=np.uint32)) & 1).astype(bool)
-    return lit, front
+    return unpack_visibility(r.bits.reshape(n * n, -1), GRAZING_K**2), front
 
 
 def grazing_wrong(gl: GLContext, settings: ShadowSettings) -> list[int]:
@@ -121,25 +119,24 @@ def part_bias(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str, A
     return {"sweep_k": args.sweep_k, "k": args.k, "sweep": sweep, "final": final}
 
 
+def worst_ratios(bias: dict[str, dict[str, Any]]) -> dict[str, float]:
+    """Per setting measured on every scene of `bias` (scene → part_bias runs): the
+    largest over scenes of its mean visibility error / that scene's lowest among them."""
+    keys = set.intersection(*(set(r["sweep"]) for r in bias.values()))
+    best = {s: min(r["sweep"][key]["visibility_mean"] for key in keys) for s, r in bias.items()}
+    return {key: max(r["sweep"][key]["visibility_mean"] / best[s] for s, r in bias.items()) for key in keys}
+
+
 def choose(bias: dict[str, dict[str, Any]]) -> tuple[str, float] | None:
-    """(key, worst ratio): among the settings measured on every scene of `bias`
-    (scene → part_bias runs) without acne, the one with the least maximum over scenes
-    of mean visibility error / that scene's lowest (over the whole grid); None when
-    no setting is free of acne."""
-    scenes = sorted(bias)
-    keys = set.intersection(*(set(bias[s]["sweep"]) for s in scenes))
-    best = {s: min(bias[s]["sweep"][key]["visibility_mean"] for key in keys) for s in scenes}
-    clean = [key for key in sorted(keys) if not bias[scenes[0]]["sweep"][key]["acne_degrees"]]
+    """(key, worst ratio): among the settings without acne, the one of the least
+    `worst_ratios`; None when no setting is free of acne."""
+    worst = worst_ratios(bias)
+    first = next(iter(bias.values()))["sweep"]
+    clean = [key for key in sorted(worst) if not first[key]["acne_degrees"]]
     if not clean:
         return None
-    worst = {key: max(bias[s]["sweep"][key]["visibility_mean"] / best[s] for s in scenes) for key in clean}
     key = min(clean, key=lambda key: (worst[key], key))
     return key, worst[key]
-
-
-def _worst(bias: dict[str, dict[str, Any]], key: str) -> float:
-    best = {s: min(r["visibility_mean"] for r in bias[s]["sweep"].values()) for s in bias}
-    return max(bias[s]["sweep"][key]["visibility_mean"] / best[s] for s in bias)
 
 
 def _iv(e: dict[str, Any]) -> str:
@@ -156,17 +153,18 @@ def bias_report(part: dict[str, dict[str, Any]]) -> list[str]:
     scenes = sorted(bias)
     first = bias[scenes[0]]
     picked = choose(bias)
+    worst = worst_ratios(bias)
     default, previous = setting_key(ShadowSettings()), setting_key(PREVIOUS)
-    keys = sorted(first["sweep"], key=lambda key: (_worst(bias, key), key))
+    keys = sorted(worst, key=lambda key: (worst[key], key))
     clean = [key for key in keys if not first["sweep"][key]["acne_degrees"]]
-    shown = [key for key in dict.fromkeys([*clean[:5], *keys[:3], previous, default]) if key in first["sweep"]]
+    shown = [key for key in dict.fromkeys([*clean[:5], *keys[:3], previous, default]) if key in worst]
 
     def row(key: str) -> list[str]:
         no, db, ds = key.split("/")
         acne = ", ".join(f"{d}°" for d in first["sweep"][key]["acne_degrees"]) or "none"
         label = " (previous)" if key == previous else " (default)" if key == default else ""
         return [f"{no} / {db} / {ds}{label}", acne, *(_iv(bias[s]["sweep"][key]) for s in scenes),
-                f"{_worst(bias, key):.2f}"]
+                f"{worst[key]:.2f}"]
 
     lines = ["## Shadow-map bias against the exact truth (geometry shadow maps)", "",
              f"`bench.shadow_bias`: the geometry shadow maps' mean intensity · visibility error against the "
@@ -184,8 +182,7 @@ def bias_report(part: dict[str, dict[str, Any]]) -> list[str]:
     if picked is None:
         lines.append("No setting of the grid is free of acne; the default is not chosen by this part.")
     elif picked[0] == default:
-        before = (f" (the previous default: {(_worst(bias, previous) - 1) * 100:.0f} %)"
-                  if previous in first["sweep"] else "")
+        before = f" (the previous default: {(worst[previous] - 1) * 100:.0f} %)" if previous in worst else ""
         lines.append(f"The default `ShadowSettings` bias ({default}) is the choice: without acne, every scene within "
                      f"{(picked[1] - 1) * 100:.0f} % of its lowest visibility error in the grid{before}.")
     else:
