@@ -48,8 +48,9 @@
   into two triangles unless a depth discontinuity separates them
   (shaders/reconstruct_grid.comp); isolated samples give nothing.
 * Compact reconstruction (beyond the thesis): each image's hybrid mesh
-  simplified by meshoptimizer with an absolute geometric error bound of
-  `compact_error` pixel footprints at the image's median sample depth; borders
+  simplified by meshoptimizer with an absolute error bound of `compact_error`
+  measured in the capturing image (`image_space`: pixels across it, and in depth
+  one footprint at the median sample depth, the nearer the tighter); borders
   and discontinuities stay where they are up to that bound (edge collapses keep
   the mesh's topology, so no surface is joined across a discontinuity).
 
@@ -87,6 +88,8 @@ Reconstruction = Literal["hybrid", "grid", "compact"]
 SamplingMethod = Literal["non_redundant", "conventional", "peeling"]
 RECONSTRUCTIONS: tuple[str, ...] = ("hybrid", "grid", "compact")
 SAMPLING_METHODS: tuple[str, ...] = ("non_redundant", "conventional", "peeling")
+CompactMeasure = Literal["image", "world"]
+COMPACT_MEASURES: tuple[str, ...] = ("image", "world")
 
 #: Most earlier images a hybrid reconstruction takes as evidence (reconstruct_evidence.glsl).
 MAX_EVIDENCE = 15
@@ -110,13 +113,16 @@ class ReconstructionSettings:
     same-surface neighbours share their tangent-plane corners. evidence: corners
     are pulled in where an earlier image of the set saw past them, judged with
     evidence_tolerance of that image's pixel footprints (see the module docstring).
-    compact_error: the compact mesh's absolute error bound, in pixel footprints at
-    the image's median depth. fetch_order: vertices in first-use order (`fetch_order`;
-    the same mesh, drawn faster). evidence_pull: the share of the evidence rule's
-    move a corner makes (1: to the expected edge, 0: none; a diagnostic, the gap
-    tables). offset_quads: a diagnostic (tried, not kept; the
-    soft-shadow report's gap tables): > 0, an H sample that no sample of I takes as a
-    corner becomes a quad of its own, ± offset_quads pixels around its pixel corner.
+    compact_error: the compact mesh's absolute error bound, in pixels of the image
+    across it and footprints at the median depth along it (`image_space`).
+    compact_measure: "image" (that) or "world" (a diagnostic, the measure before:
+    world units, compact_error footprints at the median depth in every direction).
+    fetch_order: vertices in first-use order (`fetch_order`; the same mesh, drawn
+    faster). evidence_pull: the share of the evidence rule's move a corner makes
+    (1: to the expected edge, 0: none; a diagnostic, the gap tables). offset_quads:
+    a diagnostic (tried, not kept; the soft-shadow report's gap tables): > 0, an H
+    sample that no sample of I takes as a corner becomes a quad of its own,
+    ± offset_quads pixels around its pixel corner.
     offset_evidence: a diagnostic (tried, not kept; the gap tables): the share of
     the move a tangent-plane corner makes toward the middle of its samples and
     itself where H's own ray at that corner saw past it (0: none; 1: to the middle,
@@ -132,6 +138,7 @@ class ReconstructionSettings:
     evidence: bool = True
     evidence_tolerance: float = 2.0
     compact_error: float = 0.4
+    compact_measure: CompactMeasure = "image"
     fetch_order: bool = True
     evidence_pull: float = 1.0
     offset_quads: float = 0.0
@@ -148,6 +155,8 @@ class ReconstructionSettings:
             raise ValueError(f"evidence_pull must be within [0, 1], got {self.evidence_pull!r}")
         if not 0.0 <= self.offset_evidence <= 1.0:
             raise ValueError(f"offset_evidence must be within [0, 1], got {self.offset_evidence!r}")
+        if self.compact_measure not in COMPACT_MEASURES:
+            raise ValueError(f"compact_measure must be one of {COMPACT_MEASURES}, got {self.compact_measure!r}")
         if not 0.0 <= self.offset_quads <= 0.5:
             raise ValueError(f"offset_quads must be within [0, 0.5] pixels, got {self.offset_quads!r}")
 
@@ -349,17 +358,21 @@ class Reconstructor(Releasable):
         return self._mesh(vbo, ibo, counters, settings, n_vertices=w * h)
 
     def compact(self, mesh: MeshGPU, image: DepthImage, settings: ReconstructionSettings) -> MeshGPU:
-        """`mesh` (a hybrid reconstruction of `image`) simplified with an absolute
-        error ≤ compact_error pixel footprints at the image's median sample depth."""
+        """`mesh` (a hybrid reconstruction of `image`) simplified with an error ≤
+        compact_error in the image's own measure (`image_space`): pixels across
+        the image, and the matching depth error."""
         self.gl.check_thread()
         records, tri = mesh.read_records()
         if len(tri) == 0:
             return MeshGPU.from_records(self.gl, records, tri)
         cam = image.camera
-        depth = float(np.median(image.depth[image.mask]))
-        bound = settings.compact_error * depth * 2 * np.tan(np.radians(cam.fov) / 2) / cam.height
         records, tri = canonical_order(records, tri, cam)  # the same mesh gives the same simplification
-        simplified = simplify(records[:, :3], tri, bound)
+        median = float(np.median(image.depth[image.mask]))
+        if settings.compact_measure == "image":
+            simplified = simplify(image_space(records[:, :3], cam, median), tri, settings.compact_error)
+        else:
+            footprint = median * 2 * np.tan(np.radians(cam.fov) / 2) / cam.height
+            simplified = simplify(records[:, :3], tri, settings.compact_error * footprint)
         if settings.fetch_order:
             records, indices = fetch_order(records, simplified)
         else:
@@ -442,9 +455,21 @@ def canonical_order(records: np.ndarray, triangles: np.ndarray, camera: Camera) 
     return ordered, t.astype(np.uint32)
 
 
+def image_space(positions: np.ndarray, camera: Camera, median_depth: float) -> np.ndarray:
+    """(N,3) float32 coordinates of world `positions` (N,3) in which the compact
+    reconstruction's error is measured: pixel x, y of `camera`'s image and
+    median_depth / (f·d), d the eye depth and f·d the pixel footprint at d. The map
+    is projective, so a plane stays a plane and a triangle's error is measured on
+    the triangle drawn; a unit is one pixel across the image at any depth and, in
+    depth, one footprint at the median depth (Δd ≤ e·(f·d)·d/median_depth at d)."""
+    px, d = camera.project(np.asarray(positions, np.float64))
+    f = 2 * np.tan(np.radians(camera.fov) / 2) / camera.height
+    return np.column_stack([px, median_depth / (f * d)]).astype(np.float32)
+
+
 def simplify(positions: np.ndarray, triangles: np.ndarray, max_error: float) -> np.ndarray:
     """(M',3) uint32 triangles of the mesh simplified by meshoptimizer with an
-    absolute error ≤ max_error (world units), as few triangles as that allows."""
+    absolute error ≤ max_error (in the units of `positions`), as few triangles as that allows."""
     idx = np.ascontiguousarray(triangles, np.uint32).ravel()
     pos = np.ascontiguousarray(positions, np.float32)
     out = np.empty_like(idx)
@@ -550,7 +575,7 @@ def _empty_glb() -> bytes:
 
 
 def mesh_arrays(mesh: MeshGPU) -> tuple[np.ndarray, np.ndarray]:
-    """(positions (N,3) float32, triangles (M,3) uint32) of a MeshGPU (for tests)."""
+    """(positions (N,3) float32, triangles (M,3) uint32) of a MeshGPU (tests, benchmarks)."""
     pos, _, tri = mesh.read()
     return pos, tri
 

@@ -391,11 +391,13 @@ def test_compact_keeps_the_surface_within_its_bound(gl):
     ss, [(cpos, ctri)] = reconstruct(gl, scene, [cam], settings=ReconstructionSettings(kind="compact"))
     assert len(ctri) < len(htri) / 4
     img = ss.images[0]
-    footprint = np.median(img.depth[img.mask]) * 2 * np.tan(np.radians(cam.fov) / 2) / cam.height
-    bound = ReconstructionSettings().compact_error * footprint
+    e = ReconstructionSettings().compact_error  # pixels across the image, median footprints in depth
+    f = 2 * np.tan(np.radians(cam.fov) / 2) / cam.height  # footprint per unit depth
+    median = float(np.median(img.depth[img.mask]))
     # Every compact vertex is one of the hybrid mesh's vertices...
     assert np.isin(cpos.view("V12").ravel(), hpos.view("V12").ravel()).all()
-    # ...and the compact surface stays within the bound of the hybrid one along the camera's rays.
+    # ...the compact surface stays within the bound of the hybrid one along the camera's rays:
+    # e in image_space's depth coordinate median/(f·d) is a depth error of e·f·d²/median at depth d...
     obj = SceneObject("c", cpos.astype(np.float64), ctri.astype(np.int64), material=Material((1, 1, 1)))
     hobj = SceneObject("h", hpos.astype(np.float64), htri.astype(np.int64), material=Material((1, 1, 1)))
     d = cam.pixel_directions().reshape(-1, 3)
@@ -403,8 +405,19 @@ def test_compact_keeps_the_surface_within_its_bound(gl):
     th = RayCaster(Scene([hobj])).intersect(np.broadcast_to(cam.eye, d.shape), d, cull_back_faces=False).t
     both = np.isfinite(tc) & np.isfinite(th)
     assert both.sum() > 0.9 * img.n_samples
-    err = np.abs(tc[both] - th[both]) * np.abs(d[both] @ cam.basis()[2])
-    assert np.quantile(err, 0.99) <= 3 * bound  # distance along a ray ≥ the normal distance
+    cos = np.abs(d[both] @ cam.basis()[2])
+    depth = th[both] * cos
+    err = np.abs(tc[both] - th[both]) * cos
+    assert np.quantile(err / (e * f * depth**2 / median), 0.99) <= 3  # distance along a ray ≥ the normal one
+    # ...and its outline moves less than a pixel across the image: a pixel centre covered by one
+    # mesh and not the other lies next to (8-neighbourhood) a change of the hybrid's coverage.
+    hc, cc = (np.isfinite(t).reshape(cam.height, cam.width) for t in (th, tc))
+    padded = np.pad(hc, 1, mode="edge")
+    window = np.stack([padded[1 + dy:1 + dy + cam.height, 1 + dx:1 + dx + cam.width]
+                       for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
+    near_outline = window.any(axis=0) & ~window.all(axis=0)
+    flipped = hc != cc
+    assert flipped.any() and not (flipped & ~near_outline).any()
 
 
 def test_canonical_order_depends_on_the_mesh_alone():
