@@ -39,7 +39,10 @@ joins whatever is there):
            k = --sweep-k);
   bias     the shadow maps' bias: the geometry shadow maps against the exact truth
            over a grid of settings, and acne on a tilted plane (`bench.shadow_bias`,
-           k = --sweep-k; the previous default and the default again at k = --k).
+           k = --sweep-k; the previous default and the default again at k = --k);
+  compact  the compact reconstruction's error bound: triangles and visibility error
+           over the hybrid's per bound (`bench.shadow_compact`, k = --k); Fig. 20
+           times every bound too, for its crossover.
 
     python -m bench.soft_shadows --part table8 --scenes nest,grass,city,tree
     python -m bench.soft_shadows --report-only
@@ -61,6 +64,7 @@ import numpy as np
 from bench.common import RESULTS_DIR, machine_info, machine_markdown, md_table, progress, write_json, write_text
 from bench.shadow_bias import PREVIOUS, bias_report, part_bias, setting_key, shadow_bias_of
 from bench.shadow_budget import budget_criterion_row, budget_report, part_budget, part_widths
+from bench.shadow_compact import BOUNDS, bound_key, compact_report, crossover_of, part_compact, pieces
 from bench.shadow_holes import holes_report, part_holes
 from bench.shadow_stage import (
     Stage,
@@ -93,7 +97,7 @@ from scenes.shading import area_light_shade
 OUT = RESULTS_DIR / "soft_shadows"
 SCENES = ("nest", "grass", "city", "tree")
 PARTS = ("table8", "table9", "table10", "fig20", "peeling", "layered", "gap", "holes", "budget", "widths",
-         "bias")
+         "bias", "compact")
 #: The thesis's Table 8 (intensity mean/max, visibility mean/max) for NR, conventional, peeling.
 THESIS_TABLE8 = {
     "nest": {"non_redundant": (3.00, 106, 6.31, 110), "conventional": (5.62, 179, 7.72, 179),
@@ -394,12 +398,14 @@ def part_fig20(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def fig20_level(gl: GLContext, detail: float, ref_res: int, shadow_res: int) -> dict[str, Any]:
-    """One Fig. 20 level: the original and the reconstructions (hybrid, compact, and
-    hybrid with its vertices in generation order) timed in turn FIG20_ROUNDS times,
-    each kind's fastest round kept."""
+    """One Fig. 20 level: the original and the reconstructions (hybrid, compact, the
+    compact one at the other bounds of `bench.shadow_compact.BOUNDS`, and hybrid
+    with its vertices in generation order) timed in turn FIG20_ROUNDS times, each
+    kind's fastest round kept."""
     from scenes.builtin import make_builtin
 
     k = FIG20_K
+    other_bounds = [b for b in BOUNDS if b != ReconstructionSettings().compact_error]
     scene = make_builtin("grass", detail=detail)
     st = stage_scene(gl, scene)
     light = default_area_light(scene.bounds, scene.sun_direction)
@@ -416,21 +422,29 @@ def fig20_level(gl: GLContext, detail: float, ref_res: int, shadow_res: int) -> 
             # the same hybrid meshes with their vertices in the order the compute passes wrote them
             occluders["hybrid_generation_order"] = reconstruct_set(gl, sampled,
                                                                    ReconstructionSettings(fetch_order=False))
+            for b in other_bounds:
+                occluders[f"compact {bound_key(b)}"] = reconstruct_set(
+                    gl, sampled, ReconstructionSettings(kind="compact", compact_error=b))
             sp.visibility([st.gpu], scene.bounds, st.points, st.normals, st.mask, light)  # warm-up
             best = dict.fromkeys(occluders, np.inf)
             for _ in range(FIG20_ROUNDS):
                 for kind, occ in occluders.items():
                     best[kind] = min(best[kind], _shadow_seconds(sp, occ, st, light))
         rec = {kind: {"triangles": sum(m.n_triangles for m in occluders[kind]),
-                      "seconds_per_map": best[kind] / k**2, "reconstruction_seconds": rec_seconds[kind]}
+                      "seconds_per_map": best[kind] / k**2, "reconstruction_seconds": rec_seconds[kind],
+                      **pieces(occluders[kind])}
                for kind in ("hybrid", "compact")}
+        bounds = {bound_key(b): {"triangles": sum(m.n_triangles for m in occluders[f"compact {bound_key(b)}"]),
+                                 "seconds_per_map": best[f"compact {bound_key(b)}"] / k**2} for b in other_bounds}
         return {"detail": detail, "triangles": scene.n_triangles,
                 "geometry_seconds_per_map": best["geometry"] / k**2,
-                "hybrid_generation_order_seconds_per_map": best["hybrid_generation_order"] / k**2, **rec}
+                "hybrid_generation_order_seconds_per_map": best["hybrid_generation_order"] / k**2, **rec,
+                "compact_bounds": bounds}
     finally:
-        for kind in ("hybrid", "compact", "hybrid_generation_order"):
-            for m in occluders.get(kind, []):
-                m.release()
+        for kind, meshes in occluders.items():
+            if kind != "geometry":
+                for m in meshes:
+                    m.release()
         st.gpu.release()
 
 
@@ -484,17 +498,9 @@ def load_parts() -> dict[str, dict[str, Any]]:
 
 def crossover(levels: list[dict[str, Any]], kind: str) -> float | None:
     """Original triangle count where the geometry's time per shadow map reaches the
-    reconstruction's (linear interpolation between measured levels); None if never."""
-    prev = None
-    for lv in levels:
-        diff = lv["geometry_seconds_per_map"] - lv[kind]["seconds_per_map"]
-        if diff >= 0:
-            if prev is None:
-                return float(lv["triangles"])
-            (t0, d0), t1 = prev, lv["triangles"]
-            return float(t0 + (t1 - t0) * (-d0) / (diff - d0))
-        prev = (lv["triangles"], diff)
-    return None
+    `kind` reconstruction's (`bench.shadow_compact.crossover_of`); None if never."""
+    return crossover_of([(lv["triangles"], lv["geometry_seconds_per_map"], lv[kind]["seconds_per_map"])
+                         for lv in levels])
 
 
 def fig20_plot(levels: list[dict[str, Any]], path: Path) -> None:
@@ -1071,6 +1077,18 @@ def _bias_key(saved: dict[str, Any]) -> str:
     return setting_key(ShadowSettings(**b) if b else PREVIOUS)
 
 
+def compact_key() -> str:
+    """'bound measure' of the default compact reconstruction (e.g. '0.4 image')."""
+    settings = ReconstructionSettings()
+    return f"{settings.compact_error:g} {settings.compact_measure}"
+
+
+def _compact_key(saved: dict[str, Any]) -> str:
+    """The compact reconstruction's bound a part was run with (runs saved before it
+    was recorded used 0.4 in the world measure)."""
+    return saved["args"].get("compact_bound", "0.4 world")
+
+
 def gpu_section(cpu_t8: dict[str, Any]) -> list[str]:
     """Markdown: Table 11 and Fig. 20 on the GPU machine (OUT_GPU), and how far its
     Table 8 errors are from this machine's; [] when nothing was measured there."""
@@ -1099,8 +1117,13 @@ def gpu_section(cpu_t8: dict[str, Any]) -> list[str]:
         lines += ["", table11(t8), ""]
     f20 = OUT_GPU / "fig20_grass.json"
     if f20.exists():
-        lv = json.loads(f20.read_text())["runs"]["levels"]
-        lines += ["Fig. 20 there (the same levels and timing):", "", fig20_table(lv), "", *crossover_lines(lv), "",
+        saved = json.loads(f20.read_text())
+        lv = saved["runs"]["levels"]
+        old = "" if _compact_key(saved) == compact_key() else (
+            f" Its compact meshes are simplified with the bound {_compact_key(saved)} (bound, measure), not this "
+            f"machine's {compact_key()}.")
+        lines += [f"Fig. 20 there (the same levels and timing).{old}", "", fig20_table(lv), "",
+                  *crossover_lines(lv), "",
                   "![Fig. 20 on the GPU](soft_shadows_gpu/fig20.png)", ""]
         fig20_plot(lv, OUT_GPU / "fig20.png")
     return lines
@@ -1117,13 +1140,20 @@ def write_report(data: dict[str, dict[str, Any]], info: dict[str, Any] | None) -
              "(normal offset / depth bias / slope-scaled depth bias: " + setting_key(ShadowSettings()) + " texels, "
              "chosen against the exact truth: the bias section) (`gl_passes.shadows`); hybrid "
              "reconstruction with the defaults of `ReconstructionSettings` (tangent-plane corners clamped at 2 "
-             "pixel footprints; depth gate, joined corners and evidence on, for every set alike). Errors in "
+             "pixel footprints; depth gate, joined corners and evidence on, for every set alike); compact: that mesh "
+             "simplified with the error bound " + compact_key() + " (bound, measure: the compact bound section). "
+             "Errors in "
              "cells: intensity mean/max · visibility mean/max over the output pixels that hold a surface "
              "(§3.4.2), in light samples.", ""]
     stale = sorted({part for part, scenes in data.items() if part != "bias"  # its settings are explicit
                     for saved in scenes.values() if _bias_key(saved) != setting_key(ShadowSettings())})
     if stale:
         lines += [f"Measured with another shadow-map bias than the default (to run again): {', '.join(stale)}.", ""]
+    stale = sorted({part for part in ("table8", "fig20") for saved in data[part].values()
+                    if _compact_key(saved) != compact_key()})
+    if stale:
+        lines += [f"Measured with another compact bound than the default {compact_key()} (to run again): "
+                  f"{', '.join(stale)}.", ""]
     if info:
         lines += ["## Machine", "", machine_markdown(info), "",
                   "The machine is shared (2 cores): timings (Table 11, Fig. 20) are one run's, not medians of quiet "
@@ -1211,6 +1241,9 @@ def write_report(data: dict[str, dict[str, Any]], info: dict[str, Any] | None) -
     lines += holes_report(data["holes"])
     lines += budget_report(data["budget"], data["widths"])
     lines += bias_report(data["bias"])
+    f20 = data["fig20"].get("grass")
+    lines += compact_report(data["compact"], f20["runs"]["levels"] if f20 else None,
+                            ReconstructionSettings().compact_error)
     ly = data["layered"].get("grass")
     if ly:
         r = ly["runs"]
@@ -1226,8 +1259,10 @@ def write_report(data: dict[str, dict[str, Any]], info: dict[str, Any] | None) -
         lines += ["## Fig. 20: shadow-map time against triangle count (grass)", "",
                   f"Milliseconds per shadow map ({f20['args']['shadow_res']}²): the time of {f20['runs']['k'] ** 2} "
                   f"maps (one instanced pass) over {f20['runs']['k'] ** 2}, the fastest of "
-                  f"{f20['runs'].get('rounds', 1)} rounds in which the original and both reconstructions are timed "
-                  f"in turn; NR reconstructions of 4 images at {f20['args']['ref_res']}².", ""]
+                  f"{f20['runs'].get('rounds', 1)} rounds in which the original and the reconstructions are timed "
+                  f"in turn; NR reconstructions of 4 images at {f20['args']['ref_res']}²"
+                  + ("; the compact one also at the other bounds of the compact bound section, timed in the same "
+                     "rounds" if "compact_bounds" in lv[0] else "") + ".", ""]
         lines += [fig20_table(lv), "",
                   "Vertices of the reconstructions are put in first-use order (`fetch_order`, meshoptimizer's "
                   "vertex-fetch optimisation, as the models' own vertices already are); \"generation order\" is "
@@ -1281,7 +1316,7 @@ def main(argv: list[str] | None = None) -> int:
                     continue
                 fn = {"table8": part_table8, "table9": part_table9, "table10": part_table10,
                       "peeling": part_peeling, "gap": part_gap, "holes": part_holes,
-                      "budget": part_budget, "bias": part_bias}[part]
+                      "budget": part_budget, "bias": part_bias, "compact": part_compact}[part]
                 for name in args.scenes:
                     st = stage_scene(gl, make_builtin(name))
                     try:
@@ -1301,7 +1336,8 @@ def main(argv: list[str] | None = None) -> int:
 
 def _save(part: str, scene: str, args: argparse.Namespace, info: dict, runs: Any, seconds: float) -> None:
     """Write a part's runs with its arguments and the shadow maps' default bias."""
-    saved = {**{k: v for k, v in vars(args).items() if k != "part"}, "shadow_bias": shadow_bias_of(ShadowSettings())}
+    saved = {**{k: v for k, v in vars(args).items() if k != "part"}, "shadow_bias": shadow_bias_of(ShadowSettings()),
+             "compact_bound": compact_key()}
     if part == "table8":
         write_json(OUT / f"{part}_{scene}.json", {**runs, "args": saved, "seconds": seconds})
         return

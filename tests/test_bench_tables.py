@@ -537,3 +537,60 @@ def test_soft_shadow_parts_name_their_shadow_bias():
     assert _bias_key({"args": {}}) == "0.75/1/0"
     assert _bias_key({"args": {"shadow_bias": {"normal_offset": 0.125, "depth_bias": 1.0,
                                                "depth_slope": 0.5}}}) == "0.125/1/0.5"
+
+
+def test_crossover_and_compact_bound_table_by_hand():
+    """bench.shadow_compact: the crossover interpolates where the original's time
+    reaches the reconstruction's; the bound table names the bounds that keep both
+    of the issue's limits (+10 % visibility error on every scene, crossover < 1 M)."""
+    from bench.shadow_compact import compact_report, crossover_of
+
+    # differences −2 at 0.5 M and +2 at 1.5 M: they meet half way
+    assert crossover_of([(0.5e6, 1.0, 3.0), (1.5e6, 4.0, 2.0)]) == 1.0e6
+    assert crossover_of([(0.5e6, 3.0, 3.0)]) == 0.5e6  # already there at the first level
+    assert crossover_of([(0.5e6, 1.0, 3.0), (1.5e6, 2.0, 3.0)]) is None
+
+    def run(hybrid: float, errs: dict[str, float]) -> dict:
+        runs = {n: {"triangles": 100, "vs_geometry": {"visibility_mean": v}} for n, v in errs.items()}
+        return {"args": {"ref_res": 1024}, "runs": {"k": 16, "runs": {
+            "hybrid": {"triangles": 300, "vs_geometry": {"visibility_mean": hybrid}}, **runs}}}
+
+    def level(tri: int, geometry: float, default: float, other: float) -> dict:
+        return {"detail": 20 if tri == 2_000_000 else 1, "triangles": tri, "geometry_seconds_per_map": geometry,
+                "compact": {"triangles": 7, "seconds_per_map": default},
+                "compact_bounds": {"0.6": {"triangles": 5, "seconds_per_map": other}}}
+
+    compact = {"a": run(1.0, {"0.4": 1.05, "0.6": 1.2}), "b": run(2.0, {"0.4": 2.1, "0.6": 2.1})}
+    # default 0.4: differences −2, +2: crosses at 1.25 M (too late); 0.6: −1, +3: at 0.875 M, but +20 % on a
+    levels = [level(500_000, 1.0, 3.0, 2.0), level(2_000_000, 4.0, 2.0, 1.0)]
+    text = "\n".join(compact_report(compact, levels, 0.4))
+    assert "| 0.4 (default) | 100 · +5.0 % | 100 · +5.0 % | +5.0 % | 7 | 1,250,000 |" in text
+    assert "| 0.6 | 100 · +20.0 % | 100 · +5.0 % | +20.0 % | 5 | 875,000 |" in text
+    assert "on this machine: none." in text
+    compact["a"] = run(1.0, {"0.4": 1.05, "0.6": 1.08})
+    assert "on this machine: 0.6." in "\n".join(compact_report(compact, levels, 0.4))
+    levels[1]["hybrid"] = {"triangles": 40, "pieces": 9, "small_piece_triangles": 30}
+    levels[1]["compact"].update(triangles=20, pieces=9, small_piece_triangles=5)
+    text = "\n".join(compact_report(compact, levels, 0.4))
+    assert "the NR hybrid meshes are 9 separate pieces, 75 % of their triangles" in text
+    assert "9 pieces, 25 % of their triangles in small ones" in text
+
+
+def test_pieces_by_hand(gl):
+    """bench.shadow_compact.pieces: pieces joined through shared vertex indices; a
+    quad is a small piece, a strip of 5 quads (10 triangles) is not."""
+    from bench.shadow_compact import pieces
+    from gl_passes.mesh_gpu import MeshGPU
+
+    quad = np.array([[0, 1, 2], [0, 2, 3]])
+    xs = np.arange(6, dtype=np.float32)
+    strip_pos = np.array([(x, y, 0) for x in xs for y in (0, 1)], np.float32)  # 12 vertices, column pairs
+    strip = np.array([t for i in range(5) for t in ([2 * i, 2 * i + 2, 2 * i + 3], [2 * i, 2 * i + 3, 2 * i + 1])])
+    pos = np.concatenate([np.array([(0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1)], np.float32), strip_pos])
+    meshes = [MeshGPU.from_arrays(gl, pos, np.concatenate([quad, strip + 4])),
+              MeshGPU.from_arrays(gl, pos[:4], quad)]
+    try:
+        assert pieces(meshes) == {"pieces": 3, "small_piece_triangles": 4}
+    finally:
+        for m in meshes:
+            m.release()
