@@ -1101,6 +1101,9 @@ def gpu_section(cpu_t8: dict[str, Any]) -> list[str]:
              *(f"- {part}: measured {m['date']} at commit {m['commit']}: `{m['command']}`"
                for part, m in measured.items()), ""]
     if t8:
+        old = sorted({_compact_key(r) for r in t8.values()} - {compact_key()})
+        compact_note = (f"Its compact meshes are simplified with the bound {', '.join(old)} (bound, measure), not "
+                        f"this machine's {compact_key()}. ") if old else ""
         bias = {_bias_key(r) for r in t8.values()}
         if bias == {_bias_key(r) for r in cpu_t8.values()}:
             diffs = [abs(e[which][key] - cpu_t8[scene]["methods"][method][kind][which][key])
@@ -1109,11 +1112,11 @@ def gpu_section(cpu_t8: dict[str, Any]) -> list[str]:
                      for which in ("vs_geometry", "vs_exact") for key in ("intensity_mean", "visibility_mean")]
             lines.append(f"Table 8's mean errors there differ from this machine's by at most {max(diffs):.3f} "
                          "light samples per pixel (rasterisation and float order), so every verdict above holds "
-                         "there too. Table 11 there (seconds):")
+                         f"there too. {compact_note}Table 11 there (seconds):")
         else:
             lines.append(f"Measured there with the shadow maps' bias {', '.join(sorted(bias))} (normal offset / "
                          "depth bias / depth slope), not this machine's, so its errors are not compared here. "
-                         "Table 11 there (seconds):")
+                         f"{compact_note}Table 11 there (seconds):")
         lines += ["", table11(t8), ""]
     f20 = OUT_GPU / "fig20_grass.json"
     if f20.exists():
