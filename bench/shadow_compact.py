@@ -31,7 +31,7 @@ from bench.common import md_table, progress
 from bench.shadow_stage import Stage
 from gl_passes.context import GLContext
 from gl_passes.mesh_gpu import MeshGPU
-from gl_passes.reconstruction import ReconstructionSettings, mesh_arrays, reconstruct_set, render_set
+from gl_passes.reconstruction import ReconstructionSettings, reconstruct_set, render_set
 from gl_passes.shadows import ShadowSettings, SoftShadowPass
 from reference.shadows import shadow_errors
 from scenes.lights import default_area_light, reference_cameras
@@ -83,11 +83,12 @@ def pieces(meshes: Sequence[MeshGPU]) -> dict[str, int]:
     that keeps the topology cannot merge."""
     n_pieces = small = 0
     for m in meshes:
-        pos, tri = mesh_arrays(m)
+        _, tri = m.read_records()
         if len(tri) == 0:
             continue
+        n = m.n_vertices
         edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]]]).astype(np.int64)
-        graph = coo_matrix((np.ones(len(edges), np.int8), (edges[:, 0], edges[:, 1])), shape=(len(pos), len(pos)))
+        graph = coo_matrix((np.ones(len(edges), np.int8), (edges[:, 0], edges[:, 1])), shape=(n, n))
         _, label = connected_components(graph, directed=False)
         size = np.bincount(label[tri[:, 0]])
         size = size[size > 0]

@@ -405,7 +405,8 @@ def fig20_level(gl: GLContext, detail: float, ref_res: int, shadow_res: int) -> 
     from scenes.builtin import make_builtin
 
     k = FIG20_K
-    other_bounds = [b for b in BOUNDS if b != ReconstructionSettings().compact_error]
+    # the compact meshes at the other bounds, by their occluder names
+    other_bounds = {b: f"compact {bound_key(b)}" for b in BOUNDS if b != ReconstructionSettings().compact_error}
     scene = make_builtin("grass", detail=detail)
     st = stage_scene(gl, scene)
     light = default_area_light(scene.bounds, scene.sun_direction)
@@ -422,9 +423,8 @@ def fig20_level(gl: GLContext, detail: float, ref_res: int, shadow_res: int) -> 
             # the same hybrid meshes with their vertices in the order the compute passes wrote them
             occluders["hybrid_generation_order"] = reconstruct_set(gl, sampled,
                                                                    ReconstructionSettings(fetch_order=False))
-            for b in other_bounds:
-                occluders[f"compact {bound_key(b)}"] = reconstruct_set(
-                    gl, sampled, ReconstructionSettings(kind="compact", compact_error=b))
+            for b, name in other_bounds.items():
+                occluders[name] = reconstruct_set(gl, sampled, ReconstructionSettings(kind="compact", compact_error=b))
             sp.visibility([st.gpu], scene.bounds, st.points, st.normals, st.mask, light)  # warm-up
             best = dict.fromkeys(occluders, np.inf)
             for _ in range(FIG20_ROUNDS):
@@ -434,8 +434,8 @@ def fig20_level(gl: GLContext, detail: float, ref_res: int, shadow_res: int) -> 
                       "seconds_per_map": best[kind] / k**2, "reconstruction_seconds": rec_seconds[kind],
                       **pieces(occluders[kind])}
                for kind in ("hybrid", "compact")}
-        bounds = {bound_key(b): {"triangles": sum(m.n_triangles for m in occluders[f"compact {bound_key(b)}"]),
-                                 "seconds_per_map": best[f"compact {bound_key(b)}"] / k**2} for b in other_bounds}
+        bounds = {bound_key(b): {"triangles": sum(m.n_triangles for m in occluders[name]),
+                                 "seconds_per_map": best[name] / k**2} for b, name in other_bounds.items()}
         return {"detail": detail, "triangles": scene.n_triangles,
                 "geometry_seconds_per_map": best["geometry"] / k**2,
                 "hybrid_generation_order_seconds_per_map": best["hybrid_generation_order"] / k**2, **rec,

@@ -371,8 +371,7 @@ class Reconstructor(Releasable):
         if settings.compact_measure == "image":
             simplified = simplify(image_space(records[:, :3], cam, median), tri, settings.compact_error)
         else:
-            footprint = median * 2 * np.tan(np.radians(cam.fov) / 2) / cam.height
-            simplified = simplify(records[:, :3], tri, settings.compact_error * footprint)
+            simplified = simplify(records[:, :3], tri, settings.compact_error * cam.pixel_footprint * median)
         if settings.fetch_order:
             records, indices = fetch_order(records, simplified)
         else:
@@ -458,13 +457,13 @@ def canonical_order(records: np.ndarray, triangles: np.ndarray, camera: Camera) 
 def image_space(positions: np.ndarray, camera: Camera, median_depth: float) -> np.ndarray:
     """(N,3) float32 coordinates of world `positions` (N,3) in which the compact
     reconstruction's error is measured: pixel x, y of `camera`'s image and
-    median_depth / (f·d), d the eye depth and f·d the pixel footprint at d. The map
-    is projective, so a plane stays a plane and a triangle's error is measured on
-    the triangle drawn; a unit is one pixel across the image at any depth and, in
-    depth, one footprint at the median depth (Δd ≤ e·(f·d)·d/median_depth at d)."""
+    median_depth / (f·d), d the eye depth and f·d the pixel footprint at d
+    (f = camera.pixel_footprint). The map is projective, so a plane stays a plane
+    and a triangle's error is measured on the triangle drawn; a unit is one pixel
+    across the image at any depth and, in depth, one footprint at the median depth
+    (Δd ≤ e·(f·d)·d/median_depth at d)."""
     px, d = camera.project(np.asarray(positions, np.float64))
-    f = 2 * np.tan(np.radians(camera.fov) / 2) / camera.height
-    return np.column_stack([px, median_depth / (f * d)]).astype(np.float32)
+    return np.column_stack([px, median_depth / (camera.pixel_footprint * d)]).astype(np.float32)
 
 
 def simplify(positions: np.ndarray, triangles: np.ndarray, max_error: float) -> np.ndarray:
@@ -575,7 +574,7 @@ def _empty_glb() -> bytes:
 
 
 def mesh_arrays(mesh: MeshGPU) -> tuple[np.ndarray, np.ndarray]:
-    """(positions (N,3) float32, triangles (M,3) uint32) of a MeshGPU (tests, benchmarks)."""
+    """(positions (N,3) float32, triangles (M,3) uint32) of a MeshGPU (for tests)."""
     pos, _, tri = mesh.read()
     return pos, tri
 

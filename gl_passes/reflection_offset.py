@@ -110,7 +110,7 @@ class ReflectionOffsetPass(Releasable):
         r = keyframe.ray_length[flip]
         ok = (np.isfinite(r) | np.isposinf(r)) & (obj > 0)
         cam = keyframe.camera
-        tol = plane_tol * 2 * np.tan(np.radians(cam.fov) / 2) / cam.height
+        tol = plane_tol * cam.pixel_footprint
         tris = grid_indices(pos, nrm, depth, obj, ok, tol)
         ctx = self.gl.ctx
         buf = ctx.buffer(tris.tobytes() if len(tris) else np.zeros(1, np.uint32).tobytes())

@@ -392,7 +392,7 @@ def test_compact_keeps_the_surface_within_its_bound(gl):
     assert len(ctri) < len(htri) / 4
     img = ss.images[0]
     e = ReconstructionSettings().compact_error  # pixels across the image, median footprints in depth
-    f = 2 * np.tan(np.radians(cam.fov) / 2) / cam.height  # footprint per unit depth
+    f = cam.pixel_footprint  # per unit depth
     median = float(np.median(img.depth[img.mask]))
     # Every compact vertex is one of the hybrid mesh's vertices...
     assert np.isin(cpos.view("V12").ravel(), hpos.view("V12").ravel()).all()
