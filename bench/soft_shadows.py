@@ -423,6 +423,10 @@ def fig20_level(gl: GLContext, detail: float, ref_res: int, shadow_res: int) -> 
             # the same hybrid meshes with their vertices in the order the compute passes wrote them
             occluders["hybrid_generation_order"] = reconstruct_set(gl, sampled,
                                                                    ReconstructionSettings(fetch_order=False))
+            # the same meshes with their isolated quads drawn as triangles, not splats
+            for kind in ("hybrid", "compact"):
+                occluders[f"{kind}_triangles"] = reconstruct_set(gl, sampled,
+                                                                 ReconstructionSettings(kind=kind, quad_splats=False))
             for b, name in other_bounds.items():
                 occluders[name] = reconstruct_set(gl, sampled, ReconstructionSettings(kind="compact", compact_error=b))
             sp.visibility([st.gpu], scene.bounds, st.points, st.normals, st.mask, light)  # warm-up
@@ -431,7 +435,9 @@ def fig20_level(gl: GLContext, detail: float, ref_res: int, shadow_res: int) -> 
                 for kind, occ in occluders.items():
                     best[kind] = min(best[kind], _shadow_seconds(sp, occ, st, light))
         rec = {kind: {"triangles": sum(m.n_triangles for m in occluders[kind]),
+                      "splats": sum(m.splats.count for m in occluders[kind] if m.splats),
                       "seconds_per_map": best[kind] / k**2, "reconstruction_seconds": rec_seconds[kind],
+                      "triangles_seconds_per_map": best[f"{kind}_triangles"] / k**2,
                       **pieces(occluders[kind])}
                for kind in ("hybrid", "compact")}
         bounds = {bound_key(b): {"triangles": sum(m.n_triangles for m in occluders[name]),
@@ -513,7 +519,11 @@ def fig20_plot(levels: list[dict[str, Any]], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(6, 4))
     ax.plot(tri, [lv["geometry_seconds_per_map"] * 1e3 for lv in levels], "o-", label="original geometry")
     for kind in ("hybrid", "compact"):
-        ax.plot(tri, [lv[kind]["seconds_per_map"] * 1e3 for lv in levels], "s-", label=f"NR {kind} reconstruction")
+        line, = ax.plot(tri, [lv[kind]["seconds_per_map"] * 1e3 for lv in levels], "s-",
+                        label=f"NR {kind} reconstruction")
+        if all("triangles_seconds_per_map" in lv[kind] for lv in levels):
+            ax.plot(tri, [lv[kind]["triangles_seconds_per_map"] * 1e3 for lv in levels], "--", color=line.get_color(),
+                    alpha=0.6, label=f"NR {kind}, isolated quads as triangles")
     ax.set_xlabel("original triangles (millions), grass")
     ax.set_ylabel("ms per shadow map")
     ax.set_title("Fig. 20: shadow-map time against scene complexity")
@@ -1022,6 +1032,7 @@ def reading(data: dict[str, dict[str, Any]]) -> list[str]:
                 for x in lv if "hybrid_generation_order_seconds_per_map" in x]
         order = (f" Putting the meshes' vertices in first-use order makes their shadow maps "
                  f"{100 * min(gain):.0f}–{100 * max(gain):.0f} % faster (Fig. 20 table)." if gain else "")
+        order += _splat_sentence(lv)
         out.append(f"- The price is triangles: aimed at the scene, grass's NR images hold {hi / lo:.1f}× as many "
                    f"samples ({lo:,} → {hi:,} triangles at detail 1) as aimed along the light's axis, so the "
                    "reconstructions' shadow maps cost more; Fig. 20's crossover is at "
@@ -1029,6 +1040,22 @@ def reading(data: dict[str, dict[str, Any]]) -> list[str]:
                    + " original triangles (the thesis: about 2.5 M, on its GPU)." + order)
     out.append("")
     return out
+
+
+def _splat_sentence(levels: list[dict[str, Any]]) -> str:
+    """How much faster the reconstructions' shadow maps are with their isolated quads
+    as splats (`gl_passes.quad_splats`) than as triangles, over Fig. 20's levels."""
+    parts = []
+    for kind in ("hybrid", "compact"):
+        lv = [x[kind] for x in levels if "triangles_seconds_per_map" in x[kind]]
+        if not lv:
+            return ""
+        gain = [1 - x["seconds_per_map"] / x["triangles_seconds_per_map"] for x in lv]
+        share = [2 * x["splats"] / x["triangles"] for x in lv]
+        parts.append(f"{kind} {100 * min(gain):.0f}–{100 * max(gain):.0f} % "
+                     f"({100 * min(share):.0f}–{100 * max(share):.0f} % of its triangles in isolated quads)")
+    return (" Drawing the isolated quads as splats (one point sprite each, the same texels and depths: "
+            "`gl_passes.quad_splats`) makes the shadow maps faster: " + ", ".join(parts) + ".")
 
 
 def table11(t8: dict[str, Any]) -> str:
@@ -1050,19 +1077,36 @@ def _ms(seconds: float) -> str:
 
 
 def fig20_table(levels: list[dict[str, Any]]) -> str:
-    """Fig. 20's levels: triangles and milliseconds per shadow map of each kind."""
+    """Fig. 20's levels: triangles (splats) and milliseconds per shadow map of each
+    kind, the reconstructions also with their isolated quads drawn as triangles."""
     gen = "hybrid_generation_order_seconds_per_map"
+
+    def kind_cells(x: dict[str, Any], kind: str) -> list[str]:
+        r = x[kind]
+        splats = f" ({r['splats']:,})" if "splats" in r else ""
+        only = _ms(r["triangles_seconds_per_map"]) if "triangles_seconds_per_map" in r else "—"
+        return [f"{r['triangles']:,}{splats}", _ms(r["seconds_per_map"]), only]
+
     rows = [[f"{x['detail']:g}", f"{x['triangles']:,}", _ms(x["geometry_seconds_per_map"]),
-             f"{x['hybrid']['triangles']:,}", _ms(x["hybrid"]["seconds_per_map"]),
-             _ms(x[gen]) if gen in x else "—",
-             f"{x['compact']['triangles']:,}", _ms(x["compact"]["seconds_per_map"])] for x in levels]
-    return md_table(["detail", "original triangles", "ms original", "hybrid triangles", "ms hybrid",
-                     "ms hybrid, generation order", "compact triangles", "ms compact"], rows)
+             *kind_cells(x, "hybrid"), _ms(x[gen]) if gen in x else "—", *kind_cells(x, "compact")] for x in levels]
+    return md_table(["detail", "original triangles", "ms original", "hybrid triangles (splats)", "ms hybrid",
+                     "ms hybrid, triangles only", "ms hybrid, generation order", "compact triangles (splats)",
+                     "ms compact", "ms compact, triangles only"], rows)
 
 
 def crossover_lines(levels: list[dict[str, Any]]) -> list[str]:
-    return [f"- Crossover, NR {kind}: " + (f"{c:,.0f} original triangles." if (c := crossover(levels, kind)) else
-                                          "not reached in the measured range.") for kind in ("hybrid", "compact")]
+    def said(c: float | None) -> str:
+        return f"{c:,.0f} original triangles" if c else "not reached in the measured range"
+
+    out = []
+    for kind in ("hybrid", "compact"):
+        line = f"- Crossover, NR {kind}: {said(crossover(levels, kind))}"
+        if all("triangles_seconds_per_map" in lv[kind] for lv in levels):
+            only = crossover_of([(lv["triangles"], lv["geometry_seconds_per_map"],
+                                  lv[kind]["triangles_seconds_per_map"]) for lv in levels])
+            line += f" (its isolated quads drawn as triangles: {said(only)})"
+        out.append(line + ".")
+    return out
 
 
 #: The same parts measured on a GPU machine (lent for a session): table8_*.json,
@@ -1157,6 +1201,12 @@ def write_report(data: dict[str, dict[str, Any]], info: dict[str, Any] | None) -
     if stale:
         lines += [f"Measured with another compact bound than the default {compact_key()} (to run again): "
                   f"{', '.join(stale)}.", ""]
+    stale = sorted({part for part, scenes in data.items() if part not in ("bias", "layered")  # geometry only
+                    for saved in scenes.values()
+                    if saved["args"].get("quad_splats", False) != ReconstructionSettings().quad_splats})
+    if stale:
+        lines += ["Measured with the reconstructions' isolated quads drawn as triangles, not splats (the same "
+                  f"texels up to the rasteriser's ties; to run again): {', '.join(stale)}.", ""]
     if info:
         lines += ["## Machine", "", machine_markdown(info), "",
                   "The machine is shared (2 cores): timings (Table 11, Fig. 20) are one run's, not medians of quiet "
@@ -1269,7 +1319,10 @@ def write_report(data: dict[str, dict[str, Any]], info: dict[str, Any] | None) -
         lines += [fig20_table(lv), "",
                   "Vertices of the reconstructions are put in first-use order (`fetch_order`, meshoptimizer's "
                   "vertex-fetch optimisation, as the models' own vertices already are); \"generation order\" is "
-                  "the same hybrid meshes as the compute passes wrote them."
+                  "the same hybrid meshes as the compute passes wrote them. Splats: the meshes' isolated quads "
+                  "(pieces of two triangles), drawn as one point sprite each that keeps the quads' texels and "
+                  "depths (`gl_passes.quad_splats`); \"triangles only\" is the same meshes with those quads drawn "
+                  "as triangles (the timing before splats)."
                   + (" Each level is measured in a process of its own: measured in one process after the "
                      "smaller levels, detail 60 drew every mesh, original and reconstructions alike, markedly "
                      "slower than on its own, so the sweep's order rather than the meshes set its times."
@@ -1340,7 +1393,7 @@ def main(argv: list[str] | None = None) -> int:
 def _save(part: str, scene: str, args: argparse.Namespace, info: dict, runs: Any, seconds: float) -> None:
     """Write a part's runs with its arguments and the shadow maps' default bias."""
     saved = {**{k: v for k, v in vars(args).items() if k != "part"}, "shadow_bias": shadow_bias_of(ShadowSettings()),
-             "compact_bound": compact_key()}
+             "compact_bound": compact_key(), "quad_splats": ReconstructionSettings().quad_splats}
     if part == "table8":
         write_json(OUT / f"{part}_{scene}.json", {**runs, "args": saved, "seconds": seconds})
         return

@@ -77,6 +77,7 @@ from gl_passes.bindings import Units
 from gl_passes.context import GLContext
 from gl_passes.depth_images import DepthImageRenderer, prepare_cameras
 from gl_passes.mesh_gpu import VERTEX_BYTES, MeshGPU, pack_colors
+from gl_passes.quad_splats import split_quads
 from gl_passes.releasable import Releasable
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
@@ -118,7 +119,11 @@ class ReconstructionSettings:
     compact_measure: "image" (that) or "world" (a diagnostic, the measure before:
     world units, compact_error footprints at the median depth in every direction).
     fetch_order: vertices in first-use order (`fetch_order`; the same mesh, drawn
-    faster). evidence_pull: the share of the evidence rule's move a corner makes
+    faster). quad_splats: the mesh's isolated quads (pieces of two triangles,
+    at most `quad_splats.SPLAT_PIXELS` across) are put last and drawn as splats
+    in shadow maps (`gl_passes.quad_splats`: the same texels and depths, one vertex
+    and one point per quad instead of four vertices and two triangles; the mesh,
+    its export and its triangle count are the same). evidence_pull: the share of the evidence rule's move a corner makes
     (1: to the expected edge, 0: none; a diagnostic, the gap tables). offset_quads:
     a diagnostic (tried, not kept; the soft-shadow report's gap tables): > 0, an H
     sample that no sample of I takes as a corner becomes a quad of its own,
@@ -140,6 +145,7 @@ class ReconstructionSettings:
     compact_error: float = 0.4
     compact_measure: CompactMeasure = "image"
     fetch_order: bool = True
+    quad_splats: bool = True
     evidence_pull: float = 1.0
     offset_quads: float = 0.0
     offset_evidence: float = 0.0
@@ -230,19 +236,19 @@ class Reconstructor(Releasable):
         set_uniform(prog, "u_e_tol", float(settings.evidence_tolerance))  # both evidence rules' depth test
 
     def _mesh(self, vbo: moderngl.Buffer, ibo: moderngl.Buffer, counters: moderngl.Buffer,
-              settings: ReconstructionSettings, n_vertices: int | None = None) -> MeshGPU:
-        """A MeshGPU from the output buffers, trimmed to the counted size; with
-        settings.fetch_order its vertices in first-use order (`fetch_order`)."""
+              settings: ReconstructionSettings, camera: Camera, n_vertices: int | None = None) -> MeshGPU:
+        """A MeshGPU from the output buffers, trimmed to the counted size; read back
+        and made again by `_upload` where settings.fetch_order or settings.quad_splats."""
         nv, ni = (int(x) for x in np.frombuffer(counters.read(), np.uint32))
         counters.release()
         nv = nv if n_vertices is None else n_vertices
         ctx = self.gl.ctx
-        if settings.fetch_order and ni:
+        if (settings.fetch_order or settings.quad_splats) and ni:
             records = np.frombuffer(vbo.read(size=nv * VERTEX_BYTES), np.float32).reshape(-1, 4)
-            records, indices = fetch_order(records, np.frombuffer(ibo.read(size=ni * 4), np.uint32))
+            indices = np.frombuffer(ibo.read(size=ni * 4), np.uint32)
             vbo.release()
             ibo.release()
-            return MeshGPU.from_records(self.gl, records, indices)
+            return self._upload_mesh(records, indices, camera, settings)
         out = []
         for buf, used in ((vbo, nv * VERTEX_BYTES), (ibo, ni * 4)):
             if used == buf.size:
@@ -254,6 +260,25 @@ class Reconstructor(Releasable):
             buf.release()
             out.append(trimmed)
         return MeshGPU(self.gl, out[0], out[1], nv, ni // 3)
+
+    def _upload_mesh(self, records: np.ndarray, indices: np.ndarray, camera: Camera,
+                     settings: ReconstructionSettings) -> MeshGPU:
+        """The MeshGPU of (N,4) vertex records and their triangles' indices (any
+        shape): with settings.quad_splats its isolated quads last, drawn as splats in
+        shadow maps (`gl_passes.quad_splats`); with settings.fetch_order its vertices
+        in first-use order (`fetch_order`), else in their order, unused ones dropped."""
+        tri = np.asarray(indices, np.uint32).reshape(-1, 3)
+        quads = np.zeros((0, 2, 3), np.uint32)
+        if settings.quad_splats and len(tri):
+            px, _ = camera.project(np.asarray(records[:, :3], np.float64))
+            tri, quads = split_quads(tri, px)
+            tri = np.concatenate([tri, quads.reshape(-1, 3)])
+        if settings.fetch_order:
+            records, tri = fetch_order(records, tri)
+        else:
+            used, tri = np.unique(tri, return_inverse=True)
+            records = records[used]
+        return MeshGPU.from_records(self.gl, records, tri.reshape(-1, 3), quads=len(quads))
 
     @staticmethod
     def _bind_outputs(vbo: moderngl.Buffer, ibo: moderngl.Buffer, counters: moderngl.Buffer) -> None:
@@ -307,7 +332,7 @@ class Reconstructor(Releasable):
         finally:
             for t in (ia, ib, ha, hb, flags, sample_corner, ev):
                 t.release()
-        return self._mesh(vbo, ibo, counters, settings)
+        return self._mesh(vbo, ibo, counters, settings, image.camera)
 
     @staticmethod
     def _set_evidence(prog: moderngl.ComputeShader, evidence: Sequence[DepthImage], complete: Sequence[bool],
@@ -355,7 +380,7 @@ class Reconstructor(Releasable):
         finally:
             ia.release()
             ib.release()
-        return self._mesh(vbo, ibo, counters, settings, n_vertices=w * h)
+        return self._mesh(vbo, ibo, counters, settings, image.camera, n_vertices=w * h)
 
     def compact(self, mesh: MeshGPU, image: DepthImage, settings: ReconstructionSettings) -> MeshGPU:
         """`mesh` (a hybrid reconstruction of `image`) simplified with an error ≤
@@ -372,12 +397,7 @@ class Reconstructor(Releasable):
             simplified = simplify(image_space(records[:, :3], cam, median), tri, settings.compact_error)
         else:
             simplified = simplify(records[:, :3], tri, settings.compact_error * cam.pixel_footprint * median)
-        if settings.fetch_order:
-            records, indices = fetch_order(records, simplified)
-        else:
-            used, indices = np.unique(simplified, return_inverse=True)
-            records = records[used]
-        return MeshGPU.from_records(self.gl, records, indices.reshape(-1, 3))
+        return self._upload_mesh(records, simplified, cam, settings)
 
     def reconstruct(self, image: DepthImage, offset: DepthImage | None, settings: ReconstructionSettings,
                     evidence: Sequence[DepthImage] = (), complete: Sequence[bool] = ()) -> MeshGPU:
@@ -388,8 +408,9 @@ class Reconstructor(Releasable):
             raise ValueError(f"the {settings.kind} reconstruction needs the offset image")
         if settings.kind == "hybrid":
             return self.hybrid(image, offset, settings, evidence, complete)
-        # compact: its input's vertex order is replaced by canonical_order, so none is made here
-        mesh = self.hybrid(image, offset, replace(settings, fetch_order=False), evidence, complete)
+        # compact: its input's vertex order is replaced by canonical_order and its quads
+        # are found after simplifying, so neither is made here
+        mesh = self.hybrid(image, offset, replace(settings, fetch_order=False, quad_splats=False), evidence, complete)
         try:
             return self.compact(mesh, image, settings)
         finally:

@@ -14,7 +14,9 @@ whether s sees P:
    position-only vertex shader (shadow_map.vert), no back-face culling (a
    reconstruction is a one-sided surface whose back faces cast shadows too), and
    depth clamping (an occluder in front of a light camera's near plane, e.g. a
-   reconstruction quad slightly outside `bounds`, still occludes);
+   reconstruction quad slightly outside `bounds`, still occludes). A mesh's
+   isolated quads (`MeshGPU.splats`) are drawn as point sprites that keep the
+   quads' texels and depths (`gl_passes.quad_splats`, shadow_splat.vert/.frag);
 2. `maps_per_draw` maps per draw call: one instance per map into its own tile of a
    depth atlas (clip distances keep each instance in its tile), one batch of
    maps after another;
@@ -56,6 +58,7 @@ from scenes.model import AreaLight
 
 GL_CLIP_DISTANCE0 = 0x3000
 GL_DEPTH_CLAMP = 0x864F
+GL_PROGRAM_POINT_SIZE = 0x8642
 #: Clip distances written by shadow_map.vert with MAPS_PER_DRAW (the tile's four sides).
 N_CLIP_DISTANCES = 4
 #: local_size_x of shadow_lookup.comp, and the most work groups per dispatch row.
@@ -182,18 +185,24 @@ def popcount_words(bits: np.ndarray) -> np.ndarray:
     return _BYTE_BITS[b.view(np.uint8)].sum(axis=-1, dtype=np.uint16)
 
 
-def _draw(occluder: Occluder, prog: moderngl.Program, instances: int,
+def _draw(occluder: Occluder, prog: moderngl.Program, splat_prog: moderngl.Program, instances: int,
           set_first: Callable[[int], None]) -> None:
     """Draw `occluder` `instances` times with `prog`, in one instanced call when its
     draw() takes `instances`, else once per instance (set_first(i) before each);
-    a SceneGPU is told to skip its material uniforms."""
+    a SceneGPU is told to skip its material uniforms; a mesh's splats (`splats`)
+    are drawn with `splat_prog` instead of their quads' triangles."""
     params = inspect.signature(occluder.draw).parameters
     kw = {"materials": False} if "materials" in params else {}
+    splats = getattr(occluder, "splats", None)
+    if splats is not None:
+        kw["quads"] = False
     if "instances" in params or instances == 1:
         if instances > 1:
             kw["instances"] = instances
         set_first(0)
         occluder.draw(prog, **kw)
+        if splats is not None:
+            splats.draw(splat_prog, instances)
         return
     for i in range(instances):
         set_first(i)
@@ -220,6 +229,7 @@ class SoftShadowPass(Releasable):
                              "lower maps_per_draw or shadow_map_resolution")
         instanced = {"MAPS_PER_DRAW": str(self.batch)} if self.batch > 1 else {}
         self.map_prog = program(gl, "shadow_map.vert", "shadow_map.frag", defines=instanced)
+        self.splat_prog = program(gl, "shadow_splat.vert", "shadow_splat.frag", defines=instanced)
         self.lookup_prog = compute_program(gl, "shadow_lookup.comp", defines={
             "MAPS_PER_DRAW": str(self.batch), "WORDS": str(settings.words), **LOOKUP_UNITS.defines()})
         self.atlas = gl.ctx.depth_texture((size, size))
@@ -259,39 +269,44 @@ class SoftShadowPass(Releasable):
 
     @contextmanager
     def _map_state(self) -> Iterator[None]:
-        """Depth test, no culling, depth clamp and the tile clip distances while
-        shadow maps are drawn; restored afterwards."""
+        """Depth test, no culling, depth clamp, point sizes from the splat shader
+        and the tile clip distances while shadow maps are drawn; restored afterwards."""
         ctx = self.gl.ctx
         clips = [GL_CLIP_DISTANCE0 + i for i in range(N_CLIP_DISTANCES)] if self.batch > 1 else []
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE)
         ctx.depth_func = "<"
-        for e in [GL_DEPTH_CLAMP, *clips]:
+        for e in [GL_DEPTH_CLAMP, GL_PROGRAM_POINT_SIZE, *clips]:
             ctx.enable_direct(e)
         try:
             yield
         finally:
-            for e in [GL_DEPTH_CLAMP, *clips]:
+            for e in [GL_DEPTH_CLAMP, GL_PROGRAM_POINT_SIZE, *clips]:
                 ctx.disable_direct(e)
             ctx.disable(moderngl.DEPTH_TEST)
 
     def _render_maps(self, occluders: Sequence[Occluder], cams: ShadowCameras, first: int, count: int) -> None:
         """Maps first..first+count−1 into atlas tiles 0..count−1."""
-        prog = self.map_prog
+        progs = (self.map_prog, self.splat_prog)
         self.fbo.use()
         self.fbo.viewport = (0, 0, *self.atlas.size)
         self.fbo.clear(depth=1.0)
-        prog["u_light_vp"].write(_padded(cams.view_proj, first, count, self.batch))
-        if "u_tile" in prog:
-            prog["u_tile"].write(self.tile_ndc.tobytes())
+        for prog in progs:
+            prog["u_light_vp"].write(_padded(cams.view_proj, first, count, self.batch))
+            if "u_tile" in prog:
+                prog["u_tile"].write(self.tile_ndc.tobytes())
+        # programs are cached per context: another pass may have drawn another atlas size
+        self.splat_prog["u_viewport"].value = tuple(float(x) for x in self.atlas.size)
+        self.splat_prog["u_max_point_size"].value = float(self.gl.ctx.info["GL_POINT_SIZE_RANGE"][1])
 
         def set_first(i: int) -> None:
-            if "u_map0" in prog:
-                prog["u_map0"].value = i
+            for prog in progs:
+                if "u_map0" in prog:
+                    prog["u_map0"].value = i
 
         with self._map_state():
             for occ in occluders:
-                _draw(occ, prog, count, set_first)
+                _draw(occ, self.map_prog, self.splat_prog, count, set_first)
 
     def _lookup(self, cams: ShadowCameras, first: int, count: int, n_points: int) -> None:
         """Set the bits of samples first..first+count−1 for every receiver point."""

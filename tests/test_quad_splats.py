@@ -1,0 +1,153 @@
+"""Quad splats (gl_passes.quad_splats): a reconstruction's isolated quads drawn as
+point sprites in shadow maps keep the quads' texels and depths.
+
+Hand-counted meshes for the search; on llvmpipe, shadow maps of 600 tilted quads
+of about a texel, scattered through the light's frusta (some across the maps'
+edges, so sprites straddle atlas tiles), drawn as triangles and as splats: the
+same texels covered but for at most 1 % of them [0.37 %: texel centres within the
+rasteriser's sub-pixel snapping of the vertices (1/256 texel on llvmpipe) of an
+edge, which the splat's float inside test decides unsnapped; small quads have much
+edge per texel], and within 2e-5 of the depth range in every texel both cover
+[7e-6: float rounding; the shadow lookup's depth bias is a texel, about 1e-3 of
+it], in the instanced atlas and with one map per draw; reconstructions keep their
+triangles.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gl_passes.mesh_gpu import MeshGPU, pack_vertices
+from gl_passes.quad_splats import SPLAT_PIXELS, isolated_quads, quad_corners, split_quads
+from gl_passes.reconstruction import ReconstructionSettings, reconstruct_set, render_set
+from gl_passes.shadows import ShadowSettings, SoftShadowPass
+from gl_passes.upload import SceneGPU
+from scenes.builtin import make_builtin
+from scenes.lights import default_area_light, reference_cameras
+from scenes.model import AreaLight
+from tests.gl_leaks import gl_object_growth
+
+LIGHT = AreaLight((0.0, 6.0, 0.0), (1.0, 0.0, 0.0), (0.0, 0.0, -1.0))
+BOUNDS = (np.array([-2.0, -0.5, -2.0]), np.array([2.0, 0.5, 2.0]))
+
+
+def test_isolated_quads_are_two_triangle_pieces():
+    tri = np.array([
+        [0, 1, 2], [2, 1, 3],                # an isolated quad
+        [4, 5, 6], [6, 5, 7], [6, 7, 8],     # a strip of three triangles
+        [9, 10, 11],                          # a lone triangle
+        [12, 13, 14], [15, 13, 12],          # another quad, diagonal 12–13
+        [16, 17, 18], [18, 17, 16],          # two faces of one triangle: all vertices shared
+    ])
+    assert sorted(map(sorted, isolated_quads(tri).tolist())) == [[0, 1], [6, 7]]
+    corners = quad_corners(np.arange(3 * 19, dtype=np.float32).reshape(19, 3), tri[[[6, 7]]])
+    assert (corners[0, :, 0] / 3).tolist() == [12, 13, 14, 15]  # the diagonal, then each triangle's own
+    assert isolated_quads(tri[:1]).shape == (0, 2)
+
+
+def test_split_quads_keeps_large_quads_as_triangles():
+    tri = np.array([[0, 1, 2], [2, 1, 3], [4, 5, 6], [6, 5, 7], [8, 9, 10]])
+    px = np.zeros((11, 2))
+    px[[1, 3], 0] = 1.0
+    px[[2, 3], 1] = 1.0                       # quad 0: one pixel across
+    px[[5, 7], 0] = SPLAT_PIXELS + 0.5         # quad 1: wider than SPLAT_PIXELS
+    body, quads = split_quads(tri, px)
+    assert quads.tolist() == [[[0, 1, 2], [2, 1, 3]]]
+    assert body.tolist() == [[4, 5, 6], [6, 5, 7], [8, 9, 10]]
+
+
+def scattered_quads(n: int = 600, seed: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """(vertex records (4n,4), triangles (2n,3)): n isolated, randomly tilted,
+    slightly non-planar quads of 0.01–0.06 across, in a box a little larger than BOUNDS."""
+    rng = np.random.default_rng(seed)
+    centre = rng.uniform([-2.3, -0.5, -2.3], [2.3, 0.5, 2.3], (n, 3))
+    a = rng.normal(size=(n, 3))
+    b = np.cross(a, rng.normal(size=(n, 3)))
+    size = rng.uniform(0.005, 0.03, (n, 1))
+    a *= size / np.linalg.norm(a, axis=1, keepdims=True)
+    b *= size * rng.uniform(0.3, 1.0, (n, 1)) / np.linalg.norm(b, axis=1, keepdims=True)
+    warp = rng.normal(scale=0.002, size=(n, 3))
+    pos = np.stack([centre - a - b, centre + a - b, centre - a + b + warp, centre + a + b], axis=1).reshape(-1, 3)
+    base = 4 * np.arange(n)[:, None]
+    tri = np.concatenate([base + [0, 1, 2], base + [2, 1, 3]], axis=1).reshape(-1, 3)
+    return pack_vertices(pos), tri
+
+
+def atlas_depth(gl, meshes: list[MeshGPU], settings: ShadowSettings) -> np.ndarray:
+    """The depth atlas after a visibility call (one batch: every map of it)."""
+    pts = np.zeros((1, 1, 3), np.float32)
+    nrm = np.array([[[0.0, 1.0, 0.0]]], np.float32)
+    with SoftShadowPass(gl, settings) as sp:
+        sp.visibility(meshes, BOUNDS, pts, nrm, np.ones((1, 1), bool), LIGHT)
+        return np.frombuffer(sp.atlas.read(), np.float32).copy()
+
+
+@pytest.mark.parametrize("per_draw", [16, 1])
+def test_splats_draw_the_quads_texels_and_depths(gl, per_draw):
+    records, tri = scattered_quads()
+    as_tris = MeshGPU.from_records(gl, records, tri)
+    as_splats = MeshGPU.from_records(gl, records, tri, quads=len(tri) // 2)
+    settings = ShadowSettings(samples=4, shadow_map_resolution=128, maps_per_draw=per_draw)
+    try:
+        assert as_splats.splats.count == len(tri) // 2 and as_splats.body_triangles == 0
+        a, b = atlas_depth(gl, [as_tris], settings), atlas_depth(gl, [as_splats], settings)
+    finally:
+        as_tris.release()
+        as_splats.release()
+    ca, cb = a < 1.0, b < 1.0
+    assert ca.sum() > 150 * len(a) // 128**2  # the quads cover hundreds of texels per map
+    assert (ca != cb).sum() <= 0.01 * ca.sum(), ((ca != cb).sum(), ca.sum())
+    np.testing.assert_allclose(b[ca & cb], a[ca & cb], atol=2e-5)
+
+
+def test_reconstruction_keeps_its_triangles_with_splats(gl):
+    """Grass at 128² reference images: many samples are isolated quads; the meshes
+    with and without splats hold the same triangles, and their shadows agree."""
+    scene = make_builtin("grass", 0.1)
+    light = default_area_light(scene.bounds, scene.sun_direction)
+    with SceneGPU(gl, scene) as sg:
+        ss = render_set(gl, sg, "non_redundant", reference_cameras(light, scene.bounds, "non_redundant", 128))
+    for kind in ("hybrid", "compact"):
+        meshes = {s: reconstruct_set(gl, ss, ReconstructionSettings(kind=kind, quad_splats=s)) for s in (False, True)}
+        try:
+            assert sum(m.splats.count for m in meshes[True] if m.splats) > 100, kind
+            assert all(m.splats is None for m in meshes[False])
+            for a, b in zip(meshes[False], meshes[True], strict=True):
+                ta, tb = (_triangle_set(m) for m in (a, b))
+                assert len(ta) == a.n_triangles == b.n_triangles and np.array_equal(ta, tb), kind
+        finally:
+            for ms in meshes.values():
+                for m in ms:
+                    m.release()
+
+
+def _triangle_set(mesh: MeshGPU) -> np.ndarray:
+    pos, _, tri = mesh.read()
+    t = pos[tri].reshape(len(tri), 3, 3)
+    t = np.take_along_axis(t, ((np.argmin(t[:, :, 0], axis=1)[:, None] + np.arange(3)) % 3)[:, :, None], axis=1)
+    t = t.reshape(len(tri), 9)
+    return t[np.lexsort(t.T[::-1])]
+
+
+def test_splat_meshes_free_their_gl_objects():
+    records, tri = scattered_quads(50)
+    pts = np.zeros((4, 4, 3), np.float32)
+    nrm = np.zeros_like(pts)
+    nrm[..., 1] = 1.0
+
+    class State:
+        def __init__(self, gl) -> None:
+            self.gl = gl
+            self.sp = SoftShadowPass(gl, ShadowSettings(samples=2, shadow_map_resolution=32))
+            self.frame(0)
+
+        def frame(self, _: int) -> None:
+            with MeshGPU.from_records(self.gl, records, tri, quads=len(tri) // 2) as m:
+                self.sp.visibility([m], BOUNDS, pts, nrm, np.ones((4, 4), bool), LIGHT)
+
+        def release(self) -> None:
+            self.sp.release()
+
+    before, after = gl_object_growth(State, State.frame, 200)
+    assert after <= before, (before, after)
