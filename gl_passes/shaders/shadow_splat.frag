@@ -10,7 +10,7 @@ flat in mat2 v_inv1;
 flat in ivec2 v_live;
 flat in vec4 v_rect;
 
-// Barycentric shares (along s1 − s0, along o − s0) inside the triangle, or a negative.
+// Whether shares w of a window offset (along s1 − s0, along o − s0) lie in the triangle.
 bool inside(vec2 w) {
     return w.x >= 0.0 && w.y >= 0.0 && w.x + w.y <= 1.0;
 }
