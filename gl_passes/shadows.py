@@ -193,7 +193,7 @@ def _draw(occluder: Occluder, prog: moderngl.Program, splat_prog: moderngl.Progr
     are drawn with `splat_prog` instead of their quads' triangles."""
     params = inspect.signature(occluder.draw).parameters
     kw = {"materials": False} if "materials" in params else {}
-    splats = getattr(occluder, "splats", None)
+    splats = getattr(occluder, "splats", None) if "quads" in params else None
     if splats is not None:
         kw["quads"] = False
     if "instances" in params or instances == 1:
