@@ -1,6 +1,6 @@
-"""A vertex buffer, a uint32 index buffer and their vertex arrays, one per program
-(cached): the GPU side shared by scene uploads (SceneGPU) and reconstructed meshes
-(MeshGPU)."""
+"""A vertex buffer, a uint32 index buffer (or none) and their vertex arrays, one
+per program (cached): the GPU side shared by scene uploads (SceneGPU),
+reconstructed meshes (MeshGPU) and quad splats (QuadSplats, no index buffer)."""
 
 from __future__ import annotations
 
@@ -11,10 +11,11 @@ from gl_passes.releasable import Releasable
 
 
 class IndexedBuffers(Releasable):
-    """Owns `vbo` and `ibo`; subclasses say how a program reads the vertices
-    (`vertex_format`). `release()` frees the buffers and every vertex array."""
+    """Owns `vbo` and `ibo` (None: draws are not indexed); subclasses say how a
+    program reads the vertices (`vertex_format`). `release()` frees the buffers and
+    every vertex array."""
 
-    def __init__(self, gl: GLContext, vbo: moderngl.Buffer, ibo: moderngl.Buffer) -> None:
+    def __init__(self, gl: GLContext, vbo: moderngl.Buffer, ibo: moderngl.Buffer | None) -> None:
         gl.check_thread()
         self.gl = gl
         self.vbo, self.ibo = vbo, ibo
@@ -38,4 +39,5 @@ class IndexedBuffers(Releasable):
             v.release()
         self._vaos.clear()
         self.vbo.release()
-        self.ibo.release()
+        if self.ibo is not None:
+            self.ibo.release()

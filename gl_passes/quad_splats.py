@@ -24,7 +24,7 @@ import moderngl
 import numpy as np
 
 from gl_passes.context import GLContext
-from gl_passes.releasable import Releasable
+from gl_passes.indexed import IndexedBuffers
 
 #: Largest extent (x or y, pixels of the capturing image) of a quad made a splat.
 SPLAT_PIXELS = 4.0
@@ -81,35 +81,24 @@ def split_quads(triangles: np.ndarray, pixels: np.ndarray) -> tuple[np.ndarray, 
     return tri[body], tri[pairs]
 
 
-class QuadSplats(Releasable):
+class QuadSplats(IndexedBuffers):
     """Isolated quads on the GPU as splats: one vertex of four vec3 corners per quad
-    (`quad_corners`). `draw(prog, instances)` draws them as points with the splat
-    program (shadow_splat.vert/.frag). Owns its buffer: call `release()`."""
+    (`quad_corners`), no index buffer. `draw(prog, instances)` draws them as points
+    with the splat program (shadow_splat.vert/.frag). Owns its buffer: call `release()`."""
 
     def __init__(self, gl: GLContext, corners: np.ndarray) -> None:
-        gl.check_thread()
-        self.gl = gl
         data = np.ascontiguousarray(corners, np.float32).reshape(-1, 12)
+        super().__init__(gl, gl.ctx.buffer(data.tobytes() or b"\0" * SPLAT_BYTES), None)
         self.count = len(data)
-        self.vbo = gl.ctx.buffer(data.tobytes() or b"\0" * SPLAT_BYTES)
-        self._vaos: dict[int, moderngl.VertexArray] = {}
+
+    def vertex_format(self, prog: moderngl.Program) -> tuple[str, ...]:
+        return ("3f 3f 3f 3f", "in_s0", "in_s1", "in_o0", "in_o1")
 
     def draw(self, prog: moderngl.Program, instances: int = 1) -> None:
         """Draw every splat with the splat program `prog`, `instances` times."""
         self.gl.check_thread()
-        if not self.count:
-            return
-        if prog.glo not in self._vaos:
-            self._vaos[prog.glo] = self.gl.ctx.vertex_array(
-                prog, [(self.vbo, "3f 3f 3f 3f", "in_s0", "in_s1", "in_o0", "in_o1")])
-        self._vaos[prog.glo].render(moderngl.POINTS, vertices=self.count, instances=instances)
-
-    def release(self) -> None:
-        self.gl.check_thread()
-        for v in self._vaos.values():
-            v.release()
-        self._vaos.clear()
-        self.vbo.release()
+        if self.count:
+            self.vao(prog).render(moderngl.POINTS, vertices=self.count, instances=instances)
 
 
 __all__ = ["SPLAT_PIXELS", "QuadSplats", "isolated_quads", "quad_corners", "split_quads"]

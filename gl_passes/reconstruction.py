@@ -123,8 +123,9 @@ class ReconstructionSettings:
     at most `quad_splats.SPLAT_PIXELS` across) are put last and drawn as splats
     in shadow maps (`gl_passes.quad_splats`: the same texels and depths, one vertex
     and one point per quad instead of four vertices and two triangles; the mesh,
-    its export and its triangle count are the same). evidence_pull: the share of the evidence rule's move a corner makes
-    (1: to the expected edge, 0: none; a diagnostic, the gap tables). offset_quads:
+    its export and its triangle count are the same). evidence_pull: the share of
+    the evidence rule's move a corner makes (1: to the expected edge, 0: none; a
+    diagnostic, the gap tables). offset_quads:
     a diagnostic (tried, not kept; the soft-shadow report's gap tables): > 0, an H
     sample that no sample of I takes as a corner becomes a quad of its own,
     ± offset_quads pixels around its pixel corner.
@@ -238,7 +239,7 @@ class Reconstructor(Releasable):
     def _mesh(self, vbo: moderngl.Buffer, ibo: moderngl.Buffer, counters: moderngl.Buffer,
               settings: ReconstructionSettings, camera: Camera, n_vertices: int | None = None) -> MeshGPU:
         """A MeshGPU from the output buffers, trimmed to the counted size; read back
-        and made again by `_upload` where settings.fetch_order or settings.quad_splats."""
+        and made again by `_upload_mesh` where settings.fetch_order or settings.quad_splats."""
         nv, ni = (int(x) for x in np.frombuffer(counters.read(), np.uint32))
         counters.release()
         nv = nv if n_vertices is None else n_vertices

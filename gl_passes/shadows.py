@@ -230,6 +230,7 @@ class SoftShadowPass(Releasable):
         instanced = {"MAPS_PER_DRAW": str(self.batch)} if self.batch > 1 else {}
         self.map_prog = program(gl, "shadow_map.vert", "shadow_map.frag", defines=instanced)
         self.splat_prog = program(gl, "shadow_splat.vert", "shadow_splat.frag", defines=instanced)
+        self.splat_prog["u_max_point_size"].value = float(gl.ctx.info["GL_POINT_SIZE_RANGE"][1])
         self.lookup_prog = compute_program(gl, "shadow_lookup.comp", defines={
             "MAPS_PER_DRAW": str(self.batch), "WORDS": str(settings.words), **LOOKUP_UNITS.defines()})
         self.atlas = gl.ctx.depth_texture((size, size))
@@ -297,7 +298,6 @@ class SoftShadowPass(Releasable):
                 prog["u_tile"].write(self.tile_ndc.tobytes())
         # programs are cached per context: another pass may have drawn another atlas size
         self.splat_prog["u_viewport"].value = tuple(float(x) for x in self.atlas.size)
-        self.splat_prog["u_max_point_size"].value = float(self.gl.ctx.info["GL_POINT_SIZE_RANGE"][1])
 
         def set_first(i: int) -> None:
             for prog in progs:

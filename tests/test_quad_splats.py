@@ -20,13 +20,14 @@ import pytest
 
 from gl_passes.mesh_gpu import MeshGPU, pack_vertices
 from gl_passes.quad_splats import SPLAT_PIXELS, isolated_quads, quad_corners, split_quads
-from gl_passes.reconstruction import ReconstructionSettings, reconstruct_set, render_set
+from gl_passes.reconstruction import ReconstructionSettings, mesh_arrays, reconstruct_set, render_set
 from gl_passes.shadows import ShadowSettings, SoftShadowPass
 from gl_passes.upload import SceneGPU
 from scenes.builtin import make_builtin
 from scenes.lights import default_area_light, reference_cameras
 from scenes.model import AreaLight
 from tests.gl_leaks import gl_object_growth
+from tests.test_reconstruction import triangle_rows
 
 LIGHT = AreaLight((0.0, 6.0, 0.0), (1.0, 0.0, 0.0), (0.0, 0.0, -1.0))
 BOUNDS = (np.array([-2.0, -0.5, -2.0]), np.array([2.0, 0.5, 2.0]))
@@ -114,20 +115,12 @@ def test_reconstruction_keeps_its_triangles_with_splats(gl):
             assert sum(m.splats.count for m in meshes[True] if m.splats) > 100, kind
             assert all(m.splats is None for m in meshes[False])
             for a, b in zip(meshes[False], meshes[True], strict=True):
-                ta, tb = (_triangle_set(m) for m in (a, b))
+                ta, tb = (triangle_rows(*mesh_arrays(m)) for m in (a, b))
                 assert len(ta) == a.n_triangles == b.n_triangles and np.array_equal(ta, tb), kind
         finally:
             for ms in meshes.values():
                 for m in ms:
                     m.release()
-
-
-def _triangle_set(mesh: MeshGPU) -> np.ndarray:
-    pos, _, tri = mesh.read()
-    t = pos[tri].reshape(len(tri), 3, 3)
-    t = np.take_along_axis(t, ((np.argmin(t[:, :, 0], axis=1)[:, None] + np.arange(3)) % 3)[:, :, None], axis=1)
-    t = t.reshape(len(tri), 9)
-    return t[np.lexsort(t.T[::-1])]
 
 
 def test_splat_meshes_free_their_gl_objects():

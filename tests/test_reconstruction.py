@@ -464,6 +464,13 @@ def test_fetch_order_puts_vertices_in_first_use_order_and_drops_unused():
     assert out[:, 0].tolist() == [12, 4, 16]  # vertices 3, 1, 4; 0 and 2 are unused
 
 
+def triangle_rows(pos: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """(M,9) the triangles' vertex positions, rows sorted: a mesh's triangles whatever
+    the order of its vertices and triangles (each triangle's own vertex order kept)."""
+    t = pos[tri].reshape(len(tri), 9)
+    return t[np.lexsort(t.T[::-1])]
+
+
 def test_fetch_order_leaves_the_mesh_unchanged(gl):
     """The same triangles in another order; for the compact mesh too, whose simplifier
     sees its input in canonical order (the compute passes append in a different order
@@ -471,12 +478,9 @@ def test_fetch_order_leaves_the_mesh_unchanged(gl):
     sphere = make_object("sphere", uv_sphere((0, 0, 0), 1.2, 16, 32), Material((0.8, 0.2, 0.2)))
     cam = Camera((0.5, 1.5, 5.0), (0, 0, 0), fov=45.0, width=64, height=64)
     for kind in ("hybrid", "grid", "compact"):
-        tris = []
-        for order in (True, False):
-            _, [(pos, tri)] = reconstruct(gl, Scene([sphere]), [cam],
-                                          settings=ReconstructionSettings(kind=kind, fetch_order=order))
-            tris.append(pos[tri].reshape(len(tri), 9))
-        a, b = (t[np.lexsort(t.T[::-1])] for t in tris)
+        a, b = (triangle_rows(*reconstruct(gl, Scene([sphere]), [cam],
+                                           settings=ReconstructionSettings(kind=kind, fetch_order=order))[1][0])
+                for order in (True, False))
         assert len(a) > 100 and np.array_equal(a, b), kind
 
 
