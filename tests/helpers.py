@@ -47,6 +47,13 @@ def shared_scene(relpath: str) -> Path:
     return p
 
 
+def triangle_rows(pos: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """(M,9) the triangles' vertex positions, rows sorted: a mesh's triangles whatever
+    the order of its vertices and triangles (each triangle's own vertex order kept)."""
+    t = pos[tri].reshape(len(tri), 9)
+    return t[np.lexsort(t.T[::-1])]
+
+
 def assert_depth_close(actual: np.ndarray, expected: np.ndarray, rtol: float, mask: np.ndarray | None = None,
                        name: str = "log_depth") -> None:
     """Depth maps (H,W) equal within the relative tolerance rtol on every (masked)

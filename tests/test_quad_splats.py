@@ -27,7 +27,7 @@ from scenes.builtin import make_builtin
 from scenes.lights import default_area_light, reference_cameras
 from scenes.model import AreaLight
 from tests.gl_leaks import gl_object_growth
-from tests.test_reconstruction import triangle_rows
+from tests.helpers import triangle_rows
 
 LIGHT = AreaLight((0.0, 6.0, 0.0), (1.0, 0.0, 0.0), (0.0, 0.0, -1.0))
 BOUNDS = (np.array([-2.0, -0.5, -2.0]), np.array([2.0, 0.5, 2.0]))

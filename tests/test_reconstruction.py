@@ -29,7 +29,7 @@ from reference.raycast import RayCaster
 from scenes import Camera, Material, Scene, SceneObject
 from scenes.builtin.geometry import make_object, uv_sphere
 from tests.gl_leaks import gl_object_growth
-from tests.helpers import box, figure11_scene
+from tests.helpers import box, figure11_scene, triangle_rows
 
 HYBRID = ReconstructionSettings()
 W, H = 40, 30
@@ -462,13 +462,6 @@ def test_fetch_order_puts_vertices_in_first_use_order_and_drops_unused():
     out, idx = fetch_order(records, np.array([[3, 1, 3], [4, 1, 3]], np.uint32))
     assert idx.tolist() == [0, 1, 0, 2, 1, 0]
     assert out[:, 0].tolist() == [12, 4, 16]  # vertices 3, 1, 4; 0 and 2 are unused
-
-
-def triangle_rows(pos: np.ndarray, tri: np.ndarray) -> np.ndarray:
-    """(M,9) the triangles' vertex positions, rows sorted: a mesh's triangles whatever
-    the order of its vertices and triangles (each triangle's own vertex order kept)."""
-    t = pos[tri].reshape(len(tri), 9)
-    return t[np.lexsort(t.T[::-1])]
 
 
 def test_fetch_order_leaves_the_mesh_unchanged(gl):
