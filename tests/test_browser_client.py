@@ -4,7 +4,8 @@ or chromium, driven by Playwright from PyPI with `executable_path`: never
 uvicorn server that wants a token (the page passes `?token=` on), orbited with the mouse;
 streamed frames must arrive and change, the canvases must not be blank (pixels read back),
 local mode must render the reconstruction at once on orbit, fetch a new set when the view
-leaves the region, and swap the server's frame in; the page must log no errors. A failure
+leaves the region, and swap the server's frame in; frames must show in the order they came
+even when a decode finishes late; the page must log no errors. A failure
 names a screenshot (failure.png in the test's tmp dir) and the page's state."""
 
 from __future__ import annotations
@@ -170,6 +171,41 @@ def test_a_new_user_orbits_a_built_in_scene_with_reflections_streaming(page, ser
         page.wait_for_timeout(300)
         after = page.evaluate(CANVAS_STATS, "frame")
         assert after["std"] > 10 and after["differ"] > 0.2 and after["hash"] != before["hash"], (before, after)
+        assert page.problems == []
+    except BaseException as exc:
+        page.screenshot(path=str(tmp_path / "failure.png"))
+        raise AssertionError(f"{exc}\nscreenshot: {tmp_path / 'failure.png'}; page state: {state(page)}; "
+                             f"page problems: {page.problems}") from exc
+
+
+#: Init script: the second frame's decode (createImageBitmap) finishes `DECODE_DELAY_MS` late,
+#: after the frames that came after it (as a large JPEG can after a small one or its PNG re-send).
+DECODE_DELAY_MS = 3000
+SLOW_SECOND_DECODE = """(() => {
+  const decode = window.createImageBitmap.bind(window);
+  let calls = 0;
+  window.createImageBitmap = (...args) => {
+    window.decodes = calls += 1;
+    const bitmap = decode(...args);
+    return calls === 2 ? bitmap.then((b) => new Promise((done) => setTimeout(() => done(b), DELAY))) : bitmap;
+  };
+})();""".replace("DELAY", str(DECODE_DELAY_MS))
+
+
+def test_frames_show_in_the_order_they_came_when_a_decode_finishes_late(page, server, tmp_path):
+    """A frame whose decode finishes after a later frame's must not replace it: the canvas
+    and the stats end on the newest frame (seq), every frame of the socket shown in turn."""
+    try:
+        page.add_init_script(SLOW_SECOND_DECODE)
+        page.goto(f"{server}/client?scene=cornell&token={TOKEN}")
+        # frame 2 decodes late; frame 3 (a new view, or the PNG re-send at rest) comes meanwhile
+        page.wait_for_function("() => window.depthview && window.depthview.framesShown >= 1", timeout=30_000)
+        drag(page, 40, 0)
+        page.wait_for_function("() => window.decodes >= 3", timeout=30_000)
+        page.wait_for_timeout(DECODE_DELAY_MS + 1000)  # the late decode has finished
+        s, decodes = state(page), page.evaluate("() => window.decodes")  # one decode per frame that came
+        assert s["lastStats"]["seq"] == decodes and s["framesReceived"] == decodes, (decodes, s)
+        assert s["lastRendered"]["id"] == s["lastSentId"] and s["errors"] == [], s
         assert page.problems == []
     except BaseException as exc:
         page.screenshot(path=str(tmp_path / "failure.png"))

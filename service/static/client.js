@@ -60,6 +60,9 @@ new ResizeObserver(resize).observe(view);
 
 // --- the stream ------------------------------------------------------------------------
 let ws = null, msgId = 0, lastSentId = 0, pendingStats = null, sendQueued = false, retry = null;
+// Frames decode in parallel but are shown in the order they came: a decode may finish
+// after a later frame's (a large JPEG after a small one, or its own PNG re-send).
+let shownFrames = Promise.resolve(), socketNo = 0;
 const sentAt = new Map();
 const frameTimes = [];
 
@@ -108,6 +111,7 @@ function sendCamera() {
 function connect() {
   clearTimeout(retry);
   if (ws) { ws.onclose = null; ws.close(); }
+  socketNo += 1;  // frames of the old socket still decoding are not shown
   state.connected = false; state.hello = null;
   const proto = location.protocol === 'https:' ? 'wss' : 'ws';
   const q = token ? `?token=${encodeURIComponent(token)}` : '';
@@ -141,11 +145,23 @@ function onText(msg) {
   }
 }
 
-async function onFrame(blob) {
+function onFrame(blob) {
   const stats = pendingStats;
   pendingStats = null;
   if (!stats) return;
-  const bitmap = await createImageBitmap(blob);
+  const decoded = createImageBitmap(blob), socket = socketNo;
+  decoded.catch(() => {});  // handled in turn below
+  shownFrames = shownFrames.then(async () => {
+    const bitmap = await decoded;
+    if (socket === socketNo) showFrame(stats, bitmap);
+    else bitmap.close();
+  }).catch((err) => {  // this frame is lost, the next ones still show
+    state.errors.push({ type: 'frame', seq: stats.seq, detail: String(err) });
+    console.error(`frame ${stats.seq}:`, err);
+  });
+}
+
+function showFrame(stats, bitmap) {
   state.framesReceived += 1;
   const now = performance.now();
   frameTimes.push(now);
