@@ -188,6 +188,6 @@ def _pieces_sentence(level: dict[str, Any] | None) -> str:
             "seen apart from its neighbours); the compact meshes keep the pieces apart (edge collapses keep the "
             f"topology): {c['pieces']:,} pieces, {100 * c['small_piece_triangles'] / c['triangles']:.0f} % of "
             "their triangles in small ones."
-            + (f" {c['splats']:,} of those pieces are isolated quads ({100 * 2 * c['splats'] / c['triangles']:.0f} % "
-               "of the triangles), which the shadow maps draw as splats (`gl_passes.quad_splats`)."
+            + (f" The shadow maps draw {100 * c.get('splat_triangles', 2 * c['splats']) / c['triangles']:.0f} % of "
+               f"the compact triangles as {c['splats']:,} splats (`gl_passes.quad_splats`)."
                if "splats" in c else ""))

@@ -78,6 +78,7 @@ from bench.shadow_stage import (
 )
 from gl_passes.context import GLContext, create_gl_context
 from gl_passes.depth_images import DepthImageRenderer
+from gl_passes.quad_splats import SPLAT_PIECE
 from gl_passes.reconstruction import (
     RECONSTRUCTIONS,
     SAMPLING_METHODS,
@@ -423,7 +424,7 @@ def fig20_level(gl: GLContext, detail: float, ref_res: int, shadow_res: int) -> 
             # the same hybrid meshes with their vertices in the order the compute passes wrote them
             occluders["hybrid_generation_order"] = reconstruct_set(gl, sampled,
                                                                    ReconstructionSettings(fetch_order=False))
-            # the same meshes with their isolated quads drawn as triangles, not splats
+            # the same meshes with their small pieces drawn as triangles, not splats
             for kind in ("hybrid", "compact"):
                 occluders[f"{kind}_triangles"] = reconstruct_set(gl, sampled,
                                                                  ReconstructionSettings(kind=kind, quad_splats=False))
@@ -436,6 +437,7 @@ def fig20_level(gl: GLContext, detail: float, ref_res: int, shadow_res: int) -> 
                     best[kind] = min(best[kind], _shadow_seconds(sp, occ, st, light))
         rec = {kind: {"triangles": sum(m.n_triangles for m in occluders[kind]),
                       "splats": sum(m.splats.count for m in occluders[kind] if m.splats),
+                      "splat_triangles": sum(m.splats.triangles for m in occluders[kind] if m.splats),
                       "seconds_per_map": best[kind] / k**2, "reconstruction_seconds": rec_seconds[kind],
                       "triangles_seconds_per_map": best[f"{kind}_triangles"] / k**2,
                       **pieces(occluders[kind])}
@@ -523,7 +525,7 @@ def fig20_plot(levels: list[dict[str, Any]], path: Path) -> None:
                         label=f"NR {kind} reconstruction")
         if all("triangles_seconds_per_map" in lv[kind] for lv in levels):
             ax.plot(tri, [lv[kind]["triangles_seconds_per_map"] * 1e3 for lv in levels], "--", color=line.get_color(),
-                    alpha=0.6, label=f"NR {kind}, isolated quads as triangles")
+                    alpha=0.6, label=f"NR {kind}, splats as triangles")
     ax.set_xlabel("original triangles (millions), grass")
     ax.set_ylabel("ms per shadow map")
     ax.set_title("Fig. 20: shadow-map time against scene complexity")
@@ -1043,7 +1045,7 @@ def reading(data: dict[str, dict[str, Any]]) -> list[str]:
 
 
 def _splat_sentence(levels: list[dict[str, Any]]) -> str:
-    """How much faster the reconstructions' shadow maps are with their isolated quads
+    """How much faster the reconstructions' shadow maps are with their small pieces
     as splats (`gl_passes.quad_splats`) than as triangles, over Fig. 20's levels."""
     parts = []
     for kind in ("hybrid", "compact"):
@@ -1051,11 +1053,11 @@ def _splat_sentence(levels: list[dict[str, Any]]) -> str:
         if not lv:
             return ""
         gain = [1 - x["seconds_per_map"] / x["triangles_seconds_per_map"] for x in lv]
-        share = [2 * x["splats"] / x["triangles"] for x in lv]
+        share = [x.get("splat_triangles", 2 * x["splats"]) / x["triangles"] for x in lv]
         parts.append(f"{kind} {100 * min(gain):.0f}–{100 * max(gain):.0f} % "
-                     f"({100 * min(share):.0f}–{100 * max(share):.0f} % of its triangles in isolated quads)")
-    return (" Drawing the isolated quads as splats (one point sprite each, the same texels and depths: "
-            "`gl_passes.quad_splats`) makes the shadow maps faster: " + ", ".join(parts) + ".")
+                     f"({100 * min(share):.0f}–{100 * max(share):.0f} % of its triangles drawn as splats)")
+    return (" Drawing the small pieces as splats (one point sprite per quad or lone triangle, the same texels "
+            "and depths: `gl_passes.quad_splats`) makes the shadow maps faster: " + ", ".join(parts) + ".")
 
 
 def table11(t8: dict[str, Any]) -> str:
@@ -1078,7 +1080,7 @@ def _ms(seconds: float) -> str:
 
 def fig20_table(levels: list[dict[str, Any]]) -> str:
     """Fig. 20's levels: triangles (splats) and milliseconds per shadow map of each
-    kind, the reconstructions also with their isolated quads drawn as triangles."""
+    kind, the reconstructions also with their small pieces drawn as triangles."""
     gen = "hybrid_generation_order_seconds_per_map"
 
     def kind_cells(x: dict[str, Any], kind: str) -> list[str]:
@@ -1104,7 +1106,7 @@ def crossover_lines(levels: list[dict[str, Any]]) -> list[str]:
         if all("triangles_seconds_per_map" in lv[kind] for lv in levels):
             only = crossover_of([(lv["triangles"], lv["geometry_seconds_per_map"],
                                   lv[kind]["triangles_seconds_per_map"]) for lv in levels])
-            line += f" (its isolated quads drawn as triangles: {said(only)})"
+            line += f" (its splats drawn as triangles: {said(only)})"
         out.append(line + ".")
     return out
 
@@ -1131,6 +1133,16 @@ def _compact_key(saved: dict[str, Any]) -> str:
     """The compact reconstruction's bound a part was run with (runs saved before it
     was recorded used 0.4 in the world measure)."""
     return saved["args"].get("compact_bound", "0.4 world")
+
+
+def _splat_key(saved: dict[str, Any] | None = None) -> tuple[bool, int]:
+    """(splats on, largest piece drawn as splats) a part was run with, or the
+    defaults' (runs saved before the piece size was recorded splatted isolated
+    quads: pieces of 2)."""
+    if saved is None:
+        return ReconstructionSettings().quad_splats, SPLAT_PIECE
+    on = saved["args"].get("quad_splats", False)
+    return on, saved["args"].get("splat_piece", 2) if on else 0
 
 
 def gpu_section(cpu_t8: dict[str, Any]) -> list[str]:
@@ -1202,11 +1214,11 @@ def write_report(data: dict[str, dict[str, Any]], info: dict[str, Any] | None) -
         lines += [f"Measured with another compact bound than the default {compact_key()} (to run again): "
                   f"{', '.join(stale)}.", ""]
     stale = sorted({part for part, scenes in data.items() if part not in ("bias", "layered")  # geometry only
-                    for saved in scenes.values()
-                    if saved["args"].get("quad_splats", False) != ReconstructionSettings().quad_splats})
+                    for saved in scenes.values() if _splat_key(saved) != _splat_key()})
     if stale:
-        lines += ["Measured with the reconstructions' isolated quads drawn as triangles, not splats (the same "
-                  f"texels up to the rasteriser's ties; to run again): {', '.join(stale)}.", ""]
+        lines += ["Measured with other splats than the reconstructions' default (pieces of at most "
+                  f"{SPLAT_PIECE} triangles drawn as splats; the same texels up to the rasteriser's ties; to run "
+                  f"again): {', '.join(stale)}.", ""]
     if info:
         lines += ["## Machine", "", machine_markdown(info), "",
                   "The machine is shared (2 cores): timings (Table 11, Fig. 20) are one run's, not medians of quiet "
@@ -1319,10 +1331,11 @@ def write_report(data: dict[str, dict[str, Any]], info: dict[str, Any] | None) -
         lines += [fig20_table(lv), "",
                   "Vertices of the reconstructions are put in first-use order (`fetch_order`, meshoptimizer's "
                   "vertex-fetch optimisation, as the models' own vertices already are); \"generation order\" is "
-                  "the same hybrid meshes as the compute passes wrote them. Splats: the meshes' isolated quads "
-                  "(pieces of two triangles), drawn as one point sprite each that keeps the quads' texels and "
-                  "depths (`gl_passes.quad_splats`); \"triangles only\" is the same meshes with those quads drawn "
-                  "as triangles (the timing before splats)."
+                  "the same hybrid meshes as the compute passes wrote them. Splats: the triangles of the meshes' "
+                  f"pieces of at most {SPLAT_PIECE} triangles, matched into quads (pairs sharing an edge; a "
+                  "triangle left over alone), each drawn as one point sprite that keeps its triangles' texels "
+                  "and depths (`gl_passes.quad_splats`); \"triangles only\" is the same meshes with those "
+                  "pieces drawn as triangles (the timing before splats)."
                   + (" Each level is measured in a process of its own: measured in one process after the "
                      "smaller levels, detail 60 drew every mesh, original and reconstructions alike, markedly "
                      "slower than on its own, so the sweep's order rather than the meshes set its times."
@@ -1393,7 +1406,8 @@ def main(argv: list[str] | None = None) -> int:
 def _save(part: str, scene: str, args: argparse.Namespace, info: dict, runs: Any, seconds: float) -> None:
     """Write a part's runs with its arguments and the shadow maps' default bias."""
     saved = {**{k: v for k, v in vars(args).items() if k != "part"}, "shadow_bias": shadow_bias_of(ShadowSettings()),
-             "compact_bound": compact_key(), "quad_splats": ReconstructionSettings().quad_splats}
+             "compact_bound": compact_key(), "quad_splats": ReconstructionSettings().quad_splats,
+             "splat_piece": SPLAT_PIECE}
     if part == "table8":
         write_json(OUT / f"{part}_{scene}.json", {**runs, "args": saved, "seconds": seconds})
         return

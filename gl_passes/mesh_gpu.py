@@ -2,8 +2,8 @@
 buffer of 16-byte vertices (position xyz float32, colour RGBA8 packed in the
 fourth float's bits) and one uint32 index buffer. Occluders for shadow maps take
 either this or a SceneGPU: both draw with `draw(prog)` and bind `in_position`.
-A mesh may end in isolated quads that shadow maps draw as splats
-(`gl_passes.quad_splats`): its triangles are the same either way.
+A mesh may end in triangles that shadow maps draw as splats (quads and lone
+triangles, `gl_passes.quad_splats`): its triangles are the same either way.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import numpy as np
 
 from gl_passes.context import GLContext
 from gl_passes.indexed import IndexedBuffers
-from gl_passes.quad_splats import QuadSplats, quad_corners
+from gl_passes.quad_splats import QuadSplats, splat_corners
 
 #: Bytes per vertex: vec3 position + one uint of packed RGBA8 colour.
 VERTEX_BYTES = 16
@@ -48,8 +48,8 @@ def unpack_vertices(records: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 class MeshGPU(IndexedBuffers):
     """Indexed mesh in GL buffers. `vbo` holds `n_vertices` records, `ibo`
     `n_triangles` × 3 uint32 indices (either may be larger than that: only the
-    prefix is used). `splats`: None, or the isolated quads that the last
-    2·splats.count triangles form, as splats. Owns the buffers: call `release()`."""
+    prefix is used). `splats`: None, or the splats that the last
+    splats.triangles triangles form. Owns the buffers: call `release()`."""
 
     def __init__(self, gl: GLContext, vbo: moderngl.Buffer, ibo: moderngl.Buffer, n_vertices: int,
                  n_triangles: int) -> None:
@@ -64,33 +64,38 @@ class MeshGPU(IndexedBuffers):
         return cls.from_records(gl, pack_vertices(np.asarray(positions, np.float32), colors), triangles)
 
     @classmethod
-    def from_records(cls, gl: GLContext, records: np.ndarray, triangles: np.ndarray, quads: int = 0) -> MeshGPU:
+    def from_records(cls, gl: GLContext, records: np.ndarray, triangles: np.ndarray, quads: int = 0,
+                     singles: int = 0) -> MeshGPU:
         """Upload (N,4) float32 vertex records (`pack_vertices`) and (M,3) vertex
-        indices; quads > 0: the last 2·quads triangles are isolated quads, pairs in
-        a row (`gl_passes.quad_splats.split_quads`), which shadow maps draw as splats."""
+        indices. The last 2·quads + singles triangles are splats, which shadow maps
+        draw as points (`gl_passes.quad_splats.split_splats`): quads, pairs in a row
+        that share an edge, then lone triangles."""
         gl.check_thread()
         rec = np.ascontiguousarray(records, np.float32).reshape(-1, 4)
         tri = np.ascontiguousarray(triangles, np.uint32).reshape(-1, 3)
-        if not 0 <= 2 * quads <= len(tri):
-            raise ValueError(f"{quads} quads need {2 * quads} of the {len(tri)} triangles")
+        n_splat = 2 * quads + singles
+        if quads < 0 or singles < 0 or n_splat > len(tri):
+            raise ValueError(f"{quads} quads and {singles} lone triangles need {n_splat} of the {len(tri)} triangles")
         vbo = gl.ctx.buffer(rec.tobytes() or b"\0" * VERTEX_BYTES)
         ibo = gl.ctx.buffer(tri.tobytes() or b"\0" * 12)
         mesh = cls(gl, vbo, ibo, len(rec), len(tri))
-        if quads:
-            mesh.splats = QuadSplats(gl, quad_corners(rec[:, :3], tri[len(tri) - 2 * quads:]))
+        if n_splat:
+            first = len(tri) - n_splat
+            corners = splat_corners(rec[:, :3], tri[first:first + 2 * quads], tri[first + 2 * quads:])
+            mesh.splats = QuadSplats(gl, corners, n_splat)
         return mesh
 
     @property
     def body_triangles(self) -> int:
-        """Triangles that are not the splats' quads (all of them without splats)."""
-        return self.n_triangles - (2 * self.splats.count if self.splats else 0)
+        """Triangles that the splats do not stand for (all of them without splats)."""
+        return self.n_triangles - (self.splats.triangles if self.splats else 0)
 
     def vertex_format(self, prog: moderngl.Program) -> tuple[str, ...]:
         return ("3f 4x", "in_position")
 
     def draw(self, prog: moderngl.Program, instances: int = 1, quads: bool = True) -> None:
         """Draw every triangle with `prog` (which reads `in_position`); quads=False
-        leaves out the splats' quads (drawn by `splats.draw` instead)."""
+        leaves out the splats' triangles (drawn by `splats.draw` instead)."""
         self.gl.check_thread()
         n = self.n_triangles if quads else self.body_triangles
         if n:

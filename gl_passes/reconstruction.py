@@ -77,7 +77,7 @@ from gl_passes.bindings import Units
 from gl_passes.context import GLContext
 from gl_passes.depth_images import DepthImageRenderer, prepare_cameras
 from gl_passes.mesh_gpu import VERTEX_BYTES, MeshGPU, pack_colors
-from gl_passes.quad_splats import split_quads
+from gl_passes.quad_splats import split_splats
 from gl_passes.releasable import Releasable
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
@@ -119,13 +119,13 @@ class ReconstructionSettings:
     compact_measure: "image" (that) or "world" (a diagnostic, the measure before:
     world units, compact_error footprints at the median depth in every direction).
     fetch_order: vertices in first-use order (`fetch_order`; the same mesh, drawn
-    faster). quad_splats: the mesh's isolated quads (pieces of two triangles,
-    at most `quad_splats.SPLAT_PIXELS` across) are put last and drawn as splats
-    in shadow maps (`gl_passes.quad_splats`: the same texels and depths, one vertex
-    and one point per quad instead of four vertices and two triangles; the mesh,
-    its export and its triangle count are the same). evidence_pull: the share of
-    the evidence rule's move a corner makes (1: to the expected edge, 0: none; a
-    diagnostic, the gap tables). offset_quads:
+    faster). quad_splats: the triangles of the mesh's small pieces (at most
+    `quad_splats.SPLAT_PIECE` triangles, each splat at most `SPLAT_PIXELS` across)
+    are put last and drawn as splats in shadow maps (`gl_passes.quad_splats`: the
+    same texels and depths, one vertex and one point per quad or lone triangle;
+    the mesh, its export and its triangle count are the same). evidence_pull: the
+    share of the evidence rule's move a corner makes (1: to the expected edge, 0:
+    none; a diagnostic, the gap tables). offset_quads:
     a diagnostic (tried, not kept; the soft-shadow report's gap tables): > 0, an H
     sample that no sample of I takes as a corner becomes a quad of its own,
     ± offset_quads pixels around its pixel corner.
@@ -265,21 +265,22 @@ class Reconstructor(Releasable):
     def _upload_mesh(self, records: np.ndarray, indices: np.ndarray, camera: Camera,
                      settings: ReconstructionSettings) -> MeshGPU:
         """The MeshGPU of (N,4) vertex records and their triangles' indices (any
-        shape): with settings.quad_splats its isolated quads last, drawn as splats in
-        shadow maps (`gl_passes.quad_splats`); with settings.fetch_order its vertices
-        in first-use order (`fetch_order`), else in their order, unused ones dropped."""
+        shape): with settings.quad_splats its small pieces' triangles last, drawn as
+        splats in shadow maps (`gl_passes.quad_splats.split_splats`); with
+        settings.fetch_order its vertices in first-use order (`fetch_order`), else in
+        their order, unused ones dropped."""
         tri = np.asarray(indices, np.uint32).reshape(-1, 3)
-        quads = np.zeros((0, 2, 3), np.uint32)
+        quads, singles = np.zeros((0, 2, 3), np.uint32), np.zeros((0, 3), np.uint32)
         if settings.quad_splats and len(tri):
             px, _ = camera.project(np.asarray(records[:, :3], np.float64))
-            tri, quads = split_quads(tri, px)
-            tri = np.concatenate([tri, quads.reshape(-1, 3)])
+            tri, quads, singles = split_splats(tri, px)
+            tri = np.concatenate([tri, quads.reshape(-1, 3), singles])
         if settings.fetch_order:
             records, tri = fetch_order(records, tri)
         else:
             used, tri = np.unique(tri, return_inverse=True)
             records = records[used]
-        return MeshGPU.from_records(self.gl, records, tri.reshape(-1, 3), quads=len(quads))
+        return MeshGPU.from_records(self.gl, records, tri.reshape(-1, 3), quads=len(quads), singles=len(singles))
 
     @staticmethod
     def _bind_outputs(vbo: moderngl.Buffer, ibo: moderngl.Buffer, counters: moderngl.Buffer) -> None:

@@ -15,8 +15,8 @@ whether s sees P:
    reconstruction is a one-sided surface whose back faces cast shadows too), and
    depth clamping (an occluder in front of a light camera's near plane, e.g. a
    reconstruction quad slightly outside `bounds`, still occludes). A mesh's
-   isolated quads (`MeshGPU.splats`) are drawn as point sprites that keep the
-   quads' texels and depths (`gl_passes.quad_splats`, shadow_splat.vert/.frag);
+   small pieces (`MeshGPU.splats`) are drawn as point sprites that keep their
+   triangles' texels and depths (`gl_passes.quad_splats`, shadow_splat.vert/.frag);
 2. `maps_per_draw` maps per draw call: one instance per map into its own tile of a
    depth atlas (clip distances keep each instance in its tile), one batch of
    maps after another;
@@ -190,7 +190,7 @@ def _draw(occluder: Occluder, prog: moderngl.Program, splat_prog: moderngl.Progr
     """Draw `occluder` `instances` times with `prog`, in one instanced call when its
     draw() takes `instances`, else once per instance (set_first(i) before each);
     a SceneGPU is told to skip its material uniforms; a mesh's splats (`splats`)
-    are drawn with `splat_prog` instead of their quads' triangles."""
+    are drawn with `splat_prog` instead of the triangles they stand for."""
     params = inspect.signature(occluder.draw).parameters
     kw = {"materials": False} if "materials" in params else {}
     splats = getattr(occluder, "splats", None) if "quads" in params else None

@@ -1,16 +1,16 @@
-"""Quad splats (gl_passes.quad_splats): a reconstruction's isolated quads drawn as
-point sprites in shadow maps keep the quads' texels and depths.
+"""Quad splats (gl_passes.quad_splats): the triangles of a reconstruction's small
+pieces drawn as point sprites in shadow maps keep their texels and depths.
 
-Hand-counted meshes for the search; on llvmpipe, shadow maps of 600 tilted quads
-of about a texel, scattered through the light's frusta (some across the maps'
-edges, so sprites straddle atlas tiles), drawn as triangles and as splats: the
-same texels covered but for at most 1 % of them [0.37 %: texel centres within the
-rasteriser's sub-pixel snapping of the vertices (1/256 texel on llvmpipe) of an
-edge, which the splat's float inside test decides unsnapped; small quads have much
-edge per texel], and within 2e-5 of the depth range in every texel both cover
-[7e-6: float rounding; the shadow lookup's depth bias is a texel, about 1e-3 of
-it], in the instanced atlas and with one map per draw; reconstructions keep their
-triangles.
+Hand-counted meshes for the matching of triangles into quads; on llvmpipe, shadow
+maps of 450 tilted quads and 150 lone triangles of about a texel, scattered through
+the light's frusta (some across the maps' edges, so sprites straddle atlas tiles),
+drawn as triangles and as splats: the same texels covered but for at most 1 % of
+them [0.38 %: texel centres within the rasteriser's sub-pixel
+snapping of the vertices (1/256 texel on llvmpipe) of an edge, which the splat's
+float inside test decides unsnapped; small quads have much edge per texel], and
+within 2e-5 of the depth range in every texel both cover [7e-6: float rounding;
+the shadow lookup's depth bias is a texel, about 1e-3 of it], in the instanced
+atlas and with one map per draw; reconstructions keep their triangles.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from gl_passes.mesh_gpu import MeshGPU, pack_vertices
-from gl_passes.quad_splats import SPLAT_PIXELS, isolated_quads, quad_corners, split_quads
+from gl_passes.quad_splats import SPLAT_PIECE, SPLAT_PIXELS, quad_corners, splat_corners, splat_pairs, split_splats
 from gl_passes.reconstruction import ReconstructionSettings, mesh_arrays, reconstruct_set, render_set
 from gl_passes.shadows import ShadowSettings, SoftShadowPass
 from gl_passes.upload import SceneGPU
@@ -33,28 +33,36 @@ LIGHT = AreaLight((0.0, 6.0, 0.0), (1.0, 0.0, 0.0), (0.0, 0.0, -1.0))
 BOUNDS = (np.array([-2.0, -0.5, -2.0]), np.array([2.0, 0.5, 2.0]))
 
 
-def test_isolated_quads_are_two_triangle_pieces():
+def test_splat_pairs_match_the_triangles_of_small_pieces():
     tri = np.array([
         [0, 1, 2], [2, 1, 3],                # an isolated quad
-        [4, 5, 6], [6, 5, 7], [6, 7, 8],     # a strip of three triangles
+        [4, 5, 6], [6, 5, 7], [6, 7, 8],     # a strip of three triangles: a quad and one left
         [9, 10, 11],                          # a lone triangle
         [12, 13, 14], [15, 13, 12],          # another quad, diagonal 12–13
-        [16, 17, 18], [18, 17, 16],          # two faces of one triangle: all vertices shared
-    ])
-    assert sorted(map(sorted, isolated_quads(tri).tolist())) == [[0, 1], [6, 7]]
-    corners = quad_corners(np.arange(3 * 19, dtype=np.float32).reshape(19, 3), tri[[[6, 7]]])
+        [16, 17, 18], [18, 19, 20],          # two triangles sharing a vertex, no edge
+        [21, 22, 23], [21, 23, 24], [21, 24, 25],  # a fan whose middle edge three triangles share ...
+        [21, 24, 26],
+    ] + [[30 + i, 31 + i, 32 + i] for i in range(SPLAT_PIECE + 1)])  # a strip too long to splat
+    pairs, singles = splat_pairs(tri)
+    assert sorted(map(sorted, pairs.tolist())) == [[0, 1], [2, 3], [6, 7], [10, 11]]
+    assert sorted(singles.tolist()) == [4, 5, 8, 9, 12, 13]
+    corners = quad_corners(np.arange(3 * 27, dtype=np.float32).reshape(27, 3), tri[[[6, 7]]])
     assert (corners[0, :, 0] / 3).tolist() == [12, 13, 14, 15]  # the diagonal, then each triangle's own
-    assert isolated_quads(tri[:1]).shape == (0, 2)
+    lone = splat_corners(np.arange(3 * 27, dtype=np.float32).reshape(27, 3), tri[[[6, 7]]], tri[[5]])
+    assert (lone[:, :, 0] / 3).tolist() == [[12, 13, 14, 15], [9, 10, 11, 11]]  # a lone one: c twice
+    assert [len(x) for x in splat_pairs(tri[:0])] == [0, 0]
 
 
-def test_split_quads_keeps_large_quads_as_triangles():
-    tri = np.array([[0, 1, 2], [2, 1, 3], [4, 5, 6], [6, 5, 7], [8, 9, 10]])
-    px = np.zeros((11, 2))
+def test_split_splats_keeps_large_pieces_as_triangles():
+    tri = np.array([[0, 1, 2], [2, 1, 3], [4, 5, 6], [6, 5, 7], [8, 9, 10], [11, 12, 13]])
+    px = np.zeros((14, 2))
     px[[1, 3], 0] = 1.0
     px[[2, 3], 1] = 1.0                       # quad 0: one pixel across
     px[[5, 7], 0] = SPLAT_PIXELS + 0.5         # quad 1: wider than SPLAT_PIXELS
-    body, quads = split_quads(tri, px)
-    assert quads.tolist() == [[[0, 1, 2], [2, 1, 3]]]
+    px[12, 1] = SPLAT_PIXELS                   # a lone triangle just small enough
+    px[9, 1] = SPLAT_PIXELS + 0.5              # and one too large
+    body, quads, singles = split_splats(tri, px)
+    assert quads.tolist() == [[[0, 1, 2], [2, 1, 3]]] and singles.tolist() == [[11, 12, 13]]
     assert body.tolist() == [[4, 5, 6], [6, 5, 7], [8, 9, 10]]
 
 
@@ -87,11 +95,13 @@ def atlas_depth(gl, meshes: list[MeshGPU], settings: ShadowSettings) -> np.ndarr
 @pytest.mark.parametrize("per_draw", [16, 1])
 def test_splats_draw_the_quads_texels_and_depths(gl, per_draw):
     records, tri = scattered_quads()
+    quads = 450  # the last 150 quads keep their first triangle only: lone triangles
+    tri = np.concatenate([tri[:2 * quads], tri[2 * quads::2]])
     as_tris = MeshGPU.from_records(gl, records, tri)
-    as_splats = MeshGPU.from_records(gl, records, tri, quads=len(tri) // 2)
+    as_splats = MeshGPU.from_records(gl, records, tri, quads=quads, singles=len(tri) - 2 * quads)
     settings = ShadowSettings(samples=4, shadow_map_resolution=128, maps_per_draw=per_draw)
     try:
-        assert as_splats.splats.count == len(tri) // 2 and as_splats.body_triangles == 0
+        assert as_splats.splats.count == 600 and as_splats.body_triangles == 0
         a, b = atlas_depth(gl, [as_tris], settings), atlas_depth(gl, [as_splats], settings)
     finally:
         as_tris.release()
@@ -103,7 +113,7 @@ def test_splats_draw_the_quads_texels_and_depths(gl, per_draw):
 
 
 def test_reconstruction_keeps_its_triangles_with_splats(gl):
-    """Grass at 128² reference images: many samples are isolated quads; the meshes
+    """Grass at 128² reference images: many samples are small pieces; the meshes
     with and without splats hold the same triangles, and their shadows agree."""
     scene = make_builtin("grass", 0.1)
     light = default_area_light(scene.bounds, scene.sun_direction)

@@ -1,8 +1,9 @@
 #version 430 core
-// Quad splats of the shadow-map pass (gl_passes/quad_splats.py): an isolated quad
-// (two triangles sharing the diagonal s0–s1, the others' corners o0 and o1, world
-// units) drawn as one point sprite that bounds its window footprint; the fragment
-// stage keeps exactly the two triangles' pixels and their plane depths.
+// Quad splats of the shadow-map pass (gl_passes/quad_splats.py): a quad of a small
+// piece (two triangles sharing the diagonal s0–s1, the others' corners o0 and o1,
+// world units; a lone triangle has o1 = o0) drawn as one point sprite that bounds
+// its window footprint; the fragment stage keeps exactly the two triangles' pixels
+// and their plane depths.
 in vec3 in_s0;
 in vec3 in_s1;
 in vec3 in_o0;
