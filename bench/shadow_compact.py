@@ -24,13 +24,12 @@ from dataclasses import asdict
 from typing import Any
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from bench.common import md_table, progress
 from bench.shadow_stage import Stage
 from gl_passes.context import GLContext
 from gl_passes.mesh_gpu import MeshGPU
+from gl_passes.quad_splats import triangle_pieces
 from gl_passes.reconstruction import ReconstructionSettings, reconstruct_set, render_set
 from gl_passes.shadows import ShadowSettings, SoftShadowPass
 from reference.shadows import shadow_errors
@@ -84,13 +83,7 @@ def pieces(meshes: Sequence[MeshGPU]) -> dict[str, int]:
     n_pieces = small = 0
     for m in meshes:
         _, tri = m.read_records()
-        if len(tri) == 0:
-            continue
-        n = m.n_vertices
-        edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]]]).astype(np.int64)
-        graph = coo_matrix((np.ones(len(edges), np.int8), (edges[:, 0], edges[:, 1])), shape=(n, n))
-        _, label = connected_components(graph, directed=False)
-        size = np.bincount(label[tri[:, 0]])
+        size = np.bincount(triangle_pieces(tri))
         size = size[size > 0]
         n_pieces += len(size)
         small += int(size[size <= SMALL_PIECE].sum())
@@ -188,6 +181,6 @@ def _pieces_sentence(level: dict[str, Any] | None) -> str:
             "seen apart from its neighbours); the compact meshes keep the pieces apart (edge collapses keep the "
             f"topology): {c['pieces']:,} pieces, {100 * c['small_piece_triangles'] / c['triangles']:.0f} % of "
             "their triangles in small ones."
-            + (f" The shadow maps draw {100 * c.get('splat_triangles', 2 * c['splats']) / c['triangles']:.0f} % of "
+            + (f" The shadow maps draw {100 * c['splat_triangles'] / c['triangles']:.0f} % of "
                f"the compact triangles as {c['splats']:,} splats (`gl_passes.quad_splats`)."
                if "splats" in c else ""))

@@ -1053,7 +1053,7 @@ def _splat_sentence(levels: list[dict[str, Any]]) -> str:
         if not lv:
             return ""
         gain = [1 - x["seconds_per_map"] / x["triangles_seconds_per_map"] for x in lv]
-        share = [x.get("splat_triangles", 2 * x["splats"]) / x["triangles"] for x in lv]
+        share = [x["splat_triangles"] / x["triangles"] for x in lv]
         parts.append(f"{kind} {100 * min(gain):.0f}–{100 * max(gain):.0f} % "
                      f"({100 * min(share):.0f}–{100 * max(share):.0f} % of its triangles drawn as splats)")
     return (" Drawing the small pieces as splats (one point sprite per quad or lone triangle, the same texels "

@@ -40,6 +40,18 @@ SPLAT_PIECE = 64
 SPLAT_BYTES = 48
 
 
+def triangle_pieces(triangles: np.ndarray) -> np.ndarray:
+    """(M,) int the piece of each of `triangles` (M,3): triangles joined through
+    shared vertex indices share a label (labels need not be consecutive)."""
+    tri = np.asarray(triangles, np.int64).reshape(-1, 3)
+    if len(tri) == 0:
+        return np.zeros(0, np.int64)
+    n = int(tri.max()) + 1
+    edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]]])
+    graph = coo_matrix((np.ones(len(edges), np.int8), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    return connected_components(graph, directed=False)[1][tri[:, 0]]
+
+
 def splat_pairs(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(pairs (P,2), singles (L,)) indices into `triangles` (M,3) of the triangles in
     pieces (connected through shared vertices) of at most SPLAT_PIECE triangles:
@@ -51,11 +63,8 @@ def splat_pairs(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if m == 0:
         return np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
     n = int(tri.max()) + 1
-    edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]]])
-    graph = coo_matrix((np.ones(len(edges), np.int8), (edges[:, 0], edges[:, 1])), shape=(n, n))
-    _, piece = connected_components(graph, directed=False)
-    size = np.bincount(piece[tri[:, 0]], minlength=n)
-    small = np.flatnonzero(size[piece[tri[:, 0]]] <= SPLAT_PIECE)
+    piece = triangle_pieces(tri)
+    small = np.flatnonzero(np.bincount(piece)[piece] <= SPLAT_PIECE)
     # the edges two small triangles share (an edge of three or more triangles pairs none)
     ends = np.sort(tri[small][:, [0, 1, 1, 2, 2, 0]].reshape(-1, 3, 2), axis=2).reshape(-1, 2)
     key = ends[:, 0] * n + ends[:, 1]
@@ -143,4 +152,5 @@ class QuadSplats(IndexedBuffers):
             self.vao(prog).render(moderngl.POINTS, vertices=self.count, instances=instances)
 
 
-__all__ = ["SPLAT_PIECE", "SPLAT_PIXELS", "QuadSplats", "quad_corners", "splat_corners", "splat_pairs", "split_splats"]
+__all__ = ["SPLAT_PIECE", "SPLAT_PIXELS", "QuadSplats", "quad_corners", "splat_corners", "splat_pairs", "split_splats",
+           "triangle_pieces"]
