@@ -539,6 +539,15 @@ def test_soft_shadow_parts_name_their_shadow_bias():
                                                "depth_slope": 0.5}}}) == "0.125/1/0.5"
 
 
+def test_speedup_ranges_say_faster_or_slower_by_sign():
+    """The report words a range of time savings (1 − t_new / t_old) by its signs."""
+    from bench.soft_shadows import _speedup_range
+
+    assert _speedup_range([0.03, 0.16]) == "3–16 % faster"
+    assert _speedup_range([-0.09, -0.02]) == "2–9 % slower"
+    assert _speedup_range([-0.13, 0.02, 0.0]) == "13 % slower to 2 % faster"
+
+
 def test_crossover_and_compact_bound_table_by_hand():
     """bench.shadow_compact: the crossover interpolates where the original's time
     reaches the reconstruction's; the bound table names the bounds that keep both
