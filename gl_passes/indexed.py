@@ -33,6 +33,11 @@ class IndexedBuffers(Releasable):
                 prog, [(self.vbo, *self.vertex_format(prog))], index_buffer=self.ibo, index_element_size=4)
         return self._vaos[key]
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of GPU buffers held (the vertex and index buffers)."""
+        return self.vbo.size + (self.ibo.size if self.ibo is not None else 0)
+
     def release(self) -> None:
         self.gl.check_thread()
         for v in self._vaos.values():

@@ -90,6 +90,11 @@ class MeshGPU(IndexedBuffers):
         """Triangles that the splats do not stand for (all of them without splats)."""
         return self.n_triangles - (self.splats.triangles if self.splats else 0)
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of GPU buffers held, the splats' included."""
+        return super().nbytes + (self.splats.nbytes if self.splats else 0)
+
     def vertex_format(self, prog: moderngl.Program) -> tuple[str, ...]:
         return ("3f 4x", "in_position")
 

@@ -21,6 +21,11 @@ job_timeout_s          120                          how long a handler waits for
 retry_after_s          1                            value of the ``Retry-After`` header on 503
 scene_cache_size       8                            parsed Scene objects kept in memory (LRU)
 gpu_cache_size         4                            scenes kept uploaded on the GPU (LRU, worker)
+reconstruction_cache_  512 MiB (536870912)          GPU bytes of reconstructions (soft shadows'
+bytes                                               occluders, /reconstruction meshes) each worker
+                                                    keeps for the next request with the same scene,
+                                                    light or cameras, method and resolution (LRU);
+                                                    0 keeps none
 gl_backend             unset (EGL, OSMesa fallback) ``egl`` or ``osmesa`` (``DEPTHVIEW_GL``, or
                                                     ``DEPTHVIEW_GL_BACKEND``)
 gl_device              unset                        EGL device index
@@ -161,6 +166,8 @@ class Settings:
     scene_cache_size: int = 8
     #: Scenes kept uploaded on the GPU by the render worker (LRU; released on eviction).
     gpu_cache_size: int = 4
+    #: GPU bytes of reconstructions each render worker keeps between requests (LRU; 0: none).
+    reconstruction_cache_bytes: int = 512 * MIB
     #: GL backend: "egl" or "osmesa"; None = EGL with OSMesa fallback (DEPTHVIEW_GL).
     gl_backend: str | None = None
     #: EGL device index; None = default device (DEPTHVIEW_GL_DEVICE).
@@ -214,8 +221,9 @@ class Settings:
                 raise ValueError(f"setting {name} must be >= 1, got {getattr(self, name)!r}")
         if not 1 <= int(self.stream_jpeg_quality) <= 95:
             raise ValueError(f"setting stream_jpeg_quality must be within 1..95, got {self.stream_jpeg_quality!r}")
-        if int(self.workers) < 0:
-            raise ValueError(f"setting workers must be >= 0 (0 = the worker thread), got {self.workers!r}")
+        for name, what in (("reconstruction_cache_bytes", "0 = none"), ("workers", "0 = the worker thread")):
+            if int(getattr(self, name)) < 0:
+                raise ValueError(f"setting {name} must be >= 0 ({what}), got {getattr(self, name)!r}")
         for name in ("job_timeout_s", "header_timeout_s", "body_timeout_s", "stream_rest_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"setting {name} must be > 0, got {getattr(self, name)!r}")
@@ -262,7 +270,7 @@ def _origins(raw: str) -> tuple[str, ...]:
 _INT_FIELDS = {"port", "max_upload_bytes", "max_triangles", "max_width", "max_height", "max_pixels",
                "queue_size", "retry_after_s", "scene_cache_size", "gpu_cache_size", "gl_device", "max_json_bytes",
                "max_job_bytes", "stream_max_per_client", "stream_max_total", "stream_max_message_bytes",
-               "stream_max_pixels", "stream_jpeg_quality", "workers"}
+               "stream_max_pixels", "stream_jpeg_quality", "workers", "reconstruction_cache_bytes"}
 _FLOAT_FIELDS = {"job_timeout_s", "header_timeout_s", "body_timeout_s", "stream_rest_s"}
 
 

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -37,6 +38,7 @@ import numpy as np
 
 from gl_passes.depth_images import DepthImageRenderer, conventional, depth_peeling, non_redundant
 from gl_passes.gbuffer import GBuffer
+from gl_passes.mesh_gpu import MeshGPU
 from gl_passes.reconstruction import ReconstructionSettings, reconstruct_set, render_set
 from gl_passes.reflections import DEFAULT_SETTINGS, ClusterReflections
 from gl_passes.shadows import ShadowSettings, SoftShadowPass
@@ -135,11 +137,19 @@ def _shadow_pass(state: GLState, samples: int) -> SoftShadowPass:
     return state.resource(f"soft_shadows_{samples}", lambda gl: SoftShadowPass(gl, ShadowSettings(samples=samples)))
 
 
-def _reconstruct(state: GLState, scene_key: str, scene: Scene, cameras: Sequence[Camera], method: str,
-                 kind: str, layers: int = PEEL_LAYERS) -> list:
-    gpu = state.scene_gpu(scene_key, scene)
-    sampled = render_set(state.gl, gpu, method, cameras, layers=layers, offsets=kind != "grid")
-    return reconstruct_set(state.gl, sampled, ReconstructionSettings(kind=kind))
+def _reconstruction(state: GLState, scene_key: str, scene: Scene, cameras: Sequence[Camera], method: str,
+                    kind: str, layers: int = PEEL_LAYERS) -> AbstractContextManager[Sequence[MeshGPU]]:
+    """The reconstruction (one mesh per image, `ReconstructionSettings(kind=kind)`)
+    of the `method` images of `cameras`, from the worker's cache when a job before
+    made the same (`GLState.reconstruction`): a light's depth images are made once
+    for every frame under it."""
+    def build() -> list[MeshGPU]:
+        gpu = state.scene_gpu(scene_key, scene)
+        sampled = render_set(state.gl, gpu, method, cameras, layers=layers, offsets=kind != "grid")
+        return reconstruct_set(state.gl, sampled, ReconstructionSettings(kind=kind))
+
+    what = (method, kind, layers if method == "peeling" else 0, tuple(cameras))
+    return state.reconstruction(scene_key, what, build)
 
 
 @dataclass(frozen=True)
@@ -158,18 +168,13 @@ class SoftShadowJob(SceneJob):
         gbuf = state.gbuffer.render(gpu, self.camera)
         if req.method == "raytrace":
             return gbuf, raytrace_counts(self.scene_key, scene, gbuf, req)
+        shadows = _shadow_pass(state, req.samples)
         if req.method == "geometry":
-            occluders, owned = [gpu], []
-        else:
-            cams = reference_cameras(req.light, scene.bounds, req.method, req.resolution)
-            owned = _reconstruct(state, self.scene_key, scene, cams, req.method, req.reconstruction)
-            occluders = owned
-        try:
-            res = _shadow_pass(state, req.samples).visibility(
-                occluders, scene.bounds, gbuf.position, gbuf.normal, gbuf.mask, req.light)
-        finally:
-            for m in owned:
-                m.release()
+            res = shadows.visibility([gpu], scene.bounds, gbuf.position, gbuf.normal, gbuf.mask, req.light)
+            return gbuf, res.counts
+        cams = reference_cameras(req.light, scene.bounds, req.method, req.resolution)
+        with _reconstruction(state, self.scene_key, scene, cams, req.method, req.reconstruction) as occluders:
+            res = shadows.visibility(occluders, scene.bounds, gbuf.position, gbuf.normal, gbuf.mask, req.light)
         return gbuf, res.counts
 
 
@@ -186,13 +191,9 @@ class ReconstructionJob(SceneJob):
     layers: int = PEEL_LAYERS
 
     def __call__(self, state: GLState) -> list[MeshArrays]:
-        meshes = _reconstruct(state, self.scene_key, self.load(state), self.cameras, self.method, self.kind,
-                              self.layers)
-        try:
+        with _reconstruction(state, self.scene_key, self.load(state), self.cameras, self.method, self.kind,
+                             self.layers) as meshes:
             return [m.read() for m in meshes]
-        finally:
-            for m in meshes:
-                m.release()
 
 
 @dataclass(frozen=True)

@@ -55,6 +55,7 @@ class WorkerConfig:
     gpu_cache_size: int
     backend: str | None
     device: int | None
+    reconstruction_cache_bytes: int = 0
 
 
 def _child_main(conn: Any, cfg: WorkerConfig) -> None:
@@ -67,7 +68,7 @@ def _child_main(conn: Any, cfg: WorkerConfig) -> None:
         store = SceneStore(cfg.data_dir, cfg.scene_cache_size, cfg.max_triangles, cleanup=False)
         gl = create_gl_context(cfg.backend, cfg.device)
         state = GLState(gl=gl, gbuffer=GBufferPass(gl), gpu_cache_size=cfg.gpu_cache_size,
-                        scene_loader=store.get_scene)
+                        reconstruction_cache_bytes=cfg.reconstruction_cache_bytes, scene_loader=store.get_scene)
     except BaseException as exc:  # noqa: BLE001 - reported to the parent
         conn.send(("failed", f"{type(exc).__name__}: {exc}"))
         return

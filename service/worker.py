@@ -13,9 +13,10 @@ back (an asyncio handler awaits it with ``asyncio.wrap_future``):
 * if the GL context cannot be created, ``ready`` stays False, ``startup_error``
   says why and jobs fail with ``WorkerUnavailable`` (HTTP 503).
 
-The worker keeps a ``GBufferPass`` and an LRU of ``SceneGPU`` uploads keyed by
-scene id (content address), released on eviction and at shutdown, all on the
-worker thread.
+The worker keeps a ``GBufferPass``, an LRU of ``SceneGPU`` uploads keyed by
+scene id (content address) and an LRU of reconstructions (the occluders of soft
+shadows, bounded in GPU bytes), released on eviction, when their scene is forgotten
+and at shutdown, all on the worker thread.
 """
 
 from __future__ import annotations
@@ -25,8 +26,9 @@ import queue
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Hashable, Iterator, Sequence
 from concurrent.futures import Future
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -82,9 +84,12 @@ class GLState:
     gl: GLContext
     gbuffer: GBufferPass
     gpu_cache_size: int = 4
+    #: GPU bytes of reconstructions kept between jobs (`reconstruction`); 0: none.
+    reconstruction_cache_bytes: int = 0
     #: Loads a stored scene by its content address (jobs that arrive without their scene).
     scene_loader: Callable[[str], Scene] | None = None
     _gpu: OrderedDict[str, SceneGPU] = field(default_factory=OrderedDict)
+    _meshes: OrderedDict[tuple[str, Hashable], tuple[Sequence[Any], int]] = field(default_factory=OrderedDict)
     _resources: dict[str, Any] = field(default_factory=dict)
     #: Per-client state on this worker (a stream's ReflectionReuser), by client key.
     clients: dict[str, Any] = field(default_factory=dict)
@@ -114,11 +119,46 @@ class GLState:
         return self.scene_loader(key)
 
     def forget(self, key: str) -> None:
-        """Release the GPU upload cached under `key`, if any."""
+        """Release the GPU upload cached under `key` and its cached reconstructions, if any."""
         self.gl.check_thread()
         gpu = self._gpu.pop(key, None)
         if gpu is not None:
             gpu.release()
+        for k in [k for k in self._meshes if k[0] == key]:
+            _release_all(self._meshes.pop(k)[0])
+
+    @contextmanager
+    def reconstruction(self, scene_key: str, what: Hashable,
+                       build: Callable[[], Sequence[Any]]) -> Iterator[Sequence[Any]]:
+        """The meshes (anything with `nbytes` and `release()`) that `build()` makes of
+        the scene under the content address `scene_key` for `what` (method, cameras…:
+        whatever else decides them), for the duration of the ``with`` block. Kept for
+        the next job with the same key (LRU) while the kept meshes' GPU bytes fit
+        `reconstruction_cache_bytes`; otherwise released when the block ends. Callers
+        never release them."""
+        self.gl.check_thread()
+        key = (scene_key, what)
+        if key in self._meshes:
+            self._meshes.move_to_end(key)
+            yield self._meshes[key][0]
+            return
+        meshes = build()
+        size = sum(int(m.nbytes) for m in meshes)
+        if size > self.reconstruction_cache_bytes:
+            try:
+                yield meshes
+            finally:
+                _release_all(meshes)
+            return
+        self._meshes[key] = (meshes, size)
+        while sum(n for _, n in self._meshes.values()) > self.reconstruction_cache_bytes:
+            _, (old, _) = self._meshes.popitem(last=False)
+            _release_all(old)
+        yield meshes
+
+    @property
+    def reconstructions_cached(self) -> int:
+        return len(self._meshes)
 
     def resource(self, name: str, factory: Callable[[GLContext], Any]) -> Any:
         """A long-lived GL object (e.g. another pass) created on first use with
@@ -134,6 +174,11 @@ class GLState:
 
     def release(self) -> None:
         """Release every GL object, then the context (worker thread only)."""
+        self.release_objects()
+        self.gl.release()
+
+    def release_objects(self) -> None:
+        """Release every GL object this state made, not the context (worker thread only)."""
         self.gl.check_thread()
         for key, client in list(self.clients.items()):
             try:
@@ -147,6 +192,12 @@ class GLState:
             except Exception:  # noqa: BLE001 - release the rest anyway
                 log.exception("releasing GPU upload of %s failed", key)
         self._gpu.clear()
+        for meshes, _ in self._meshes.values():
+            try:
+                _release_all(meshes)
+            except Exception:  # noqa: BLE001 - release the rest anyway
+                log.exception("releasing a cached reconstruction failed")
+        self._meshes.clear()
         for name, obj in list(self._resources.items()):
             try:
                 obj.release()
@@ -157,20 +208,25 @@ class GLState:
             self.gbuffer.release()
         except Exception:  # noqa: BLE001
             log.exception("releasing the G-buffer pass failed")
-        self.gl.release()
+
+
+def _release_all(meshes: Sequence[Any]) -> None:
+    for m in meshes:
+        m.release()
 
 
 class RenderWorker:
     """A daemon thread owning one GL context; jobs arrive through a bounded queue."""
 
     def __init__(self, queue_size: int = 32, job_timeout_s: float = 120.0, gpu_cache_size: int = 4,
-                 backend: str | None = None, device: int | None = None,
+                 backend: str | None = None, device: int | None = None, reconstruction_cache_bytes: int = 0,
                  context_factory: Callable[[], GLContext] | None = None,
                  gbuffer_factory: Callable[[GLContext], GBufferPass] | None = None, name: str = "depthview-gl",
                  scene_loader: Callable[[str], Scene] | None = None) -> None:
         self.queue_size = int(queue_size)
         self.job_timeout_s = float(job_timeout_s)
         self.gpu_cache_size = int(gpu_cache_size)
+        self.reconstruction_cache_bytes = int(reconstruction_cache_bytes)
         self._scene_loader = scene_loader
         self._context_factory = context_factory or (lambda: create_gl_context(backend, device))
         self._gbuffer_factory = gbuffer_factory or GBufferPass
@@ -324,6 +380,7 @@ class RenderWorker:
             gl.release()
             raise
         self._state = GLState(gl=gl, gbuffer=gbuffer, gpu_cache_size=self.gpu_cache_size,
+                              reconstruction_cache_bytes=self.reconstruction_cache_bytes,
                               scene_loader=self._scene_loader)
         self.renderer, self.backend = gl.renderer, gl.backend
         self.gl_version = getattr(gl, "version", None)

@@ -539,6 +539,20 @@ def test_soft_shadow_parts_name_their_shadow_bias():
                                                "depth_slope": 0.5}}}) == "0.125/1/0.5"
 
 
+def test_shadow_frames_report_by_hand(tmp_path):
+    """bench.shadow_frames: later frames are the median of all but the first, the
+    ratio is remade over kept."""
+    from argparse import Namespace
+
+    from bench.shadow_frames import write_report
+
+    run = {"setting": "thin client", "scene": "city", "k": 6, "res": 256, "width": 640, "height": 480,
+           "seconds": {"kept": [2.0, 1.0, 3.0, 1.0], "remade": [2.5, 2.0, 2.0, 9.0]}}
+    write_report(tmp_path, Namespace(frames=4, http_frames=3), {}, [run], 60.0)
+    text = (tmp_path / "shadow_frames.md").read_text()
+    assert "| thin client | city | 6² · 256² · 640×480 | 4 | 2.00 / 2.50 | 1.00 | 2.00 | 2.00× |" in text
+
+
 def test_speedup_ranges_say_faster_or_slower_by_sign():
     """The report words a range of time savings (1 − t_new / t_old) by its signs."""
     from bench.soft_shadows import _speedup_range

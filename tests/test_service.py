@@ -589,6 +589,43 @@ def test_worker_delivers_exceptions_skips_expired_jobs_and_releases_gl(monkeypat
         w.submit(lambda st: None)
 
 
+def test_worker_keeps_reconstructions_within_their_byte_budget(gl):
+    """GLState.reconstruction: a job with the same scene and key reuses the meshes;
+    the least recently used are released once the kept bytes would pass the budget;
+    meshes larger than the budget are released when their job ends; forgetting a
+    scene releases its own."""
+    from service.worker import GLState
+
+    built, released = [], []
+
+    class Mesh:
+        def __init__(self, name: str, nbytes: int) -> None:
+            self.name, self.nbytes = name, nbytes
+
+        def release(self) -> None:
+            released.append(self.name)
+
+    def build(name: str, nbytes: int):
+        return lambda: built.append(name) or [Mesh(name, nbytes)]
+
+    st = GLState(gl=gl, gbuffer=None, reconstruction_cache_bytes=100)
+    with st.reconstruction("s", "a", build("a", 60)) as meshes:
+        assert meshes[0].name == "a"
+    with st.reconstruction("s", "a", build("a again", 60)) as meshes:
+        assert meshes[0].name == "a"
+    with st.reconstruction("t", "a", build("t's a", 30)):
+        pass
+    assert built == ["a", "t's a"] and released == []
+    with st.reconstruction("s", "c", build("c", 40)):
+        pass
+    assert released == ["a"]  # 60 + 30 + 40 > 100: the least recently used goes
+    with st.reconstruction("s", "big", build("big", 101)):
+        assert released == ["a"]
+    assert released == ["a", "big"] and st.reconstructions_cached == 2
+    st.forget("s")
+    assert released == ["a", "big", "c"] and st.reconstructions_cached == 1
+
+
 # --- CLI -------------------------------------------------------------------------------------------
 def test_cli_scenes_lists_builtins(capsys):
     from service.cli import main

@@ -69,6 +69,33 @@ def test_nr_hybrid_frame_is_close_to_the_geometry_truth(client):
     assert_images_close(nr / 16.0, geo / 16.0, metric="mae", tolerance=0.6 / 16, max_bad_fraction=0.12)
 
 
+def test_frames_under_one_light_reuse_its_reconstruction(client, monkeypatch):
+    """The worker keeps a light's reconstruction (`GLState.reconstruction`): a frame
+    from another camera under the same light renders no depth images, the first
+    camera again gives the same counts; another reference resolution renders anew."""
+    import service.jobs as jobs
+
+    c, sid = client
+    made, real = [], jobs.render_set
+    monkeypatch.setattr(jobs, "render_set", lambda *a, **k: made.append(len(a[3])) or real(*a, **k))
+    cam = camera()
+    moved = {**cam, "eye": [x * 1.1 for x in cam["eye"]]}
+
+    def frame(view: dict, resolution: int) -> np.ndarray:
+        return visible(c.post(f"/scenes/{sid}/frames", json={
+            "camera": view, "width": RES, "height": RES, "format": "exr",
+            "effects": {"soft_shadows": {"samples": 4, "method": "non_redundant", "resolution": resolution}}}))
+
+    first = frame(cam, 96)
+    assert made == [4]  # the light's 4 corner images
+    other = frame(moved, 96)
+    again = frame(cam, 96)
+    assert made == [4] and not np.array_equal(other, first)
+    np.testing.assert_array_equal(again, first)
+    frame(cam, 112)
+    assert made == [4, 4]
+
+
 @pytest.mark.parametrize("spec, needle", [
     ({"samples": 0}, "samples"),
     ({"samples": 33}, "samples"),
