@@ -1,15 +1,16 @@
 """Soft-shadow frames along an orbit through the service's render job, with the render
-worker keeping the light's reconstruction between frames and without.
+worker keeping the light's reconstruction and shadow maps between frames and without.
 
 The service renders a soft-shadow frame as `service.jobs.SoftShadowJob` on its worker's
 `GLState`: the G-buffer of the camera, the light's depth images and their
-reconstruction (Alg. 4), then k² shadow maps of it (Alg. 5). Only the G-buffer and the
-shadow-map lookups depend on the camera; `GLState.reconstruction` keeps the
-reconstruction for the next frame under the same light (the service's default,
-``reconstruction_cache_bytes``). Here the same job runs for every camera of an orbit on
-two states over one GL context, with that cache and with none, frame by frame in turn
-(the machine is shared: the two see the same load). Times are the job's (the worker's
-share of a frame; shading and encoding run beside it in the service and do not change).
+reconstruction (Alg. 4), k² shadow maps of it and their lookups (Alg. 5). Only the
+G-buffer and the lookups depend on the camera; `GLState.kept` keeps the
+reconstruction, and the maps where all k² fit, for the next frame under the same light
+(the service's default, ``reconstruction_cache_bytes``). Here the same job runs for
+every camera of an orbit on two states over one GL context, with that cache and with
+none, frame by frame in turn (the machine is shared: the two see the same load). Times
+are the job's (the worker's share of a frame; shading and encoding run beside it in the
+service and do not change).
 
 Settings: the thin client's (k = 6, reference images 256², a 640×480 frame:
 `service/static/client.js`) on the four soft-shadow scenes, and the HTTP defaults
@@ -87,11 +88,12 @@ def write_report(out: Path, args: argparse.Namespace, info: dict[str, Any], runs
                      len(kept), f"{kept[0]:.2f} / {remade[0]:.2f}", f"{later_kept:.2f}", f"{later_remade:.2f}",
                      f"{later_remade / later_kept:.2f}×"])
     text = report_head(
-        "Soft-shadow frames under one light: the reconstruction kept between frames",
+        "Soft-shadow frames under one light: the reconstruction and shadow maps kept between frames",
         f"python -m bench.shadow_frames --frames {args.frames} --http-frames {args.http_frames}",
         ["`service.jobs.SoftShadowJob` (NR images from the light's 4 corners, hybrid reconstruction, k×k shadow "
          "maps) for each camera of an orbit (`scenes.camera.orbit_path`), on a `GLState` that keeps the "
-         "reconstruction (`GLState.reconstruction`, the service's default size) and on one that keeps none, "
+         "reconstruction and, where all k² fit, the shadow maps (`GLState.kept`, the service's default size: "
+         "up to 17×17 maps fit) and on one that keeps none, "
          "frame by frame in turn on one GL context; the job's wall time (G-buffer, depth images, reconstruction, "
          "shadow maps and lookups), not shading or encoding. Both give the same visible-sample counts on every "
          "frame (checked)."],
@@ -99,7 +101,7 @@ def write_report(out: Path, args: argparse.Namespace, info: dict[str, Any], runs
         "## Seconds per frame",
         "",
         "Settings: k² light samples · reference images · frame. First frame: kept / remade (the kept state "
-        "builds its reconstruction there too); later frames: the median of the rest.",
+        "builds its reconstruction and maps there too); later frames: the median of the rest.",
         "",
         md_table(["setting", "scene", "settings", "frames", "first frame", "later frames, kept",
                   "later frames, remade", "remade / kept"], rows),

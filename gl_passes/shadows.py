@@ -24,6 +24,11 @@ whether s sees P:
    compares each point with each map of the batch and sets bit s of the point's
    visibility words in a storage buffer, read back once at the end.
 
+The maps depend on the light and the occluders only, not on the receivers:
+`render_maps` keeps all k² of them (one atlas per batch, `ShadowMaps`) and `lookup`
+answers any receivers from them, with the same bits as `visibility`, which reuses
+one atlas batch after batch.
+
 Visibility rule (shared with the Embree reference): a light sample on or behind
 P's tangent plane (dot(n, s − P) ≤ 0) is not visible. Depth bias: P is moved
 `normal_offset` texels along its normal n, and is lit when that point's depth along
@@ -117,6 +122,26 @@ class ShadowResult:
     bits: np.ndarray
     counts: np.ndarray
     timings: dict[str, float]
+
+
+@dataclass
+class ShadowMaps:
+    """The k² shadow maps of one light over fixed occluders (`SoftShadowPass.render_maps`),
+    for `SoftShadowPass.lookup` from any receivers: `atlases[i]` holds maps
+    i·maps_per_draw … in its tiles. Owns the atlases: call `release()`."""
+
+    cams: ShadowCameras
+    atlases: list[moderngl.Texture]
+
+    @property
+    def nbytes(self) -> int:
+        """GPU bytes of the atlases (32-bit depth texels)."""
+        return sum(a.width * a.height * 4 for a in self.atlases)
+
+    def release(self) -> None:
+        for a in self.atlases:
+            a.release()
+        self.atlases.clear()
 
 
 class Occluder(Protocol):
@@ -233,13 +258,24 @@ class SoftShadowPass(Releasable):
         self.splat_prog["u_max_point_size"].value = float(gl.ctx.info["GL_POINT_SIZE_RANGE"][1])
         self.lookup_prog = compute_program(gl, "shadow_lookup.comp", defines={
             "MAPS_PER_DRAW": str(self.batch), "WORDS": str(settings.words), **LOOKUP_UNITS.defines()})
-        self.atlas = gl.ctx.depth_texture((size, size))
-        self.atlas.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        self.atlas.compare_func = ""
-        self.fbo = gl.ctx.framebuffer(depth_attachment=self.atlas)
+        self.atlas, self.fbo = self._new_atlas()
         self._buffers: dict[str, moderngl.Buffer] = {}
 
     # --- resources -------------------------------------------------------------------
+    def _new_atlas(self) -> tuple[moderngl.Texture, moderngl.Framebuffer]:
+        """A depth atlas of `tiles`² maps, read unfiltered, and its framebuffer."""
+        size = self.settings.shadow_map_resolution * self.tiles
+        atlas = self.gl.ctx.depth_texture((size, size))
+        atlas.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        atlas.compare_func = ""
+        return atlas, self.gl.ctx.framebuffer(depth_attachment=atlas)
+
+    @property
+    def maps_nbytes(self) -> int:
+        """GPU bytes of the `ShadowMaps` that `render_maps` makes (one atlas per batch)."""
+        batches = -(-self.settings.n_samples // self.batch)
+        return batches * self.atlas.width * self.atlas.height * 4
+
     def _buffer(self, name: str, nbytes: int) -> moderngl.Buffer:
         """The storage buffer `name`, at least `nbytes` long (replaced when smaller)."""
         buf = self._buffers[name] = grown_buffer(self.gl.ctx, self._buffers.get(name), nbytes, max(nbytes, 16))
@@ -286,18 +322,25 @@ class SoftShadowPass(Releasable):
                 ctx.disable_direct(e)
             ctx.disable(moderngl.DEPTH_TEST)
 
-    def _render_maps(self, occluders: Sequence[Occluder], cams: ShadowCameras, first: int, count: int) -> None:
-        """Maps first..first+count−1 into atlas tiles 0..count−1."""
+    def _batches(self) -> Iterator[tuple[int, int]]:
+        """(first, count) of each batch of maps."""
+        n = self.settings.n_samples
+        for first in range(0, n, self.batch):
+            yield first, min(self.batch, n - first)
+
+    def _render_maps(self, occluders: Sequence[Occluder], cams: ShadowCameras, first: int, count: int,
+                     fbo: moderngl.Framebuffer) -> None:
+        """Maps first..first+count−1 into tiles 0..count−1 of `fbo`'s atlas."""
         progs = (self.map_prog, self.splat_prog)
-        self.fbo.use()
-        self.fbo.viewport = (0, 0, *self.atlas.size)
-        self.fbo.clear(depth=1.0)
+        fbo.use()
+        fbo.viewport = (0, 0, *fbo.size)
+        fbo.clear(depth=1.0)
         for prog in progs:
             prog["u_light_vp"].write(_padded(cams.view_proj, first, count, self.batch))
             if "u_tile" in prog:
                 prog["u_tile"].write(self.tile_ndc.tobytes())
         # programs are cached per context: another pass may have drawn another atlas size
-        self.splat_prog["u_viewport"].value = tuple(float(x) for x in self.atlas.size)
+        self.splat_prog["u_viewport"].value = tuple(float(x) for x in fbo.size)
 
         def set_first(i: int) -> None:
             for prog in progs:
@@ -308,10 +351,10 @@ class SoftShadowPass(Releasable):
             for occ in occluders:
                 _draw(occ, self.map_prog, self.splat_prog, count, set_first)
 
-    def _lookup(self, cams: ShadowCameras, first: int, count: int, n_points: int) -> None:
-        """Set the bits of samples first..first+count−1 for every receiver point."""
+    def _lookup(self, cams: ShadowCameras, first: int, count: int, n_points: int, atlas: moderngl.Texture) -> None:
+        """Set the bits of samples first..first+count−1 (in `atlas`) for every receiver point."""
         prog = self.lookup_prog
-        LOOKUP_UNITS.bind_texture("depth", self.atlas)
+        LOOKUP_UNITS.bind_texture("depth", atlas)
         for name in LOOKUP_UNITS.storage:
             LOOKUP_UNITS.bind_storage(name, self._buffers[name])
         for name, rows in (("u_light_vp", cams.view_proj), ("u_light", cams.light), ("u_clip", cams.clip)):
@@ -328,6 +371,24 @@ class SoftShadowPass(Releasable):
         prog.run(gx, -(-groups // gx))
         self.gl.ctx.memory_barrier()
 
+    def _receivers(self, points: np.ndarray, normals: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, int]:
+        """Check the shapes, upload the masked receivers: (mask (H,W) bool, their count)."""
+        mask = np.asarray(mask, bool)
+        if np.shape(points) != (*mask.shape, 3) or np.shape(normals) != (*mask.shape, 3):
+            raise ValueError(f"points and normals must be (H,W,3) with mask (H,W) = {mask.shape}")
+        return mask, self._upload(np.asarray(points, np.float32), np.asarray(normals, np.float32), mask)
+
+    def _result(self, mask: np.ndarray, n: int, timings: dict[str, float]) -> ShadowResult:
+        """Read the receivers' bits back into (H,W,words)."""
+        t0 = time.perf_counter()
+        words = self.settings.words
+        bits = np.zeros((*mask.shape, words), np.uint32)
+        if n:
+            flat = np.frombuffer(self._buffers["bits"].read(size=n * words * 4), np.uint32)
+            bits.reshape(-1, words)[np.flatnonzero(mask.ravel())] = flat.reshape(n, words)
+        timings["readback"] = time.perf_counter() - t0
+        return ShadowResult(bits=bits, counts=popcount_words(bits), timings=timings)
+
     # --- public ----------------------------------------------------------------------
     def visibility(self, occluders: Sequence[Occluder], bounds: tuple[np.ndarray, np.ndarray],
                    points: np.ndarray, normals: np.ndarray, mask: np.ndarray, light: AreaLight) -> ShadowResult:
@@ -341,31 +402,57 @@ class SoftShadowPass(Releasable):
         ValueError on mismatched shapes, or when `bounds` is not entirely in front
         of the light (scenes.lights.light_camera)."""
         self.gl.check_thread()
-        s = self.settings
-        mask = np.asarray(mask, bool)
-        h, w = mask.shape
-        if np.shape(points) != (h, w, 3) or np.shape(normals) != (h, w, 3):
-            raise ValueError(f"points and normals must be (H,W,3) with mask (H,W) = {mask.shape}")
         timings = {"upload": 0.0, "shadow_maps": 0.0, "lookup": 0.0, "readback": 0.0}
         t0 = time.perf_counter()
-        cams = shadow_cameras(light, bounds, s.samples, s.shadow_map_resolution)
-        n = self._upload(np.asarray(points, np.float32), np.asarray(normals, np.float32), mask)
+        cams = shadow_cameras(light, bounds, self.settings.samples, self.settings.shadow_map_resolution)
+        mask, n = self._receivers(points, normals, mask)
         timings["upload"] = time.perf_counter() - t0
         ctx = self.gl.ctx
-        for first in range(0, s.n_samples if n else 0, self.batch):
-            count = min(self.batch, s.n_samples - first)
+        for first, count in self._batches() if n else ():
             t0 = time.perf_counter()
-            self._render_maps(occluders, cams, first, count)
+            self._render_maps(occluders, cams, first, count, self.fbo)
             ctx.finish()
             t1 = time.perf_counter()
-            self._lookup(cams, first, count, n)
+            self._lookup(cams, first, count, n, self.atlas)
             ctx.finish()
             timings["shadow_maps"] += t1 - t0
             timings["lookup"] += time.perf_counter() - t1
+        return self._result(mask, n, timings)
+
+    def render_maps(self, occluders: Sequence[Occluder], bounds: tuple[np.ndarray, np.ndarray],
+                    light: AreaLight) -> ShadowMaps:
+        """All k² shadow maps of `light` over `occluders` (as `visibility` draws
+        them), kept in `maps_nbytes` of atlases for `lookup`."""
+        self.gl.check_thread()
+        maps = ShadowMaps(shadow_cameras(light, bounds, self.settings.samples, self.settings.shadow_map_resolution),
+                          [])
+        try:
+            for first, count in self._batches():
+                atlas, fbo = self._new_atlas()
+                maps.atlases.append(atlas)
+                try:
+                    self._render_maps(occluders, maps.cams, first, count, fbo)
+                finally:
+                    fbo.release()
+        except BaseException:
+            maps.release()
+            raise
+        return maps
+
+    def lookup(self, maps: ShadowMaps, points: np.ndarray, normals: np.ndarray, mask: np.ndarray) -> ShadowResult:
+        """`visibility` of the receivers (shapes as there) from maps that
+        `render_maps` of this pass made."""
+        self.gl.check_thread()
+        if len(maps.atlases) != len(list(self._batches())):
+            raise ValueError(f"{len(maps.atlases)} atlases are not the maps of this pass's {self.settings.samples}² "
+                             "light samples (released, or another pass's)")
+        timings = {"upload": 0.0, "shadow_maps": 0.0, "lookup": 0.0, "readback": 0.0}
         t0 = time.perf_counter()
-        bits = np.zeros((h, w, s.words), np.uint32)
-        if n:
-            flat = np.frombuffer(self._buffers["bits"].read(size=n * s.words * 4), np.uint32)
-            bits.reshape(-1, s.words)[np.flatnonzero(mask.ravel())] = flat.reshape(n, s.words)
-        timings["readback"] = time.perf_counter() - t0
-        return ShadowResult(bits=bits, counts=popcount_words(bits), timings=timings)
+        mask, n = self._receivers(points, normals, mask)
+        t1 = time.perf_counter()
+        timings["upload"] = t1 - t0
+        for (first, count), atlas in zip(self._batches(), maps.atlases, strict=True) if n else ():
+            self._lookup(maps.cams, first, count, n, atlas)
+        self.gl.ctx.finish()
+        timings["lookup"] = time.perf_counter() - t1
+        return self._result(mask, n, timings)

@@ -21,11 +21,13 @@ job_timeout_s          120                          how long a handler waits for
 retry_after_s          1                            value of the ``Retry-After`` header on 503
 scene_cache_size       8                            parsed Scene objects kept in memory (LRU)
 gpu_cache_size         4                            scenes kept uploaded on the GPU (LRU, worker)
-reconstruction_cache_  512 MiB (536870912)          GPU bytes of reconstructions (soft shadows'
-bytes                                               occluders, /reconstruction meshes) each worker
-                                                    keeps for the next request with the same scene,
-                                                    light or cameras, method and resolution (LRU);
-                                                    0 keeps none
+reconstruction_cache_  1.25 GiB (1342177280)        GPU bytes of reconstructions (soft shadows'
+bytes                                               occluders, /reconstruction meshes) and of a
+                                                    light's k² shadow maps (S²·16·4 B per 16 maps:
+                                                    1 GiB for the default 16×16) each worker keeps
+                                                    for the next request with the same scene, light
+                                                    or cameras, method and resolution (LRU); 0 keeps
+                                                    none
 gl_backend             unset (EGL, OSMesa fallback) ``egl`` or ``osmesa`` (``DEPTHVIEW_GL``, or
                                                     ``DEPTHVIEW_GL_BACKEND``)
 gl_device              unset                        EGL device index
@@ -166,8 +168,8 @@ class Settings:
     scene_cache_size: int = 8
     #: Scenes kept uploaded on the GPU by the render worker (LRU; released on eviction).
     gpu_cache_size: int = 4
-    #: GPU bytes of reconstructions each render worker keeps between requests (LRU; 0: none).
-    reconstruction_cache_bytes: int = 512 * MIB
+    #: GPU bytes of reconstructions and shadow maps each render worker keeps between requests (LRU; 0: none).
+    reconstruction_cache_bytes: int = 1280 * MIB
     #: GL backend: "egl" or "osmesa"; None = EGL with OSMesa fallback (DEPTHVIEW_GL).
     gl_backend: str | None = None
     #: EGL device index; None = default device (DEPTHVIEW_GL_DEVICE).

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from contextlib import AbstractContextManager
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -41,7 +41,8 @@ from gl_passes.gbuffer import GBuffer
 from gl_passes.mesh_gpu import MeshGPU
 from gl_passes.reconstruction import ReconstructionSettings, reconstruct_set, render_set
 from gl_passes.reflections import DEFAULT_SETTINGS, ClusterReflections
-from gl_passes.shadows import ShadowSettings, SoftShadowPass
+from gl_passes.shadows import ShadowMaps, ShadowSettings, SoftShadowPass
+from gl_passes.upload import SceneGPU
 from scenes.camera import Camera
 from scenes.depth_image import DepthImage
 from scenes.lights import PEEL_LAYERS, reference_cameras
@@ -141,7 +142,7 @@ def _reconstruction(state: GLState, scene_key: str, scene: Scene, cameras: Seque
                     kind: str, layers: int = PEEL_LAYERS) -> AbstractContextManager[Sequence[MeshGPU]]:
     """The reconstruction (one mesh per image, `ReconstructionSettings(kind=kind)`)
     of the `method` images of `cameras`, from the worker's cache when a job before
-    made the same (`GLState.reconstruction`): a light's depth images are made once
+    made the same (`GLState.kept`): a light's depth images are made once
     for every frame under it."""
     def build() -> list[MeshGPU]:
         gpu = state.scene_gpu(scene_key, scene)
@@ -149,13 +150,17 @@ def _reconstruction(state: GLState, scene_key: str, scene: Scene, cameras: Seque
         return reconstruct_set(state.gl, sampled, ReconstructionSettings(kind=kind))
 
     what = (method, kind, layers if method == "peeling" else 0, tuple(cameras))
-    return state.reconstruction(scene_key, what, build)
+    return state.kept(scene_key, what, build)
 
 
 @dataclass(frozen=True)
 class SoftShadowJob(SceneJob):
     """(G-buffer of `camera`, per-pixel visible light samples (H,W) uint16): by shadow
-    maps, or for `raytrace` by Embree (after the G-buffer, no GL)."""
+    maps, or for `raytrace` by Embree (after the G-buffer, no GL). The maps depend
+    on the light and the occluders only: where all k² of them fit the worker's
+    `reconstruction_cache_bytes` they are kept (`GLState.kept`) and the next frame
+    under the same light only looks them up; otherwise they are drawn batch by batch
+    (`SoftShadowPass.visibility`), over a reconstruction kept where it fits."""
 
     scene_key: str
     scene: Scene | None
@@ -169,13 +174,26 @@ class SoftShadowJob(SceneJob):
         if req.method == "raytrace":
             return gbuf, raytrace_counts(self.scene_key, scene, gbuf, req)
         shadows = _shadow_pass(state, req.samples)
-        if req.method == "geometry":
-            res = shadows.visibility([gpu], scene.bounds, gbuf.position, gbuf.normal, gbuf.mask, req.light)
+        if shadows.maps_nbytes > state.reconstruction_cache_bytes:
+            with self._occluders(state, scene, gpu) as occ:
+                res = shadows.visibility(occ, scene.bounds, gbuf.position, gbuf.normal, gbuf.mask, req.light)
             return gbuf, res.counts
-        cams = reference_cameras(req.light, scene.bounds, req.method, req.resolution)
-        with _reconstruction(state, self.scene_key, scene, cams, req.method, req.reconstruction) as occluders:
-            res = shadows.visibility(occluders, scene.bounds, gbuf.position, gbuf.normal, gbuf.mask, req.light)
+
+        def maps() -> list[ShadowMaps]:
+            with self._occluders(state, scene, gpu) as occ:
+                return [shadows.render_maps(occ, scene.bounds, req.light)]
+
+        what = ("shadow maps", req.method, req.reconstruction, req.resolution, req.samples, req.light)
+        with state.kept(self.scene_key, what, maps, shadows.maps_nbytes) as kept:
+            res = shadows.lookup(kept[0], gbuf.position, gbuf.normal, gbuf.mask)
         return gbuf, res.counts
+
+    def _occluders(self, state: GLState, scene: Scene, gpu: SceneGPU) -> AbstractContextManager[Sequence[Any]]:
+        """The scene itself (`geometry`) or the reconstruction of the light's images."""
+        if self.req.method == "geometry":
+            return nullcontext([gpu])
+        cams = reference_cameras(self.req.light, scene.bounds, self.req.method, self.req.resolution)
+        return _reconstruction(state, self.scene_key, scene, cams, self.req.method, self.req.reconstruction)
 
 
 @dataclass(frozen=True)

@@ -14,9 +14,9 @@ back (an asyncio handler awaits it with ``asyncio.wrap_future``):
   says why and jobs fail with ``WorkerUnavailable`` (HTTP 503).
 
 The worker keeps a ``GBufferPass``, an LRU of ``SceneGPU`` uploads keyed by
-scene id (content address) and an LRU of reconstructions (the occluders of soft
-shadows, bounded in GPU bytes), released on eviction, when their scene is forgotten
-and at shutdown, all on the worker thread.
+scene id (content address) and an LRU of reconstructions and shadow maps (soft
+shadows' occluders and their maps, bounded in GPU bytes), released on eviction,
+when their scene is forgotten and at shutdown, all on the worker thread.
 """
 
 from __future__ import annotations
@@ -84,12 +84,12 @@ class GLState:
     gl: GLContext
     gbuffer: GBufferPass
     gpu_cache_size: int = 4
-    #: GPU bytes of reconstructions kept between jobs (`reconstruction`); 0: none.
+    #: GPU bytes of reconstructions and shadow maps kept between jobs (`kept`); 0: none.
     reconstruction_cache_bytes: int = 0
     #: Loads a stored scene by its content address (jobs that arrive without their scene).
     scene_loader: Callable[[str], Scene] | None = None
     _gpu: OrderedDict[str, SceneGPU] = field(default_factory=OrderedDict)
-    _meshes: OrderedDict[tuple[str, Hashable], tuple[Sequence[Any], int]] = field(default_factory=OrderedDict)
+    _kept: OrderedDict[tuple[str, Hashable], tuple[Sequence[Any], int]] = field(default_factory=OrderedDict)
     _resources: dict[str, Any] = field(default_factory=dict)
     #: Per-client state on this worker (a stream's ReflectionReuser), by client key.
     clients: dict[str, Any] = field(default_factory=dict)
@@ -119,46 +119,55 @@ class GLState:
         return self.scene_loader(key)
 
     def forget(self, key: str) -> None:
-        """Release the GPU upload cached under `key` and its cached reconstructions, if any."""
+        """Release the GPU upload cached under `key` and what is kept of it (`kept`), if any."""
         self.gl.check_thread()
         gpu = self._gpu.pop(key, None)
         if gpu is not None:
             gpu.release()
-        for k in [k for k in self._meshes if k[0] == key]:
-            _release_all(self._meshes.pop(k)[0])
+        for k in [k for k in self._kept if k[0] == key]:
+            _release_all(self._kept.pop(k)[0])
 
     @contextmanager
-    def reconstruction(self, scene_key: str, what: Hashable,
-                       build: Callable[[], Sequence[Any]]) -> Iterator[Sequence[Any]]:
-        """The meshes (anything with `nbytes` and `release()`) that `build()` makes of
-        the scene under the content address `scene_key` for `what` (method, cameras…:
-        whatever else decides them), for the duration of the ``with`` block. Kept for
-        the next job with the same key (LRU) while the kept meshes' GPU bytes fit
-        `reconstruction_cache_bytes`; otherwise released when the block ends. Callers
-        never release them."""
+    def kept(self, scene_key: str, what: Hashable, build: Callable[[], Sequence[Any]],
+             expected: int | None = None) -> Iterator[Sequence[Any]]:
+        """The GPU objects (reconstructed meshes, shadow maps: anything with `nbytes`
+        and `release()`) that `build()` makes of the scene under the content address
+        `scene_key` for `what` (method, light, cameras…: whatever else decides them),
+        for the duration of the ``with`` block. Kept for the next job with the same
+        key (LRU) while the kept objects' GPU bytes fit `reconstruction_cache_bytes`;
+        otherwise released when the block ends. Callers never release them.
+        `expected`: their bytes when known before `build()`, which then makes room
+        first (the least recently used go before the new ones are made)."""
         self.gl.check_thread()
         key = (scene_key, what)
-        if key in self._meshes:
-            self._meshes.move_to_end(key)
-            yield self._meshes[key][0]
+        if key in self._kept:
+            self._kept.move_to_end(key)
+            yield self._kept[key][0]
             return
-        meshes = build()
-        size = sum(int(m.nbytes) for m in meshes)
+        if expected is not None and expected <= self.reconstruction_cache_bytes:
+            self._make_room(self.reconstruction_cache_bytes - expected)
+        made = build()
+        size = sum(int(m.nbytes) for m in made)
         if size > self.reconstruction_cache_bytes:
             try:
-                yield meshes
+                yield made
             finally:
-                _release_all(meshes)
+                _release_all(made)
             return
-        self._meshes[key] = (meshes, size)
-        while sum(n for _, n in self._meshes.values()) > self.reconstruction_cache_bytes:
-            _, (old, _) = self._meshes.popitem(last=False)
+        self._make_room(self.reconstruction_cache_bytes - size)
+        self._kept[key] = (made, size)
+        yield made
+
+    def _make_room(self, budget: int) -> None:
+        """Release the least recently used kept objects until at most `budget` bytes are kept."""
+        while self._kept and sum(n for _, n in self._kept.values()) > budget:
+            _, (old, _) = self._kept.popitem(last=False)
             _release_all(old)
-        yield meshes
 
     @property
-    def reconstructions_cached(self) -> int:
-        return len(self._meshes)
+    def kept_count(self) -> int:
+        """How many `kept` entries are held."""
+        return len(self._kept)
 
     def resource(self, name: str, factory: Callable[[GLContext], Any]) -> Any:
         """A long-lived GL object (e.g. another pass) created on first use with
@@ -192,12 +201,12 @@ class GLState:
             except Exception:  # noqa: BLE001 - release the rest anyway
                 log.exception("releasing GPU upload of %s failed", key)
         self._gpu.clear()
-        for meshes, _ in self._meshes.values():
+        for meshes, _ in self._kept.values():
             try:
                 _release_all(meshes)
             except Exception:  # noqa: BLE001 - release the rest anyway
-                log.exception("releasing a cached reconstruction failed")
-        self._meshes.clear()
+                log.exception("releasing a kept reconstruction or shadow maps failed")
+        self._kept.clear()
         for name, obj in list(self._resources.items()):
             try:
                 obj.release()

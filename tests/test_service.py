@@ -589,11 +589,11 @@ def test_worker_delivers_exceptions_skips_expired_jobs_and_releases_gl(monkeypat
         w.submit(lambda st: None)
 
 
-def test_worker_keeps_reconstructions_within_their_byte_budget(gl):
-    """GLState.reconstruction: a job with the same scene and key reuses the meshes;
-    the least recently used are released once the kept bytes would pass the budget;
-    meshes larger than the budget are released when their job ends; forgetting a
-    scene releases its own."""
+def test_worker_keeps_reconstructions_and_maps_within_their_byte_budget(gl):
+    """GLState.kept: a job with the same scene and key reuses the meshes;
+    the least recently used are released once the kept bytes would pass the budget
+    (before the build when its size is expected); meshes larger than the budget are
+    released when their job ends; forgetting a scene releases its own."""
     from service.worker import GLState
 
     built, released = [], []
@@ -609,21 +609,29 @@ def test_worker_keeps_reconstructions_within_their_byte_budget(gl):
         return lambda: built.append(name) or [Mesh(name, nbytes)]
 
     st = GLState(gl=gl, gbuffer=None, reconstruction_cache_bytes=100)
-    with st.reconstruction("s", "a", build("a", 60)) as meshes:
+    with st.kept("s", "a", build("a", 60)) as meshes:
         assert meshes[0].name == "a"
-    with st.reconstruction("s", "a", build("a again", 60)) as meshes:
+    with st.kept("s", "a", build("a again", 60)) as meshes:
         assert meshes[0].name == "a"
-    with st.reconstruction("t", "a", build("t's a", 30)):
+    with st.kept("t", "a", build("t's a", 30)):
         pass
     assert built == ["a", "t's a"] and released == []
-    with st.reconstruction("s", "c", build("c", 40)):
+    with st.kept("s", "c", build("c", 40)):
         pass
     assert released == ["a"]  # 60 + 30 + 40 > 100: the least recently used goes
-    with st.reconstruction("s", "big", build("big", 101)):
+    with st.kept("s", "big", build("big", 101)):
         assert released == ["a"]
-    assert released == ["a", "big"] and st.reconstructions_cached == 2
+    assert released == ["a", "big"] and st.kept_count == 2
     st.forget("s")
-    assert released == ["a", "big", "c"] and st.reconstructions_cached == 1
+    assert released == ["a", "big", "c"] and st.kept_count == 1
+
+    def after_room() -> list[Mesh]:
+        assert released[-1] == "t's a"  # 30 + 90 > 100: room made before the build
+        return [Mesh("x", 90)]
+
+    with st.kept("u", "x", after_room, expected=90) as meshes:
+        assert meshes[0].name == "x"
+    assert st.kept_count == 1
 
 
 # --- CLI -------------------------------------------------------------------------------------------

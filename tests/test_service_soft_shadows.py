@@ -69,15 +69,19 @@ def test_nr_hybrid_frame_is_close_to_the_geometry_truth(client):
     assert_images_close(nr / 16.0, geo / 16.0, metric="mae", tolerance=0.6 / 16, max_bad_fraction=0.12)
 
 
-def test_frames_under_one_light_reuse_its_reconstruction(client, monkeypatch):
-    """The worker keeps a light's reconstruction (`GLState.reconstruction`): a frame
-    from another camera under the same light renders no depth images, the first
-    camera again gives the same counts; another reference resolution renders anew."""
+def test_frames_under_one_light_reuse_its_reconstruction_and_maps(client, monkeypatch):
+    """The worker keeps a light's reconstruction and its shadow maps (`GLState.kept`):
+    a frame from another camera under the same light renders no depth images and no
+    maps, the first camera again gives the same counts; another reference resolution
+    renders both anew."""
     import service.jobs as jobs
+    from gl_passes.shadows import SoftShadowPass
 
     c, sid = client
     made, real = [], jobs.render_set
     monkeypatch.setattr(jobs, "render_set", lambda *a, **k: made.append(len(a[3])) or real(*a, **k))
+    drawn, real_maps = [], SoftShadowPass.render_maps
+    monkeypatch.setattr(SoftShadowPass, "render_maps", lambda *a, **k: drawn.append(1) or real_maps(*a, **k))
     cam = camera()
     moved = {**cam, "eye": [x * 1.1 for x in cam["eye"]]}
 
@@ -87,13 +91,13 @@ def test_frames_under_one_light_reuse_its_reconstruction(client, monkeypatch):
             "effects": {"soft_shadows": {"samples": 4, "method": "non_redundant", "resolution": resolution}}}))
 
     first = frame(cam, 96)
-    assert made == [4]  # the light's 4 corner images
+    assert made == [4] and len(drawn) == 1  # the light's 4 corner images, its 16 maps
     other = frame(moved, 96)
     again = frame(cam, 96)
-    assert made == [4] and not np.array_equal(other, first)
+    assert made == [4] and len(drawn) == 1 and not np.array_equal(other, first)
     np.testing.assert_array_equal(again, first)
     frame(cam, 112)
-    assert made == [4, 4]
+    assert made == [4, 4] and len(drawn) == 2
 
 
 @pytest.mark.parametrize("spec, needle", [

@@ -161,6 +161,27 @@ def test_instanced_atlas_matches_one_map_per_draw(gl, box_setup):
         assert a.counts.max() == k * k and a.counts[buf.tri_id > 0].min() == 0
 
 
+def test_kept_maps_give_the_bits_of_visibility(gl, box_setup, gbuffer_pass):
+    """render_maps keeps all k² maps (25: a partial last batch); lookup from them
+    answers any receivers with visibility's bits; released maps are refused."""
+    scene, sg, buf = box_setup
+    settings = ShadowSettings(samples=5, shadow_map_resolution=128)
+    other = gbuffer_pass.render(sg, Camera((-4, 3, 2), (0, 0.3, 0), fov=50, width=96, height=64).fit_clip(scene.bounds))
+    with SoftShadowPass(gl, settings) as sp:
+        maps = sp.render_maps([sg], scene.bounds, LIGHT)
+        try:
+            assert len(maps.atlases) == 2 and maps.nbytes == sp.maps_nbytes == 2 * (4 * 128) ** 2 * 4
+            for b in (buf, other):
+                direct = sp.visibility([sg], scene.bounds, b.position, b.normal, b.tri_id > 0, LIGHT)
+                kept = sp.lookup(maps, b.position, b.normal, b.tri_id > 0)
+                np.testing.assert_array_equal(kept.bits, direct.bits)
+                assert kept.counts.max() == 25 and kept.counts[b.tri_id > 0].min() == 0
+        finally:
+            maps.release()
+        with pytest.raises(ValueError, match="atlases"):
+            sp.lookup(maps, buf.position, buf.normal, buf.tri_id > 0)
+
+
 @pytest.mark.parametrize("degrees", GRAZING_DEGREES)
 def test_grazing_plane_has_no_acne(gl, degrees):
     """A plane tilted about a diagonal of the maps (the worst case for texel
@@ -216,6 +237,9 @@ def test_no_gl_object_growth():
             mask = np.ones((8, 8), bool)
             mask[: i % 8] = False  # the point buffers are reused, not re-made
             self.sp.visibility([self.sg], scene.bounds, pts, nrm, mask, LIGHT)
+            maps = self.sp.render_maps([self.sg], scene.bounds, LIGHT)
+            self.sp.lookup(maps, pts, nrm, mask)
+            maps.release()
 
         def release(self) -> None:
             self.sp.release()
