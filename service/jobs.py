@@ -183,7 +183,8 @@ class SoftShadowJob(SceneJob):
             with self._occluders(state, scene, gpu) as occ:
                 return [shadows.render_maps(occ, scene.bounds, req.light)]
 
-        what = ("shadow maps", req.method, req.reconstruction, req.resolution, req.samples, req.light)
+        images = (req.reconstruction, req.resolution) if req.method != "geometry" else ()
+        what = ("shadow maps", req.method, *images, req.samples, req.light)
         with state.kept(self.scene_key, what, maps, shadows.maps_nbytes) as kept:
             res = shadows.lookup(kept[0], gbuf.position, gbuf.normal, gbuf.mask)
         return gbuf, res.counts
