@@ -5,11 +5,14 @@ uvicorn server that wants a token (the page passes `?token=` on), orbited with t
 streamed frames must arrive and change, the canvases must not be blank (pixels read back),
 local mode must render the reconstruction at once on orbit, fetch a new set when the view
 leaves the region, and swap the server's frame in; frames must show in the order they came
-even when a decode finishes late; the page must log no errors. A failure
+even when a decode finishes late; the soft-shadow toggle must switch the stream to soft
+shadows that answer an orbit; the page must log no errors. A failure
 names a screenshot (failure.png in the test's tmp dir) and the page's state."""
 
 from __future__ import annotations
 
+import contextlib
+import json
 import os
 import shutil
 from collections.abc import Iterator
@@ -95,13 +98,21 @@ def state(page) -> dict:
     return page.evaluate("() => JSON.parse(JSON.stringify(window.depthview))")
 
 
-def test_client_streams_orbits_and_renders_the_reconstruction_locally(page, server, tmp_path):
+@contextlib.contextmanager
+def reported(page, tmp_path) -> Iterator[None]:
+    """On failure: a screenshot (failure.png in tmp_path), named in the message with the
+    page's state and problems."""
     try:
-        _scenario(page, server)
+        yield
     except BaseException as exc:
         page.screenshot(path=str(tmp_path / "failure.png"))
         raise AssertionError(f"{exc}\nscreenshot: {tmp_path / 'failure.png'}; page state: {state(page)}; "
                              f"page problems: {page.problems}") from exc
+
+
+def test_client_streams_orbits_and_renders_the_reconstruction_locally(page, server, tmp_path):
+    with reported(page, tmp_path):
+        _scenario(page, server)
 
 
 def _scenario(page, server: str) -> None:
@@ -149,7 +160,7 @@ def test_a_new_user_orbits_a_built_in_scene_with_reflections_streaming(page, ser
     """The issue's done-when in the browser, by the README's first link: the built-in mirror
     scene with reflections by the cluster method, orbited with the mouse; reflective frames
     stream and the stream's reflection reuse (Ch. 5) answers the orbit (not keyframes only)."""
-    try:
+    with reported(page, tmp_path):
         page.goto(f"{server}/client?scene=mirror&reflections=cluster&token={TOKEN}")
         page.wait_for_function("() => window.depthview && window.depthview.framesShown >= 1", timeout=60_000)
         assert page.input_value("#reflections") == "cluster"
@@ -172,10 +183,6 @@ def test_a_new_user_orbits_a_built_in_scene_with_reflections_streaming(page, ser
         after = page.evaluate(CANVAS_STATS, "frame")
         assert after["std"] > 10 and after["differ"] > 0.2 and after["hash"] != before["hash"], (before, after)
         assert page.problems == []
-    except BaseException as exc:
-        page.screenshot(path=str(tmp_path / "failure.png"))
-        raise AssertionError(f"{exc}\nscreenshot: {tmp_path / 'failure.png'}; page state: {state(page)}; "
-                             f"page problems: {page.problems}") from exc
 
 
 #: Init script: the second frame's decode (createImageBitmap) finishes `DECODE_DELAY_MS` late,
@@ -195,7 +202,7 @@ SLOW_SECOND_DECODE = """(() => {
 def test_frames_show_in_the_order_they_came_when_a_decode_finishes_late(page, server, tmp_path):
     """A frame whose decode finishes after a later frame's must not replace it: the canvas
     and the stats end on the newest frame (seq), every frame of the socket shown in turn."""
-    try:
+    with reported(page, tmp_path):
         page.add_init_script(SLOW_SECOND_DECODE)
         page.goto(f"{server}/client?scene=cornell&token={TOKEN}")
         # frame 2 decodes late; frame 3 (a new view, or the PNG re-send at rest) comes meanwhile
@@ -207,7 +214,33 @@ def test_frames_show_in_the_order_they_came_when_a_decode_finishes_late(page, se
         assert s["lastStats"]["seq"] == decodes and s["framesReceived"] == decodes, (decodes, s)
         assert s["lastRendered"]["id"] == s["lastSentId"] and s["errors"] == [], s
         assert page.problems == []
-    except BaseException as exc:
-        page.screenshot(path=str(tmp_path / "failure.png"))
-        raise AssertionError(f"{exc}\nscreenshot: {tmp_path / 'failure.png'}; page state: {state(page)}; "
-                             f"page problems: {page.problems}") from exc
+
+
+def test_soft_shadows_stream_while_orbiting(page, server, tmp_path):
+    """The soft-shadow toggle: the stream's frames switch to soft shadows (thesis Ch. 3, the
+    service keeping the light's reconstruction and shadow maps between frames) and answer an
+    orbit; the shadowed frames differ from the plain one and from each other."""
+    sent_effects: list[dict] = []
+    page.on("websocket", lambda ws: ws.on("framesent", lambda payload: sent_effects.append(
+        json.loads(payload).get("effects", {})) if isinstance(payload, str) else None))
+    with reported(page, tmp_path):
+        page.goto(f"{server}/client?scene=city&token={TOKEN}")
+        page.wait_for_function("() => window.depthview && window.depthview.framesShown >= 1", timeout=30_000)
+        page.wait_for_timeout(300)
+        plain = page.evaluate(CANVAS_STATS, "frame")
+        sent = state(page)["lastSentId"]
+        page.check("#shadows")
+        assert page.is_disabled("#reflections")  # one effect per frame
+        page.wait_for_function(f"() => window.depthview.lastRendered.id > {sent}", timeout=60_000)
+        page.wait_for_timeout(300)
+        shadowed = page.evaluate(CANVAS_STATS, "frame")
+        assert shadowed["std"] > 10 and shadowed["hash"] != plain["hash"], (plain, shadowed)
+        for _ in range(2):
+            sent = state(page)["lastSentId"]
+            drag(page, 60, 0)
+            page.wait_for_function(f"() => window.depthview.lastRendered.id > {sent}", timeout=60_000)
+        page.wait_for_timeout(300)
+        moved = page.evaluate(CANVAS_STATS, "frame")
+        assert moved["std"] > 10 and moved["hash"] != shadowed["hash"], (shadowed, moved)
+        assert sent_effects[0].get("soft_shadows") is None and "soft_shadows" in sent_effects[-1], sent_effects
+        assert state(page)["errors"] == [] and page.problems == []
