@@ -85,6 +85,9 @@ light samples per side, S the shadow-map resolution 1024):
 
 The costs were measured (see the constants); 4 GiB admits every single-image limit
 (a 4096² frame, 4 reconstructed images at 2048²) and refuses 16 images at 2048².
+What a worker keeps between requests (reconstructions, a light's k² shadow maps,
+drawn in place of the one atlas above when they fit) is bounded by
+``reconstruction_cache_bytes`` apart from this per-request budget.
 """
 
 from __future__ import annotations
