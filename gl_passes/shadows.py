@@ -124,6 +124,11 @@ class ShadowResult:
     timings: dict[str, float]
 
 
+def _atlas_bytes(atlas: moderngl.Texture) -> int:
+    """GPU bytes of a depth atlas (32-bit depth texels)."""
+    return atlas.width * atlas.height * 4
+
+
 @dataclass
 class ShadowMaps:
     """The k² shadow maps of one light over fixed occluders (`SoftShadowPass.render_maps`),
@@ -135,8 +140,8 @@ class ShadowMaps:
 
     @property
     def nbytes(self) -> int:
-        """GPU bytes of the atlases (32-bit depth texels)."""
-        return sum(a.width * a.height * 4 for a in self.atlases)
+        """GPU bytes of the atlases."""
+        return sum(_atlas_bytes(a) for a in self.atlases)
 
     def release(self) -> None:
         for a in self.atlases:
@@ -274,7 +279,7 @@ class SoftShadowPass(Releasable):
     def maps_nbytes(self) -> int:
         """GPU bytes of the `ShadowMaps` that `render_maps` makes (one atlas per batch)."""
         batches = -(-self.settings.n_samples // self.batch)
-        return batches * self.atlas.width * self.atlas.height * 4
+        return batches * _atlas_bytes(self.atlas)
 
     def _buffer(self, name: str, nbytes: int) -> moderngl.Buffer:
         """The storage buffer `name`, at least `nbytes` long (replaced when smaller)."""
