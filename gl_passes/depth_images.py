@@ -28,11 +28,13 @@ it when done), otherwise a temporary one is made and freed before returning.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
+from functools import lru_cache
 
 import moderngl
 import numpy as np
 
+from gl_passes.bindings import Units
 from gl_passes.context import GLContext
 from gl_passes.readback import read_texture
 from gl_passes.releasable import Releasable
@@ -44,6 +46,22 @@ from scenes.depth_image import DepthImage
 
 #: Most previous images the non-redundant shader tests against (n ≤ MAX_IMAGES).
 MAX_IMAGES = 16
+
+#: Sampler units of a peeling layer's shader: the previous layer's ids and depths.
+PEEL_UNITS = Units(textures=("u_peel_id", "u_peel_depth"))
+
+
+@lru_cache(maxsize=2 * MAX_IMAGES)
+def nr_units(n_prev: int, depths: bool) -> Units:
+    """Sampler units of the non-redundant shader testing against n_prev previous
+    images: its arrays u_prev_id[N_PREV] (and u_prev_depth[N_PREV] with depths)
+    take consecutive units from their element 0's (`layout(binding = …)` on an
+    array), so the table lists one name per element, u_prev_id0…, in that order."""
+    names = [f"u_prev_id{j}" for j in range(n_prev)]
+    if depths:
+        names += [f"u_prev_depth{j}" for j in range(n_prev)]
+    return Units(textures=tuple(names))
+
 
 # Shared (overwritten per image) colour attachments: (name, components, dtype).
 _SHARED = (("color", 4, "f4"), ("normal", 4, "f4"), ("position", 4, "f4"))
@@ -129,9 +147,7 @@ class DepthImageRenderer(Releasable):
         self.tri_from_geom = tri_from_geom
         self.max_vs_outputs = int(gl.ctx.info.get("GL_MAX_VERTEX_OUTPUT_COMPONENTS", 64))
         self.conv_prog = self._program()
-        self.peel_prog = self._program(PEEL="1")
-        set_uniform(self.peel_prog, "u_peel_id", 0)
-        set_uniform(self.peel_prog, "u_peel_depth", 1)
+        self.peel_prog = self._program(PEEL="1", **PEEL_UNITS.defines())
         self._targets: dict[tuple[int, int], _SizeTargets] = {}
 
     def _program(self, **defines: str) -> moderngl.Program:
@@ -157,17 +173,26 @@ class DepthImageRenderer(Releasable):
             defines["FOOTPRINT"] = repr(float(self.footprint))
         if self.occluded_margin:
             defines["OCCLUDED_MARGIN"] = repr(self.occluded_margin)
-        prog = self._program(**defines)
-        set_uniform(prog, "u_prev_id", tuple(range(n_prev)) if n_prev > 1 else 0)  # sampler j ↔ unit j
-        if self.occluded_margin:  # depth sampler j ↔ unit n_prev + j
-            set_uniform(prog, "u_prev_depth", tuple(range(n_prev, 2 * n_prev)) if n_prev > 1 else 1)
-        return prog
+        units = nr_units(n_prev, bool(self.occluded_margin))
+        limit = int(self.gl.ctx.info.get("GL_MAX_TEXTURE_IMAGE_UNITS", 16))
+        if len(units.textures) > limit:
+            raise ValueError(f"{n_prev} previous images need {len(units.textures)} texture units; "
+                             f"this GL has {limit}")
+        return self._program(**defines, **units.defines())
 
     # --- targets -------------------------------------------------------------------
     def _size_targets(self, size: tuple[int, int]) -> _SizeTargets:
         if size not in self._targets:
             self._targets[size] = _SizeTargets(self.gl.ctx, size)
         return self._targets[size]
+
+    def _keep_sizes(self, cameras: Iterable[Camera]) -> None:
+        """Free the targets of every size that the cameras of this call do not have,
+        so that a renderer kept for a worker's lifetime holds the targets of its last
+        set only, whatever sizes its requests ask for."""
+        keep = {(c.width, c.height) for c in cameras}
+        for size in [s for s in self._targets if s not in keep]:
+            self._targets.pop(size).release()
 
     def release(self) -> None:
         """Free every render target (the programs are cached on the context)."""
@@ -209,6 +234,7 @@ class DepthImageRenderer(Releasable):
     def conventional(self, scene_gpu: SceneGPU, cameras: Sequence[Camera], read: bool = True) -> list[DepthImage]:
         """One ordinary depth image per (prepared) camera; read=False renders only."""
         self.gl.check_thread()
+        self._keep_sizes(cameras)
         out = []
         for i, cam in enumerate(cameras):
             slot = i % 2  # alternate, so no draw waits for the previous image's readback
@@ -233,6 +259,7 @@ class DepthImageRenderer(Releasable):
         self.gl.check_thread()
         if len(cameras) > MAX_IMAGES:
             raise ValueError(f"non_redundant supports at most {MAX_IMAGES} images, got {len(cameras)}")
+        self._keep_sizes([*cameras, *(offset_cameras or ())])
         texel = np.stack([_texel_matrix(c).T for c in cameras]).astype(np.float32)  # column-major for GL
         sizes = np.array([(c.width, c.height) for c in cameras], np.float32)
         out: list[DepthImage] = []
@@ -240,12 +267,13 @@ class DepthImageRenderer(Releasable):
         for i, cam in enumerate(cameras):
             prog = self.nr_program(i) if i else self.conv_prog
             if i:
-                for j in range(i):  # I_j's ids on texture unit j (its depths on unit i + j)
+                units = nr_units(i, bool(self.occluded_margin))
+                for j in range(i):  # I_j's ids (and depths) as element j of the sampler arrays
                     prev = cameras[j]
                     depth_tex, tri_tex, _ = self._size_targets((prev.width, prev.height)).slot(j)
-                    tri_tex.use(location=j)
+                    units.bind_texture(f"u_prev_id{j}", tri_tex)
                     if self.occluded_margin:
-                        depth_tex.use(location=i + j)
+                        units.bind_texture(f"u_prev_depth{j}", depth_tex)
                 prog["u_prev_texel"].write(texel[:i].tobytes())
                 prog["u_prev_size"].write(sizes[:i].tobytes())
             t = self._draw(prog, scene_gpu, cam, i)
@@ -262,14 +290,15 @@ class DepthImageRenderer(Releasable):
         self.gl.check_thread()
         prog = self.peel_prog
         set_uniform(prog, "u_peel_eps", float(eps))
+        self._keep_sizes([camera])
         targets = self._size_targets((camera.width, camera.height))
         out = []
         for k in range(layers):
             slot = k % 2  # ping-pong: layer k reads layer k-1's textures
             if k:
                 prev_depth, prev_tri, _ = targets.slot(1 - slot)
-                prev_tri.use(location=0)
-                prev_depth.use(location=1)
+                PEEL_UNITS.bind_texture("u_peel_id", prev_tri)
+                PEEL_UNITS.bind_texture("u_peel_depth", prev_depth)
             self._draw(prog if k else self.conv_prog, scene_gpu, camera, slot)
             if read:
                 out.append(self._read(targets, camera, slot))

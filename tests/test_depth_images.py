@@ -399,6 +399,31 @@ def test_non_redundant_20_times_does_not_grow_gl_objects():
     assert after == before
 
 
+def test_a_kept_renderer_holds_the_targets_of_its_last_sizes_only():
+    """One renderer kept across sets of ten sizes, as a render worker keeps it:
+    live GL objects after the last set equal those after the first (the targets of
+    sizes no longer asked for are freed), for each kind of set."""
+    cams = [fig11_camera(-3.0, 24), fig11_camera(3.0, 24), fig11_camera(0.0, 24)]
+
+    class State:
+        def __init__(self, gl) -> None:
+            self.gl, self.sg, self.r = gl, SceneGPU(gl, figure11_scene()), di.DepthImageRenderer(gl)
+            self.frame(-1)
+
+        def frame(self, k: int) -> None:
+            res = 17 + k
+            di.non_redundant(self.gl, self.sg, cams, res=res, renderer=self.r)
+            di.conventional(self.gl, self.sg, cams, res=res, renderer=self.r)
+            di.depth_peeling(self.gl, self.sg, cams[2], 2, res=res, renderer=self.r)
+
+        def release(self) -> None:
+            self.r.release()
+            self.sg.release()
+
+    before, after = gl_object_growth(State, State.frame, 10)
+    assert after == before
+
+
 # --- the Fig. 8 rig ------------------------------------------------------------------------
 
 def test_fig8_rig_geometry():

@@ -28,12 +28,13 @@ flat in uint g_tri;
 #endif
 
 #ifdef NON_REDUNDANT
-// Previous images I_j, j < N_PREV: triangle-id textures (unit j) and the
-// world → texel-space clip matrices T_j = S_j·VP_j (S_j maps NDC xy to [0, size]).
-uniform usampler2D u_prev_id[N_PREV];
+// Previous images I_j, j < N_PREV: triangle-id textures (element j on unit
+// UNIT_u_prev_id0 + j, gl_passes.depth_images.nr_units) and the world →
+// texel-space clip matrices T_j = S_j·VP_j (S_j maps NDC xy to [0, size]).
+layout(binding = UNIT_u_prev_id0) uniform usampler2D u_prev_id[N_PREV];
 uniform vec2 u_prev_size[N_PREV];
 #ifdef OCCLUDED_MARGIN
-uniform sampler2D u_prev_depth[N_PREV];  // I_j's eye-space depths
+layout(binding = UNIT_u_prev_depth0) uniform sampler2D u_prev_depth[N_PREV];  // I_j's eye-space depths
 #endif
 #ifndef VS_PROJECT
 uniform mat4 u_prev_texel[N_PREV];
@@ -42,8 +43,8 @@ uniform mat4 u_prev_texel[N_PREV];
 
 #ifdef PEEL
 // The previous layer (same camera): its triangle ids and linear depths.
-uniform usampler2D u_peel_id;
-uniform sampler2D u_peel_depth;
+layout(binding = UNIT_u_peel_id) uniform usampler2D u_peel_id;  // units: depth_images.PEEL_UNITS
+layout(binding = UNIT_u_peel_depth) uniform sampler2D u_peel_depth;
 uniform float u_peel_eps;  // relative depth margin
 #endif
 
