@@ -16,6 +16,7 @@ from gl_passes.best_match import set_kf_uniforms
 from gl_passes.context import GLContext
 from gl_passes.gbuffer import RenderTarget
 from gl_passes.keyframe import REUSE_UNITS, KeyframeTextures
+from gl_passes.readback import read_buffer
 from gl_passes.releasable import Releasable
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
@@ -73,8 +74,8 @@ class CompositionPass(Releasable):
         set_uniform(p, "u_count", int(n))
         p.run((n + GROUP - 1) // GROUP, 1, 1)
         self.gl.ctx.memory_barrier()
-        res = np.frombuffer(self._results.read(size=16 * n), np.float32).reshape(n, 4)
-        fl = np.frombuffer(self._flags.read(size=4 * n), np.uint32).astype(np.uint8)
+        res = read_buffer(self._results, np.float32, 4 * n).reshape(n, 4)
+        fl = read_buffer(self._flags, np.uint32, n).astype(np.uint8)
         return res, fl
 
     def _free(self) -> None:

@@ -22,6 +22,7 @@ from gl_passes.bindings import Units
 from gl_passes.context import GLContext
 from gl_passes.gbuffer import RenderTarget
 from gl_passes.readback import read_texture, write_texture
+from gl_passes.releasable import ReleasedOnError
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
 from scenes.camera import Camera
@@ -94,13 +95,14 @@ class KeyframeTextures:
         image = np.zeros((h, w, 4), np.float32)  # (Lr, r), r = -1 where not traced
         image[..., 3] = -1.0
         image.reshape(-1, 4)[pixels] = np.column_stack([reflected, r])
-        self.texture = ctx.texture(target.size, 4, dtype="f4")
-        self.texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        write_texture(self.texture, image)
         ids = np.flatnonzero(image[::-1, :, 3].ravel() >= 0).astype(np.uint32)  # GL rows
         self.n_pixels = len(ids)
-        self.pixels = ctx.buffer(ids if len(ids) else np.zeros(1, np.uint32))
-        self._pack(gl)
+        with ReleasedOnError() as made:
+            self.texture = made(ctx.texture(target.size, 4, dtype="f4"))
+            self.texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            write_texture(self.texture, image)
+            self.pixels = made(ctx.buffer(ids if len(ids) else np.zeros(1, np.uint32)))
+            self._pack(gl)
 
     @cached_property
     def reflected(self) -> np.ndarray:

@@ -14,6 +14,8 @@ import numpy as np
 from gl_passes.context import GLContext
 from gl_passes.indexed import IndexedBuffers
 from gl_passes.quad_splats import QuadSplats, splat_corners
+from gl_passes.readback import read_buffer
+from gl_passes.releasable import ReleasedOnError
 
 #: Bytes per vertex: vec3 position + one uint of packed RGBA8 colour.
 VERTEX_BYTES = 16
@@ -76,14 +78,15 @@ class MeshGPU(IndexedBuffers):
         n_splat = 2 * quads + singles
         if quads < 0 or singles < 0 or n_splat > len(tri):
             raise ValueError(f"{quads} quads and {singles} lone triangles need {n_splat} of the {len(tri)} triangles")
-        vbo = gl.ctx.buffer(rec.tobytes() or b"\0" * VERTEX_BYTES)
-        ibo = gl.ctx.buffer(tri.tobytes() or b"\0" * 12)
-        mesh = cls(gl, vbo, ibo, len(rec), len(tri))
-        if n_splat:
-            first = len(tri) - n_splat
-            corners = splat_corners(rec[:, :3], tri[first:first + 2 * quads], tri[first + 2 * quads:])
-            mesh.splats = QuadSplats(gl, corners, n_splat)
-        return mesh
+        with ReleasedOnError() as made:
+            vbo = made(gl.ctx.buffer(rec.tobytes() or b"\0" * VERTEX_BYTES))
+            ibo = made(gl.ctx.buffer(tri.tobytes() or b"\0" * 12))
+            mesh = cls(gl, vbo, ibo, len(rec), len(tri))
+            if n_splat:
+                first = len(tri) - n_splat
+                corners = splat_corners(rec[:, :3], tri[first:first + 2 * quads], tri[first + 2 * quads:])
+                mesh.splats = QuadSplats(gl, corners, n_splat)
+            return mesh
 
     @property
     def body_triangles(self) -> int:
@@ -116,9 +119,9 @@ class MeshGPU(IndexedBuffers):
         """(vertex records (N,4) float32 as `pack_vertices` makes them, triangles (M,3) uint32)."""
         self.gl.check_thread()
         nv, nt = self.n_vertices, self.n_triangles
-        rec = np.frombuffer(self.vbo.read(size=nv * VERTEX_BYTES) if nv else b"", np.float32).reshape(-1, 4)
-        tri = np.frombuffer(self.ibo.read(size=nt * 12) if nt else b"", np.uint32).reshape(-1, 3)
-        return rec, tri.copy()
+        rec = read_buffer(self.vbo, np.float32, 4 * nv).reshape(-1, 4)
+        tri = read_buffer(self.ibo, np.uint32, 3 * nt).reshape(-1, 3)
+        return rec, tri
 
     def read(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(positions (N,3) float32, colours (N,4) uint8 RGBA, triangles (M,3) uint32)."""

@@ -15,16 +15,19 @@ _DTYPES = {"f1": np.uint8, "f2": np.float16, "f4": np.float32, "u1": np.uint8, "
            "u4": np.uint32, "i1": np.int8, "i2": np.int16, "i4": np.int32}
 
 
-def read_texture(tex: moderngl.Texture, viewport: tuple[int, int, int, int] | None = None) -> np.ndarray:
+def read_texture(tex: moderngl.Texture, viewport: tuple[int, int, int, int] | None = None,
+                 gl_rows: bool = False) -> np.ndarray:
     """Texture (or a viewport x, y, w, h of it, GL bottom-left origin) → numpy
-    array (H,W) or (H,W,C), row 0 = top of the image."""
+    array (H,W) or (H,W,C), row 0 = top of the image; gl_rows=True keeps GL's
+    order (row 0 = bottom), for callers that index texels as the shaders do."""
     w, h = tex.size
     dtype = _DTYPES[tex.dtype]
     arr = np.frombuffer(tex.read(), dtype=dtype).reshape(h, w, tex.components)  # row 0 = GL bottom
     if viewport:  # moderngl's Texture.read takes no viewport: crop the GL-oriented rows, then flip
         x, y, vw, vh = (int(v) for v in viewport)
         arr = arr[y:y + vh, x:x + vw]
-    arr = arr[::-1]
+    if not gl_rows:
+        arr = arr[::-1]
     return np.ascontiguousarray(arr[..., 0] if tex.components == 1 else arr)
 
 
@@ -40,6 +43,16 @@ def read_planes(buf: moderngl.Buffer, shapes: Sequence[tuple[int, ...]], dtype: 
         offset += arr.nbytes
         out.append(arr)
     return out
+
+
+def read_buffer(buf: moderngl.Buffer, dtype: type, count: int, offset: int = 0) -> np.ndarray:
+    """`count` elements of `dtype` of a buffer from byte `offset`, read straight into
+    a fresh (count,) array (for buffers the shaders write without atomics; the
+    caller issues the memory barrier and reshapes)."""
+    arr = np.empty(int(count), dtype)
+    if arr.nbytes:
+        buf.read_into(arr, size=arr.nbytes, offset=offset)
+    return arr
 
 
 def read_texture_layer(arr_tex: moderngl.TextureArray, layer: int) -> np.ndarray:

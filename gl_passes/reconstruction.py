@@ -78,7 +78,8 @@ from gl_passes.context import GLContext
 from gl_passes.depth_images import DepthImageRenderer, prepare_cameras
 from gl_passes.mesh_gpu import VERTEX_BYTES, MeshGPU, pack_colors
 from gl_passes.quad_splats import split_splats
-from gl_passes.releasable import Releasable
+from gl_passes.readback import StagingBuffer, read_buffer
+from gl_passes.releasable import Releasable, ReleasedOnError, Scratch
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
 from gl_passes.upload import SceneGPU
@@ -197,8 +198,10 @@ def _image_words(img: DepthImage) -> tuple[np.ndarray, np.ndarray]:
 
 
 class Reconstructor(Releasable):
-    """Compute programs and scratch images for reconstructions on `gl`'s thread.
-    `release()` frees the scratch images (programs are cached on the context)."""
+    """Compute programs for reconstructions on `gl`'s thread (cached on the
+    context), and the staging buffer the atomic counters are read through; each
+    reconstruction makes and frees its own scratch images. `release()` frees the
+    staging buffer."""
 
     def __init__(self, gl: GLContext) -> None:
         gl.check_thread()
@@ -207,17 +210,19 @@ class Reconstructor(Releasable):
         self.hybrid_passes = [compute_program(gl, f"reconstruct_hybrid_{name}.comp", defines)
                               for name in ("flags", "corners", "quads")]
         self.grid_prog = compute_program(gl, "reconstruct_grid.comp", defines)
+        self.staging = StagingBuffer(gl.ctx)
 
     def release(self) -> None:
         self.gl.check_thread()
-
+        self.staging.release()
 
     # --- helpers -----------------------------------------------------------------
-    def _upload(self, img: DepthImage) -> tuple[moderngl.Texture, moderngl.Texture]:
+    def _upload(self, img: DepthImage, temp: Scratch) -> tuple[moderngl.Texture, moderngl.Texture]:
+        """The image's two word textures, made as `temp`'s."""
         a, b = _image_words(img)
         size = (a.shape[1], a.shape[0])
-        return (self.gl.ctx.texture(size, 4, a, dtype="u4"),
-                self.gl.ctx.texture(size, 4, b, dtype="u4"))
+        return (temp(self.gl.ctx.texture(size, 4, a, dtype="u4")),
+                temp(self.gl.ctx.texture(size, 4, b, dtype="u4")))
 
     def _set_camera(self, prog: moderngl.ComputeShader, camera: Camera, settings: ReconstructionSettings) -> None:
         r, u, f = camera.basis()
@@ -240,27 +245,28 @@ class Reconstructor(Releasable):
               settings: ReconstructionSettings, camera: Camera, n_vertices: int | None = None) -> MeshGPU:
         """A MeshGPU from the output buffers, trimmed to the counted size; read back
         and made again by `_upload_mesh` where settings.fetch_order or settings.quad_splats."""
-        nv, ni = (int(x) for x in np.frombuffer(counters.read(), np.uint32))
+        nv, ni = (int(x) for x in np.frombuffer(self.staging.read(counters, 8), np.uint32))
         counters.release()
         nv = nv if n_vertices is None else n_vertices
         ctx = self.gl.ctx
         if (settings.fetch_order or settings.quad_splats) and ni:
-            records = np.frombuffer(vbo.read(size=nv * VERTEX_BYTES), np.float32).reshape(-1, 4)
-            indices = np.frombuffer(ibo.read(size=ni * 4), np.uint32)
+            records = read_buffer(vbo, np.float32, 4 * nv).reshape(-1, 4)
+            indices = read_buffer(ibo, np.uint32, ni)
             vbo.release()
             ibo.release()
             return self._upload_mesh(records, indices, camera, settings)
         out = []
-        for buf, used in ((vbo, nv * VERTEX_BYTES), (ibo, ni * 4)):
-            if used == buf.size:
-                out.append(buf)
-                continue
-            trimmed = ctx.buffer(reserve=max(used, 16))
-            if used:
-                ctx.copy_buffer(trimmed, buf, size=used)
-            buf.release()
-            out.append(trimmed)
-        return MeshGPU(self.gl, out[0], out[1], nv, ni // 3)
+        with ReleasedOnError() as made:
+            for buf, used in ((vbo, nv * VERTEX_BYTES), (ibo, ni * 4)):
+                if used == buf.size:
+                    out.append(buf)
+                    continue
+                trimmed = made(ctx.buffer(reserve=max(used, 16)))
+                if used:
+                    ctx.copy_buffer(trimmed, buf, size=used)
+                buf.release()
+                out.append(trimmed)
+            return MeshGPU(self.gl, out[0], out[1], nv, ni // 3)
 
     def _upload_mesh(self, records: np.ndarray, indices: np.ndarray, camera: Camera,
                      settings: ReconstructionSettings) -> MeshGPU:
@@ -308,33 +314,30 @@ class Reconstructor(Releasable):
             raise ValueError(f"evidence images must be {(h, w)}, as the image")
         ctx = self.gl.ctx
         n = image.n_samples
-        ia, ib = self._upload(image)
-        ha, hb = self._upload(offset)
-        flags = ctx.texture((w, h), 1, dtype="u4")  # 32-bit: llvmpipe's 8-bit image stores race
-        sample_corner = ctx.texture((2 * w, 2 * h), 1, dtype="u4")
-        if evidence:
-            words = np.stack([_position_words(e) for e in evidence])
-            ev = ctx.texture_array((w, h, len(evidence)), 4, words, dtype="u4")
-        else:
-            ev = ctx.texture_array((1, 1, 1), 4, dtype="u4")
         quads = n + (offset.n_samples if settings.offset_quads else 0)  # samples' quads, H samples' own
-        vbo = ctx.buffer(reserve=max(4 * quads * VERTEX_BYTES, 16))  # ≤ 4 distinct corners per quad
-        ibo = ctx.buffer(reserve=max(6 * quads * 4, 16))
-        counters = ctx.buffer(np.zeros(2, np.uint32).tobytes())
-        for name, tex in (("u_i_a", ia), ("u_i_b", ib), ("u_h_a", ha), ("u_h_b", hb), ("u_flags", flags),
-                          ("u_sample_corner", sample_corner), ("u_evidence", ev)):
-            _UNITS.bind_image(name, tex, read=True, write=name in ("u_flags", "u_sample_corner"))
-        self._bind_outputs(vbo, ibo, counters)
-        self._set_evidence(self.hybrid_passes[1], evidence, complete, settings)
-        try:
+        with ReleasedOnError() as made, Scratch() as temp:
+            ia, ib = self._upload(image, temp)
+            ha, hb = self._upload(offset, temp)
+            flags = temp(ctx.texture((w, h), 1, dtype="u4"))  # 32-bit: llvmpipe's 8-bit image stores race
+            sample_corner = temp(ctx.texture((2 * w, 2 * h), 1, dtype="u4"))
+            if evidence:
+                words = np.stack([_position_words(e) for e in evidence])
+                ev = temp(ctx.texture_array((w, h, len(evidence)), 4, words, dtype="u4"))
+            else:
+                ev = temp(ctx.texture_array((1, 1, 1), 4, dtype="u4"))
+            vbo = made(ctx.buffer(reserve=max(4 * quads * VERTEX_BYTES, 16)))  # ≤ 4 distinct corners per quad
+            ibo = made(ctx.buffer(reserve=max(6 * quads * 4, 16)))
+            counters = made(ctx.buffer(np.zeros(2, np.uint32).tobytes()))
+            for name, tex in (("u_i_a", ia), ("u_i_b", ib), ("u_h_a", ha), ("u_h_b", hb), ("u_flags", flags),
+                              ("u_sample_corner", sample_corner), ("u_evidence", ev)):
+                _UNITS.bind_image(name, tex, read=True, write=name in ("u_flags", "u_sample_corner"))
+            self._bind_outputs(vbo, ibo, counters)
+            self._set_evidence(self.hybrid_passes[1], evidence, complete, settings)
             for prog, grid in zip(self.hybrid_passes, ((w, h), (w + 1, h + 1), (w, h)), strict=True):
                 self._set_camera(prog, image.camera, settings)
                 prog.run(*self._groups(*grid))
                 ctx.memory_barrier()
-        finally:
-            for t in (ia, ib, ha, hb, flags, sample_corner, ev):
-                t.release()
-        return self._mesh(vbo, ibo, counters, settings, image.camera)
+            return self._mesh(vbo, ibo, counters, settings, image.camera)
 
     @staticmethod
     def _set_evidence(prog: moderngl.ComputeShader, evidence: Sequence[DepthImage], complete: Sequence[bool],
@@ -367,22 +370,19 @@ class Reconstructor(Releasable):
         m = image.mask
         blocks = int((m[:-1, :-1].astype(np.int8) + m[1:, :-1] + m[:-1, 1:] + m[1:, 1:] >= 3).sum())
         ctx = self.gl.ctx
-        ia, ib = self._upload(image)
-        vbo = ctx.buffer(reserve=max(w * h * VERTEX_BYTES, 16))
-        ibo = ctx.buffer(reserve=max(6 * blocks * 4, 16))
-        counters = ctx.buffer(np.zeros(2, np.uint32).tobytes())
-        prog = self.grid_prog
-        _UNITS.bind_image("u_i_a", ia)
-        _UNITS.bind_image("u_i_b", ib)
-        self._bind_outputs(vbo, ibo, counters)
-        try:
+        with ReleasedOnError() as made, Scratch() as temp:
+            ia, ib = self._upload(image, temp)
+            vbo = made(ctx.buffer(reserve=max(w * h * VERTEX_BYTES, 16)))
+            ibo = made(ctx.buffer(reserve=max(6 * blocks * 4, 16)))
+            counters = made(ctx.buffer(np.zeros(2, np.uint32).tobytes()))
+            prog = self.grid_prog
+            _UNITS.bind_image("u_i_a", ia)
+            _UNITS.bind_image("u_i_b", ib)
+            self._bind_outputs(vbo, ibo, counters)
             self._set_camera(prog, image.camera, settings)
             prog.run(*self._groups(w, h))
             ctx.memory_barrier()
-        finally:
-            ia.release()
-            ib.release()
-        return self._mesh(vbo, ibo, counters, settings, image.camera, n_vertices=w * h)
+            return self._mesh(vbo, ibo, counters, settings, image.camera, n_vertices=w * h)
 
     def compact(self, mesh: MeshGPU, image: DepthImage, settings: ReconstructionSettings) -> MeshGPU:
         """`mesh` (a hybrid reconstruction of `image`) simplified with an error ≤
@@ -551,14 +551,15 @@ def reconstruct_set(gl: GLContext, sampled: SampledSet, settings: Reconstruction
     try:
         images = sampled.images
         offs = sampled.offsets or [None] * len(images)
-        out = []
-        for i, (img, off) in enumerate(zip(images, offs, strict=True)):
-            earlier = images[max(0, i - MAX_EVIDENCE):i] if settings.evidence else []
-            first = i - len(earlier)
-            complete = [first + j == 0 or sampled.method != "non_redundant" for j in range(len(earlier))]
-            mine = replace(settings, offset_evidence=0.0) if sampled.method == "peeling" and i > 0 else settings
-            out.append(rec.reconstruct(img, off, mine, earlier, complete))
-        return out
+        with ReleasedOnError() as made:  # the meshes made so far, when a later one fails
+            out = []
+            for i, (img, off) in enumerate(zip(images, offs, strict=True)):
+                earlier = images[max(0, i - MAX_EVIDENCE):i] if settings.evidence else []
+                first = i - len(earlier)
+                complete = [first + j == 0 or sampled.method != "non_redundant" for j in range(len(earlier))]
+                mine = replace(settings, offset_evidence=0.0) if sampled.method == "peeling" and i > 0 else settings
+                out.append(made(rec.reconstruct(img, off, mine, earlier, complete)))
+            return out
     finally:
         if own:
             rec.release()

@@ -102,12 +102,12 @@ class ReflectionOffsetPass(Releasable):
         self.gl.check_thread()
         self._free_mesh()
         t = keyframe.target.textures
-        flip = slice(None, None, -1)  # read_texture gives row 0 = top; vertex ids count GL rows
-        pos = read_texture(t["position"])[flip, :, :3].astype(np.float64)
-        nrm = read_texture(t["normal"])[flip, :, :3].astype(np.float64)
-        depth = read_texture(t["depth"])[flip].astype(np.float64)
-        obj = read_texture(t["obj_id"])[flip]
-        r = keyframe.ray_length[flip]
+        # vertex ids count GL rows (row 0 = bottom), as the warp's shaders index texels
+        pos = read_texture(t["position"], gl_rows=True)[..., :3].astype(np.float64)
+        nrm = read_texture(t["normal"], gl_rows=True)[..., :3].astype(np.float64)
+        depth = read_texture(t["depth"], gl_rows=True).astype(np.float64)
+        obj = read_texture(t["obj_id"], gl_rows=True)
+        r = keyframe.ray_length[::-1]  # (H,W) row 0 = top, as the tracer gives it
         ok = (np.isfinite(r) | np.isposinf(r)) & (obj > 0)
         cam = keyframe.camera
         tol = plane_tol * cam.pixel_footprint

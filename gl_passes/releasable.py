@@ -1,14 +1,24 @@
 """`with` support for GL-owning objects (uploads, passes): leaving the block calls
-`release()`, on the thread that owns the context, as every GL call must be; and
-the grow-or-keep rule for the storage buffers those objects own."""
+`release()`, on the thread that owns the context, as every GL call must be; the
+objects one step makes for itself (`Scratch`) or to hand over (`ReleasedOnError`),
+so that no path, a raising one included, leaves one behind; and the grow-or-keep
+rule for the storage buffers those objects own."""
 
 from __future__ import annotations
 
-from typing import Any, TypeVar
+from typing import Any, Protocol, TypeVar
 
 import moderngl
 
 _T = TypeVar("_T", bound="Releasable")
+
+
+class _HasRelease(Protocol):
+    def release(self) -> None: ...
+
+
+_R = TypeVar("_R", bound=_HasRelease)
+_S = TypeVar("_S", bound="Scratch")
 
 
 class Releasable:
@@ -23,6 +33,40 @@ class Releasable:
 
     def __exit__(self, *exc: Any) -> None:
         self.release()
+
+
+class Scratch:
+    """The GL objects one step makes for itself: `with Scratch() as temp: tex =
+    temp(ctx.texture(...))` releases everything passed to `temp` (last first) when
+    the block ends, also when it raises."""
+
+    def __init__(self) -> None:
+        self.objects: list[_HasRelease] = []
+
+    def __call__(self, obj: _R) -> _R:
+        self.objects.append(obj)
+        return obj
+
+    def __enter__(self: _S) -> _S:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: Any) -> None:
+        self._release_all()
+
+    def _release_all(self) -> None:
+        while self.objects:
+            self.objects.pop().release()
+
+
+class ReleasedOnError(Scratch):
+    """The GL objects a step makes to hand over: `with ReleasedOnError() as made:
+    vbo = made(ctx.buffer(...))` releases them (last first) only when the block
+    raises; when it completes they belong to what the step returned."""
+
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: Any) -> None:
+        if exc_type is not None:
+            self._release_all()
+        self.objects.clear()
 
 
 def grown_buffer(ctx: moderngl.Context, buf: moderngl.Buffer | None, need: int,

@@ -314,6 +314,7 @@ class ReflectionReuser(Releasable):
         pixels (N,) y·W + x (row 0 at the top) with their traced values."""
         if self.keyframe is not None:
             self.keyframe.release()
+            self.keyframe = None  # not released twice if the new one fails
         self._frame_gb, self._key_gb = self._key_gb, self._frame_gb
         target = self._key_gb.target
         assert target is not None

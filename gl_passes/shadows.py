@@ -56,6 +56,7 @@ import numpy as np
 
 from gl_passes.bindings import Units
 from gl_passes.context import GLContext
+from gl_passes.readback import read_buffer
 from gl_passes.releasable import Releasable, grown_buffer
 from gl_passes.shaders import compute_program, program
 from scenes.lights import light_camera
@@ -133,10 +134,12 @@ def _atlas_bytes(atlas: moderngl.Texture) -> int:
 class ShadowMaps:
     """The k² shadow maps of one light over fixed occluders (`SoftShadowPass.render_maps`),
     for `SoftShadowPass.lookup` from any receivers: `atlases[i]` holds maps
-    i·maps_per_draw … in its tiles. Owns the atlases: call `release()`."""
+    i·maps_per_draw … in its tiles, as `settings` (the pass's that made them) lay
+    them out. Owns the atlases: call `release()`."""
 
     cams: ShadowCameras
     atlases: list[moderngl.Texture]
+    settings: ShadowSettings
 
     @property
     def nbytes(self) -> int:
@@ -389,7 +392,7 @@ class SoftShadowPass(Releasable):
         words = self.settings.words
         bits = np.zeros((*mask.shape, words), np.uint32)
         if n:
-            flat = np.frombuffer(self._buffers["bits"].read(size=n * words * 4), np.uint32)
+            flat = read_buffer(self._buffers["bits"], np.uint32, n * words)
             bits.reshape(-1, words)[np.flatnonzero(mask.ravel())] = flat.reshape(n, words)
         timings["readback"] = time.perf_counter() - t0
         return ShadowResult(bits=bits, counts=popcount_words(bits), timings=timings)
@@ -430,7 +433,7 @@ class SoftShadowPass(Releasable):
         them), kept in `maps_nbytes` of atlases for `lookup`."""
         self.gl.check_thread()
         maps = ShadowMaps(shadow_cameras(light, bounds, self.settings.samples, self.settings.shadow_map_resolution),
-                          [])
+                          [], self.settings)
         try:
             for first, count in self._batches():
                 atlas, fbo = self._new_atlas()
@@ -448,9 +451,12 @@ class SoftShadowPass(Releasable):
         """`visibility` of the receivers (shapes as there) from maps that
         `render_maps` of this pass made."""
         self.gl.check_thread()
+        if maps.settings != self.settings:
+            raise ValueError(f"the maps were made with other settings ({maps.settings}) than this pass's "
+                             f"({self.settings})")
         if len(maps.atlases) != len(list(self._batches())):
             raise ValueError(f"{len(maps.atlases)} atlases are not the maps of this pass's {self.settings.samples}² "
-                             "light samples (released, or another pass's)")
+                             "light samples (released)")
         timings = {"upload": 0.0, "shadow_maps": 0.0, "lookup": 0.0, "readback": 0.0}
         t0 = time.perf_counter()
         mask, n = self._receivers(points, normals, mask)

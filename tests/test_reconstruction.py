@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from gl_passes import mesh_gpu
 from gl_passes.reconstruction import (
     ReconstructionSettings,
     Reconstructor,
@@ -517,4 +518,63 @@ def test_reconstruction_frees_its_gl_objects(kind):
             self.sg.release()
 
     before, after = gl_object_growth(State, State.frame, 50)
+    assert after == before
+
+
+class _Failing(RuntimeError):
+    """The error the failure tests below inject."""
+
+
+def _fail(*_args, **_kwargs):
+    raise _Failing("injected")
+
+
+@pytest.mark.parametrize("where", ["hybrid", "grid", "later_image"])
+def test_a_failing_reconstruction_releases_what_it_made(where):
+    """A reconstruction that raises part-way frees every GL object it made: its
+    scratch images and output buffers (hybrid, grid: the dispatch fails) and the
+    meshes of the set's earlier images (reconstruct_set: a later one fails). 10
+    failing calls."""
+    scene = figure11_scene()
+    cams = [Camera((2.0, 0.0, 10.0), (0.0, 0.0, 0.0), fov=40.0, width=32, height=32),
+            Camera((0.0, 2.0, 10.0), (0.0, 0.0, 0.0), fov=40.0, width=32, height=32)]
+    settings = replace(HYBRID, kind="grid") if where == "grid" else HYBRID
+
+    class State:
+        def __init__(self, gl) -> None:
+            self.gl = gl
+            self.sg, self.rec = SceneGPU(gl, scene), Reconstructor(gl)
+            ss = render_set(gl, self.sg, "conventional", cams)
+            if where == "later_image":  # the second image's offset image has the wrong shape
+                ss = replace(ss, offsets=[ss.offsets[0], ss.images[1]])
+            elif where in ("hybrid", "grid"):
+                self.rec._set_camera = _fail
+            self.ss = ss
+            self.frame(0)
+
+        def frame(self, _: int) -> None:
+            with pytest.raises((_Failing, ValueError)):
+                reconstruct_set(self.gl, self.ss, settings, self.rec)
+
+        def release(self) -> None:
+            self.rec.release()
+            self.sg.release()
+
+    before, after = gl_object_growth(State, State.frame, 10)
+    assert after == before
+
+
+def test_a_mesh_whose_splats_fail_releases_its_buffers(monkeypatch):
+    """MeshGPU.from_records frees its vertex and index buffers when making its
+    splats raises (10 failing calls)."""
+    monkeypatch.setattr(mesh_gpu, "QuadSplats", _fail)
+    records = np.zeros((4, 4), np.float32)
+    records[:, :2] = [(0, 0), (1, 0), (1, 1), (0, 1)]
+    quad = np.array([[0, 1, 2], [0, 2, 3]], np.uint32)
+
+    def frame(state: tuple, _: int) -> None:
+        with pytest.raises(_Failing):
+            mesh_gpu.MeshGPU.from_records(state[0], records, quad, quads=1)
+
+    before, after = gl_object_growth(lambda gl: (gl,), frame, 10)
     assert after == before

@@ -163,7 +163,8 @@ def test_instanced_atlas_matches_one_map_per_draw(gl, box_setup):
 
 def test_kept_maps_give_the_bits_of_visibility(gl, box_setup, gbuffer_pass):
     """render_maps keeps all k² maps (25: a partial last batch); lookup from them
-    answers any receivers with visibility's bits; released maps are refused."""
+    answers any receivers with visibility's bits; released maps, and maps of a pass
+    with other settings (here the same batches of another resolution), are refused."""
     scene, sg, buf = box_setup
     settings = ShadowSettings(samples=5, shadow_map_resolution=128)
     other = gbuffer_pass.render(sg, Camera((-4, 3, 2), (0, 0.3, 0), fov=50, width=96, height=64).fit_clip(scene.bounds))
@@ -176,6 +177,9 @@ def test_kept_maps_give_the_bits_of_visibility(gl, box_setup, gbuffer_pass):
                 kept = sp.lookup(maps, b.position, b.normal, b.tri_id > 0)
                 np.testing.assert_array_equal(kept.bits, direct.bits)
                 assert kept.counts.max() == 25 and kept.counts[b.tri_id > 0].min() == 0
+            with SoftShadowPass(gl, replace(settings, shadow_map_resolution=64)) as coarse:
+                with pytest.raises(ValueError, match="other settings"):
+                    coarse.lookup(maps, buf.position, buf.normal, buf.tri_id > 0)
         finally:
             maps.release()
         with pytest.raises(ValueError, match="atlases"):
