@@ -47,6 +47,10 @@ from scenes.depth_image import DepthImage
 #: Most previous images the non-redundant shader tests against (n ≤ MAX_IMAGES).
 MAX_IMAGES = 16
 
+#: Sizes whose render targets a renderer keeps between calls: a set's images and
+#: its offset images (Alg. 4) are rendered by two calls at two sizes.
+KEPT_SIZES = 2
+
 #: Sampler units of a peeling layer's shader: the previous layer's ids and depths.
 PEEL_UNITS = Units(textures=("u_peel_id", "u_peel_depth"))
 
@@ -187,11 +191,15 @@ class DepthImageRenderer(Releasable):
         return self._targets[size]
 
     def _keep_sizes(self, cameras: Iterable[Camera]) -> None:
-        """Free the targets of every size that the cameras of this call do not have,
-        so that a renderer kept for a worker's lifetime holds the targets of its last
-        set only, whatever sizes its requests ask for."""
-        keep = {(c.width, c.height) for c in cameras}
-        for size in [s for s in self._targets if s not in keep]:
+        """Free the targets of sizes that neither the cameras of this call nor the
+        last calls have, so that a renderer kept for a worker's lifetime holds at
+        most KEPT_SIZES sizes' targets (more only where one call needs more),
+        whatever sizes its requests ask for."""
+        need = {(c.width, c.height) for c in cameras}
+        for size in need & self._targets.keys():  # most recently used last
+            self._targets[size] = self._targets.pop(size)
+        others = [s for s in self._targets if s not in need]
+        for size in others[:max(0, len(others) - (KEPT_SIZES - len(need)))]:
             self._targets.pop(size).release()
 
     def release(self) -> None:

@@ -401,14 +401,15 @@ def test_non_redundant_20_times_does_not_grow_gl_objects():
 
 def test_a_kept_renderer_holds_the_targets_of_its_last_sizes_only():
     """One renderer kept across sets of ten sizes, as a render worker keeps it:
-    live GL objects after the last set equal those after the first (the targets of
-    sizes no longer asked for are freed), for each kind of set."""
+    live GL objects after the last set equal those after the first KEPT_SIZES
+    sizes (the targets of older sizes are freed), for each kind of set."""
     cams = [fig11_camera(-3.0, 24), fig11_camera(3.0, 24), fig11_camera(0.0, 24)]
 
     class State:
         def __init__(self, gl) -> None:
             self.gl, self.sg, self.r = gl, SceneGPU(gl, figure11_scene()), di.DepthImageRenderer(gl)
-            self.frame(-1)
+            for k in range(-di.KEPT_SIZES, 0):
+                self.frame(k)
 
         def frame(self, k: int) -> None:
             res = 17 + k
