@@ -1,13 +1,16 @@
 """Scene builders and helpers shared by the test modules: tests import this module
 (as `tests.helpers`), never each other nor conftest.
 
-* real models: `shared_scene` (../shared/scenes, skips when absent);
+* the repository: `ROOT`; real models: `shared_scene` (../shared/scenes, skips when absent);
+* checks: `assert_depth_close`, `assert_images_equal`, `MEAN_ONLY`, `face_normals`,
+  `unpack_bits` (shadow visibility words), `wait_until` (poll with a hang guard);
 * GL core: `sphere_on_slab`, `quad_scene`;
 * depth images: `box` (flat-faced), `figure11_scene`;
 * reflections: `props`, `planar_mirror_scene`, `mirror_object_scene`, `sphere_mesh`,
   `vase_mesh`, `mirror_camera`;
-* service: `obj_text`, `service` (a TestClient of a fresh app), `live_server` (uvicorn on a
-  loopback port), `frame_camera`;
+* service: `obj_text`, `service` (a TestClient of a fresh app), `service_client` (a
+  module-scoped `client` fixture of one), `live_server` (uvicorn on a loopback port),
+  `frame_camera`;
 * the plugin: `write_small_glb`;
 * GL scenarios that could take the process down (another context type, a lost
   context) or open their own context (a bench script's main) run in a fresh
@@ -64,6 +67,37 @@ def assert_depth_close(actual: np.ndarray, expected: np.ndarray, rtol: float, ma
     with np.errstate(divide="ignore", invalid="ignore"):
         la, lb = np.log(np.asarray(actual, np.float64)), np.log(np.asarray(expected, np.float64))
     assert_images_close(la, lb, tolerance=float(np.log1p(rtol)), max_bad_fraction=0.0, mask=mask, name=name)
+
+
+#: assert_images_close keywords for a bound on the mean error only (single pixels may be
+#: far off: silhouettes, where two renderers pick different surfaces).
+MEAN_ONLY = {"max_bad_fraction": 1.0}
+
+
+def face_normals(vertices: np.ndarray, faces: np.ndarray, unit: bool = False) -> np.ndarray:
+    """(M,3) float64 geometric normals (p1 − p0) × (p2 − p0) of the triangles (CCW
+    front): length twice the triangle's area, or 1 with unit=True."""
+    p = np.asarray(vertices, np.float64)[np.asarray(faces, np.int64)]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    return n / np.linalg.norm(n, axis=1, keepdims=True) if unit else n
+
+
+def unpack_bits(bits: np.ndarray, k: int) -> np.ndarray:
+    """(...,k²) bool from (...,n_words) uint32 shadow visibility words by the documented
+    layout (sample s = bit s % 32 of word s // 32), written out independently of the
+    modules under test."""
+    s = np.arange(k * k)
+    return ((bits[..., s // 32] >> (s % 32).astype(np.uint32)) & 1).astype(bool)
+
+
+def wait_until(cond: Callable[[], Any], timeout: float = 30.0, what: str = "condition") -> None:
+    """Poll cond() every 10 ms until it is true; fail after `timeout` s. The timeout is
+    a hang guard, not a performance bound: keep it far above the expected wait."""
+    __tracebackhide__ = True
+    deadline = time.monotonic() + timeout
+    while not cond():
+        assert time.monotonic() < deadline, f"{what} not reached within {timeout:g} s"
+        time.sleep(0.01)
 
 
 def assert_images_equal(actual: np.ndarray, expected: np.ndarray, name: str | None = None,
@@ -284,6 +318,24 @@ def service(data_dir: Path, ready: bool = True, **overrides) -> Iterator[Any]:
         if ready:
             wait_ready(client)
         yield client
+
+
+def service_client(builtin: str | None = None, **overrides: Any) -> Any:
+    """A module-scoped `client` fixture: `service` on a fresh data folder (settings
+    overridden) yielding its TestClient, or (client, scene id) with the built-in scene
+    `builtin` registered. Use as `client = service_client(...)` in a test module."""
+
+    @pytest.fixture(scope="module")
+    def client(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Any]:
+        with service(tmp_path_factory.mktemp("data"), **overrides) as c:
+            if builtin is None:
+                yield c
+            else:
+                r = c.post("/scenes", json={"builtin": builtin})
+                assert r.is_success, r.text
+                yield c, r.json()["id"]
+
+    return client
 
 
 @contextlib.contextmanager

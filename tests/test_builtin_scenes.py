@@ -16,6 +16,7 @@ import trimesh
 from scenes.builtin import BUILTIN_NAMES, builtin_info, estimate_triangles, make_builtin, nest
 from scenes.builtin import geometry as g
 from scenes.model import Scene
+from tests.helpers import face_normals
 
 TARGETS = {"nest": 67_000, "grass": 56_000, "city": 50_000, "tree": 113_000, "living_room": 280_000,
            "bathroom": 90_000}
@@ -34,12 +35,6 @@ def built(name: str, detail: float = 1.0, seed: int = 0) -> Scene:
     if key not in _CACHE:
         _CACHE[key] = make_builtin(name, detail, seed)
     return _CACHE[key]
-
-
-def face_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
-    v = v.astype(np.float64)
-    f = f.astype(np.int64)
-    return np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
 
 
 def closed_and_outward(v: np.ndarray, f: np.ndarray) -> tuple[bool, float]:

@@ -76,4 +76,4 @@ def test_gbuffer_chunk_culling_changes_no_pixel(gl, name):
         changed = culled.tri_id != unordered.tri_id
         assert changed.mean() < 1e-3
         rel = np.abs(culled.depth - unordered.depth)[changed] / unordered.depth[changed]
-        assert rel.max() < 1e-2, rel.max()
+        assert rel.max(initial=0.0) < 1e-2, rel.max(initial=0.0)  # no changed pixel: nothing to bound

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.helpers import ROOT
+
 #: package → top-level packages of ours it must never import
 FORBIDDEN = {
     "gl_passes": {"reference", "service", "bench", "tests"},

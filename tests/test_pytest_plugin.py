@@ -14,9 +14,8 @@ import numpy as np
 import pytest
 
 from service.image_check import compare_images, read_image
-from tests.helpers import write_small_glb
+from tests.helpers import ROOT, write_small_glb
 
-ROOT = Path(__file__).resolve().parents[1]
 FILES = re.compile(r"^E?\s*(actual|expected|error|bad pixels):\s+(\S+)", re.M)
 
 CHECKS = '''

@@ -22,6 +22,7 @@ from reference.shadows import (
 from scenes.builtin import geometry as g
 from scenes.model import AMBIENT, AreaLight, Scene, SceneObject
 from scenes.shading import area_light_shade
+from tests.helpers import unpack_bits
 
 # Deliberately "irrational" box and light so that no ray from the grid passes exactly
 # through a box edge by a rational coincidence.
@@ -38,13 +39,6 @@ def _ground(half: float = 3.0, y: float = 0.0) -> SceneObject:
 def _box(lo: tuple[float, ...], hi: tuple[float, ...]) -> SceneObject:
     v, f = g.box(lo, hi)  # closed, outward normals
     return SceneObject("box", v, f)
-
-
-def _bits_to_bool(bits: np.ndarray, k: int) -> np.ndarray:
-    """(...,k²) bool from (...,n_words) uint32 by the documented layout, written out
-    independently of the module (little-endian bit order inside each word)."""
-    s = np.arange(k * k)
-    return ((bits[..., s // 32] >> (s % 32).astype(np.uint32)) & 1).astype(bool)
 
 
 # --- metrics on hand-counted bits ------------------------------------------------------
@@ -161,7 +155,7 @@ def test_box_umbra_and_penumbra_match_analytic(box_scene):
     mask = np.ones(points.shape[:2], bool)
     bits = light_visibility(caster, points, normals, mask, LIGHT, k)
     assert bits.shape == (1, points.shape[1], 8) and bits.dtype == np.uint32
-    embree = _bits_to_bool(bits, k)[0]
+    embree = unpack_bits(bits, k)[0]
     p, n = points[0], normals[0]
     samples = LIGHT.samples(k)
     analytic = box_visibility(p, n, samples, lo, hi)
@@ -231,7 +225,7 @@ def test_tangent_plane_rule_tilted_normals_and_mask():
     assert not bits[~mask].any()
     front = in_front(points[mask], normals[mask], light.samples(k))
     assert 0 < front.mean() < 1
-    np.testing.assert_array_equal(_bits_to_bool(bits[mask], k), front)  # nothing blocks: visible ⇔ in front
+    np.testing.assert_array_equal(unpack_bits(bits[mask], k), front)  # nothing blocks: visible ⇔ in front
 
 
 @pytest.mark.parametrize(("k", "blocked", "expected"), [

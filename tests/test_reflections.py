@@ -34,6 +34,7 @@ from scenes.camera import flythrough_path
 from scenes.glossy import glossy_far
 from service.image_check import assert_images_close
 from tests.helpers import (
+    MEAN_ONLY,
     assert_images_equal,
     bevelled_mirror_scene,
     mirror_camera,
@@ -57,10 +58,6 @@ def refl(gl):
 def _render(gl, refl, scene, camera, **kw):
     with SceneGPU(gl, scene) as sg:
         return refl.render(sg, camera.fit_clip(scene.bounds), **kw)
-
-
-#: The reflection bounds are on mean errors (single pixels may be far off: silhouettes).
-MEAN_ONLY = {"max_bad_fraction": 1.0}
 
 
 def _assert_close_to_reference(ours, ref, mae: float, mae_reflective: float) -> float:
@@ -462,16 +459,24 @@ def test_cluster_count_stable_between_adjacent_frames(gl, refl):
 def test_glossy_converges_with_more_rays(gl, refl):
     scene = mirror_object_scene(sphere_mesh(), "sphere", Material((0.9, 0.9, 0.9), 1.0, 0.3))
     cam = mirror_camera(64)
+    # Reflected colour over the reflective pixels, measured: MAE 0.95/255 at 8 rays and
+    # 0.90/255 at 49 against Embree with as many rays (its own 8 rays are 0.42/255 from
+    # its 49). Tracing 1 ray scores 3.4/255 against the 49-ray truth, a sharp mirror (g = 0)
+    # 34/255: the bound, 2/255, keeps 2× the measured error for another rasteriser and
+    # fails a render that ignores glossy_rays (the former 6/255 passed a 1-ray render).
+    bound = 2 / 255
     errs = []
     for rays in (8, 49):
         ours = _render(gl, refl, scene, cam, glossy_rays=rays)
         ref = raytrace_reflections(scene, cam, glossy_rays=rays)
         errs.append(mean_abs_error(ours.reflected, ref.reflected, ref.reflective))
-        assert_images_close(ours.reflected, ref.reflected, tolerance=6 / 255, mask=ref.reflective,
+        assert_images_close(ours.reflected, ref.reflected, tolerance=bound, mask=ref.reflective,
                             name=f"reflected_{rays}_rays", **MEAN_ONLY)
         # §4.6: nearer far plane (glossy_far) for every glossy cluster
         assert all(c.ray_length == pytest.approx(float(glossy_far(scene.diagonal, 0.3))) for c in ours.cameras)
     assert errs[1] < errs[0], errs
+    one_ray = _render(gl, refl, scene, cam, glossy_rays=1)  # the bound tells a single ray from 49
+    assert mean_abs_error(one_ray.reflected, ref.reflected, ref.reflective) > bound
 
 
 def test_envmap_method_matches_reference_baseline(gl, refl):

@@ -35,6 +35,7 @@ from scenes import Camera, Scene, SceneObject
 from service.image_check import assert_images_close
 from tests.gl_leaks import gl_object_growth
 from tests.helpers import (
+    MEAN_ONLY,
     MIRROR,
     assert_images_equal,
     mirror_camera,
@@ -45,7 +46,6 @@ from tests.helpers import (
     sphere_mesh,
 )
 
-MEAN_ONLY = {"max_bad_fraction": 1.0}
 CURVED_IMAGE_MAE = 1.5
 CURVED_REUSED_MAE = 8.0
 

@@ -1,5 +1,6 @@
 """Alg. 2 (visibility redundancy) and the §2.3.2 sampling metrics on scenes
-whose numbers can be counted by hand (reference only, no GL unless available)."""
+whose numbers can be counted by hand, by the Embree reference and (two tests) the GL
+pixel-NR set."""
 
 from __future__ import annotations
 
@@ -8,6 +9,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from gl_passes import depth_images
+from gl_passes.upload import SceneGPU
 from reference.raycast import RayCaster
 from reference.sampling_metrics import evaluate_sets, sampling_metrics, texel_edge_distance
 from reference.visibility import (
@@ -168,6 +171,13 @@ def test_pixel_redundancy_edge_ties(strip):
 
 
 def _box(name: str, lo, hi) -> SceneObject:
+    """An axis-aligned box of 8 shared corners (not tests.helpers.box, nor
+    scenes.builtin.geometry.box: both give each side its own vertices and another vertex
+    order). The cameras below send rays exactly through edges of A and B (e.g. from
+    x = -2 through x = -1.5, y = 1.5 at z = 5.43); with either of those boxes Embree
+    breaks those ties the other way: 4 samples of each conventional image are judged
+    invisible from their own camera, 2 from both (occluded [2, 2], against
+    test_boxes_metrics's [0, 0])."""
     x0, y0, z0 = lo
     x1, y1, z1 = hi
     v = np.array([[x0, y0, z0], [x1, y0, z0], [x1, y1, z0], [x0, y1, z0],
@@ -268,9 +278,6 @@ def test_bad_redundancy(strip):
 
 
 def test_gl_pixel_nr_has_no_pixel_redundancy(gl, boxes):
-    depth_images = pytest.importorskip("gl_passes.depth_images")
-    from gl_passes.upload import SceneGPU
-
     scene, rc, cams, _, _, _ = boxes
     with SceneGPU(gl, scene) as sg:
         conv = depth_images.conventional(gl, sg, cams)
@@ -332,9 +339,6 @@ def test_pixel_nr_loses_availability_by_texel_granularity(offset):
 
 
 def test_gl_pixel_nr_offset_scene_as_counted(gl, offset):
-    depth_images = pytest.importorskip("gl_passes.depth_images")
-    from gl_passes.upload import SceneGPU
-
     scene, _, cams, _ = offset
     with SceneGPU(gl, scene) as sg:
         nr = depth_images.non_redundant(gl, sg, cams)

@@ -2,25 +2,20 @@
 
 from __future__ import annotations
 
-import pytest
-
 from reference.image_metrics import mean_abs_error
 from reference.reflections import raytrace_reflections
 from scenes.builtin import make_builtin
 from scenes.camera import Camera
 from service import image_io
 from service.image_check import assert_images_close
-from tests.helpers import service
+from tests.helpers import service, service_client
 
 RES = 48
 # The built-in mirror scene seen obliquely so the mirror fills part of the frame.
 CAMERA = {"eye": [2.5, 1.6, 3.0], "target": [0.0, 0.9, -0.5]}
 
 
-@pytest.fixture(scope="module")
-def client(tmp_path_factory):
-    with service(tmp_path_factory.mktemp("data")) as c:
-        yield c, c.post("/scenes", json={"builtin": "mirror"}).json()["id"]
+client = service_client("mirror")
 
 
 def frame(c, sid, method, fmt="exr", rays=8):

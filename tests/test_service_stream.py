@@ -16,9 +16,11 @@ import pytest
 from PIL import Image
 from starlette.websockets import WebSocketDisconnect
 
+from service import image_io
+from service.image_check import assert_images_close, compare_images
 from service.store import builtin_id
 from service.stream import CLOSE_NO_SCENE, CLOSE_TRY_LATER, SourceFrame
-from tests.helpers import frame_camera, service
+from tests.helpers import frame_camera, service, service_client, wait_until
 
 CORNELL = builtin_id("cornell")
 W, H = 48, 32
@@ -46,10 +48,7 @@ def decode(body: bytes) -> np.ndarray:
     return np.asarray(Image.open(io.BytesIO(body)).convert("RGB"))
 
 
-@pytest.fixture(scope="module")
-def client(tmp_path_factory):
-    with service(tmp_path_factory.mktemp("stream"), stream_rest_s=0.2) as c:
-        yield c
+client = service_client(stream_rest_s=0.2)
 
 
 def test_frames_are_jpeg_while_moving_then_png_at_rest(client):
@@ -63,9 +62,8 @@ def test_frames_are_jpeg_while_moving_then_png_at_rest(client):
         assert (stats["id"], stats["width"], stats["height"], stats["rest"]) == (1, W, H, False)
         assert stats["render_ms"] > 0 and stats["encode_ms"] > 0 and stats["queue_wait_ms"] >= 0
         assert stats["reused_ratio"] == 0.0 and stats["keyframe"] is True  # no ReflectionReuser yet (issue 14)
-        t0 = time.monotonic()
         rest, png = receive_frame(ws)  # nothing sent for stream_rest_s: the same view, lossless
-        assert time.monotonic() - t0 < 5 and png[:4] == b"\x89PNG"
+        assert png[:4] == b"\x89PNG"
         assert (rest["format"], rest["rest"], rest["id"], rest["seq"]) == ("png", True, 1, stats["seq"] + 1)
         # the PNG is the frames endpoint's frame; the JPEG is close to it
         ref = client.post(f"/scenes/{CORNELL}/frames", json=camera_msg())
@@ -106,16 +104,26 @@ def test_reflective_frames_go_through_the_streams_reflection_reuser(client, monk
         assert (rest["rest"], rest["id"], rest["keyframe"], rest["reused_ratio"]) == (
             True, 2, False, reused["reused_ratio"])
         ws.send_json({**moved, "id": 3, "effects": {"reflections": "none"}})  # not reflective: no reuse
-        plain, _ = receive_rendered(ws)
+        plain, plain_jpeg = receive_rendered(ws)
     assert (key["keyframe"], key["reused_ratio"]) == (True, 0.0)
     assert reused["keyframe"] is False and reused["reused_ratio"] > 0.5, reused
     assert (plain["keyframe"], plain["reused_ratio"]) == (True, 0.0)
     ref = client.post(f"/scenes/{mirror}/frames", json=moved)
     assert ref.status_code == 200, ref.text
-    assert np.abs(decode(jpeg).astype(int) - decode(ref.content).astype(int)).mean() < 8
-    deadline = time.monotonic() + 5
-    while not released and time.monotonic() < deadline:
-        time.sleep(0.02)
+    ref_exr = client.post(f"/scenes/{mirror}/frames", json={**moved, "format": "exr"})
+    assert ref_exr.status_code == 200, ref_exr.text
+    mirror_px = image_io.decode_exr(ref_exr.content)["specular"] > 0  # 13 % of the frame
+    # Over the mirror pixels, measured (both methods): MAE 12.1 levels, 29 % of the pixels
+    # off by more than 16 in some channel. The stream traces one sample per pixel and the
+    # frames endpoint 2 × 2 (mirror and reflected edges alias), the reused reflection comes
+    # from the previous view, and the JPEG blurs the reflections' sharp edges. The same
+    # stream frame without reflections: MAE 41.8, 86 % of the pixels off.
+    bounds = {"tolerance": 16 / 255, "max_bad_fraction": 0.4, "mask": mirror_px}
+    assert_images_close(decode(jpeg), decode(ref.content), name=f"stream_{method}_mirror", **bounds)
+    no_reflections = compare_images(decode(plain_jpeg), decode(ref.content), **bounds)
+    assert no_reflections.score > 2 * bounds["tolerance"] and no_reflections.bad_fraction > 0.6, \
+        no_reflections.summary()
+    wait_until(lambda: released, what="the reuser released")
     assert len(released) == 1 and released[0].keyframe is None
 
 
@@ -194,10 +202,7 @@ def test_stream_limits_per_client_and_in_total(tmp_path):
             assert slots.acquire("elsewhere") is None  # another client: the third stream in total
             assert "DEPTHVIEW_STREAM_MAX_TOTAL" in slots.acquire("yet another")
             slots.release("elsewhere")
-        deadline = time.monotonic() + 5
-        while slots.open and time.monotonic() < deadline:
-            time.sleep(0.01)
-        assert slots.open == 0  # closing frees the slots
+        wait_until(lambda: slots.open == 0, what="the slots freed")  # closing frees the slots
         with c.websocket_connect(url) as again:
             assert again.receive_json()["type"] == "hello"
 
@@ -229,22 +234,21 @@ def test_latest_camera_wins_while_a_frame_renders(tmp_path):
         c.app.state.frame_source = factory
         with c.websocket_connect(f"/scenes/{CORNELL}/stream") as ws:
             ws.receive_json()
-            t0 = time.monotonic()
             for i in range(1, 21):  # 20 cameras in a burst, far faster than 0.3 s per frame
                 ws.send_json(camera_msg(i))
             answered = []
             while not answered or answered[-1]["id"] != 20:
                 stats, body = receive_frame(ws)
                 answered.append(stats)
-                assert time.monotonic() - t0 < 5
-            elapsed = time.monotonic() - t0
+                assert len(answered) <= 20, [s["id"] for s in answered]  # guard: at most one frame per camera
         src = sources[0]
-        assert src.closed.wait(5)  # the stream's source is freed when the socket closes
+        assert src.closed.wait(30)  # the stream's source is freed when the socket closes (30 s: a hang guard)
     ids = [s["id"] for s in answered]
+    # Counts, not time, show that superseded cameras cost nothing: at most 3 of the 20
+    # rendered (the first, the latest when it ends, the 20th), each answered once.
     assert ids == sorted(ids) and ids[0] == 1 and ids[-1] == 20 and len(ids) <= 3, ids
     assert src.rendered == ids  # the superseded cameras were never rendered
     assert sum(s["superseded"] for s in answered) == 20 - len(ids)
-    assert elapsed < 0.3 * (len(ids) + 1.5)  # bounded: not 20 × 0.3 s
     assert answered[-1]["reused_ratio"] == 0.25 and answered[-1]["keyframe"] is False  # the source's stats
 
 
@@ -266,10 +270,9 @@ def test_latest_camera_wins_on_the_real_render_path(tmp_path):
             last, _ = receive_frame(ws)
         assert (first["id"], last["id"], first["superseded"], last["superseded"]) == (1, 10, 0, 8)
         assert first["queue_wait_ms"] > 200
-        deadline = time.monotonic() + 2  # the worker counts a job just after delivering its result
-        while worker.stats()["jobs_done"] - done < 3 and time.monotonic() < deadline:
-            time.sleep(0.01)
-        time.sleep(0.1)
+        # the worker counts a job just after delivering its result
+        wait_until(lambda: worker.stats()["jobs_done"] - done >= 3, what="3 jobs done")
+        time.sleep(0.1)  # time for a wrongly rendered fourth job to be counted too
         assert worker.stats()["jobs_done"] - done == 3  # the slow job and two frames, not ten
 
 
@@ -290,10 +293,7 @@ def test_stream_frames_are_counted_and_go_through_the_worker_queue(tmp_path):
             assert stats["queue_wait_ms"] > 200, stats
         text = c.get("/metrics").text
         assert "depthview_frames_streamed_total 2" in text
-        deadline = time.monotonic() + 2
-        while worker.stats()["jobs_done"] < before + 3 and time.monotonic() < deadline:
-            time.sleep(0.01)
-        assert worker.stats()["jobs_done"] >= before + 3
+        wait_until(lambda: worker.stats()["jobs_done"] >= before + 3, what="3 jobs done")
 
 
 def test_queue_full_is_an_error_message_not_a_closed_socket(tmp_path):
@@ -375,9 +375,7 @@ def test_worker_chores_run_on_its_thread_even_when_the_queue_is_full():
         assert w.wait_ready(60), w.startup_error
         ran = []
         w.run_before_next_job(lambda state: ran.append(threading.get_ident()))
-        deadline = time.monotonic() + 5
-        while not ran and time.monotonic() < deadline:  # an idle worker runs it at once
-            time.sleep(0.01)
+        wait_until(lambda: ran, what="the chore run")  # an idle worker runs it soon
         assert ran == [w.thread_id]
         gate = threading.Event()
         busy = w.submit(lambda state: gate.wait(10))

@@ -17,7 +17,7 @@ from service.config import Settings, default_workers
 from service.process_worker import ProcessWorkerPool
 from service.store import builtin_id
 from service.worker import JobExpired, WorkerDied
-from tests.helpers import frame_camera, service
+from tests.helpers import frame_camera, obj_text, service, service_client, wait_until
 
 CORNELL = builtin_id("cornell")
 
@@ -38,17 +38,7 @@ def frame(c, **extra):
                   json={"camera": frame_camera(), "width": 32, "height": 24, **extra})
 
 
-def wait_until(cond, timeout: float = 60.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not cond():
-        assert time.monotonic() < deadline, "condition not reached"
-        time.sleep(0.05)
-
-
-@pytest.fixture(scope="module")
-def client(tmp_path_factory):
-    with service(tmp_path_factory.mktemp("data"), workers=1, job_timeout_s=20.0) as c:
-        yield c
+client = service_client(workers=1, job_timeout_s=20.0)
 
 
 def test_workers_setting():
@@ -213,15 +203,14 @@ def test_the_handler_answers_503_naming_the_dead_worker(client):
 
 
 def test_uploaded_scenes_load_in_the_worker_by_id(client):
-    from tests.helpers import obj_text
-
     r = client.post("/scenes", files={"file": ("quad.obj", obj_text(2), "text/plain")})
-    assert r.status_code in (200, 201), r.text
+    assert r.status_code == 201, r.text  # a new upload (200: the same content was stored before)
     sid = r.json()["id"]
     cam = {"eye": [0.5, 0.5, 3.0], "target": [0.5, 0.5, 0.0]}
     r = client.post(f"/scenes/{sid}/frames", json={"camera": cam, "width": 16, "height": 16})
     assert r.status_code == 200, r.text
-    assert client.delete(f"/scenes/{sid}").status_code in (200, 204)
+    r = client.delete(f"/scenes/{sid}")
+    assert r.status_code == 204 and r.content == b"", r.text
     r = client.post(f"/scenes/{sid}/frames", json={"camera": cam, "width": 16, "height": 16})
     assert r.status_code == 404
 

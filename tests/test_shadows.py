@@ -35,6 +35,7 @@ from scenes.camera import Camera, look_at_scene
 from scenes.lights import default_area_light
 from scenes.model import AreaLight, Scene, SceneObject
 from tests.gl_leaks import gl_object_growth
+from tests.helpers import unpack_bits
 
 BOX_LO, BOX_HI = np.array([-0.5, 0.5, -0.5]), np.array([0.5, 1.0, 0.5])
 #: Overhead 1.5 × 1.5 light; u × v = +Y, so its cameras look down (scenes.lights).
@@ -47,12 +48,6 @@ def box_plane_scene() -> Scene:
     box = g.box(BOX_LO, BOX_HI)
     plane = g.grid((-3, 0, 3), (6, 0, 0), (0, 0, -6), 1, 1)
     return Scene([SceneObject("box", box[0], box[1]), SceneObject("plane", plane[0], plane[1])], name="box_plane")
-
-
-def unpack(bits: np.ndarray, k: int) -> np.ndarray:
-    """(N,words) uint32 → (N,k²) bool, sample s = bit s % 32 of word s // 32."""
-    s = np.arange(k * k)
-    return ((bits[:, s // 32] >> (s % 32).astype(np.uint32)) & 1).astype(bool)
 
 
 @pytest.fixture(scope="module")
@@ -89,7 +84,7 @@ def test_box_over_plane_matches_analytic(gl, box_setup):
     # calls every segment blocked: lift them off the surface, as the Embree truth does.
     p = buf.position[mask] + n * 1e-5 * scene.diagonal
     truth = box_visibility(p, n, samples, BOX_LO, BOX_HI)
-    got = unpack(r.bits[mask], k)
+    got = unpack_bits(r.bits[mask], k)
     wrong = got != truth
     # Near a boundary: the analytic answer flips within 2 texels (the texel size at
     # the point's light depth) along the surface or the normal.
