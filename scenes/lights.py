@@ -5,6 +5,8 @@ light, the same light-sample positions and the same light cameras (no GL, no Emb
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from scenes.camera import Camera
@@ -32,10 +34,32 @@ def default_area_light(bounds: tuple[np.ndarray, np.ndarray], sun: tuple[float, 
     return AreaLight(tuple(c + distance * diag * n), tuple(u * edge), tuple(v * edge))
 
 
+#: Least sine of the angle between a light's edges u and v: below it the rectangle
+#: is a segment (parallel within 1e-6 rad), with no normal to aim its cameras by.
+MIN_LIGHT_SINE = 1e-6
+
+
+def _unit_cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """u/|u| × v/|v|, with each edge first scaled by its largest component, so that
+    no length under- or overflows (edges of 1e-170 or 1e300 world units)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        a, b = (x / np.abs(x).max() for x in (np.asarray(u, np.float64), np.asarray(v, np.float64)))
+        return np.cross(a / np.linalg.norm(a), b / np.linalg.norm(b))
+
+
+def light_sine(u: Sequence[float], v: Sequence[float]) -> float:
+    """Sine of the angle between edges u and v (0 where one is zero or not finite)."""
+    s = float(np.linalg.norm(_unit_cross(np.asarray(u), np.asarray(v))))
+    return s if np.isfinite(s) else 0.0
+
+
 def light_normal(light: AreaLight) -> np.ndarray:
     """(3,) unit normal of the light rectangle, pointing away from the lit side
-    (u × v; `default_area_light` makes it point from the scene toward the light)."""
-    n = np.cross(np.asarray(light.u, np.float64), np.asarray(light.v, np.float64))
+    (u × v; `default_area_light` makes it point from the scene toward the light).
+    Raises ValueError where u and v are zero or parallel (sine < MIN_LIGHT_SINE)."""
+    if light_sine(light.u, light.v) < MIN_LIGHT_SINE:
+        raise ValueError("light u and v must be non-zero and not parallel")
+    n = _unit_cross(np.asarray(light.u), np.asarray(light.v))
     return n / np.linalg.norm(n)
 
 

@@ -14,7 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from scenes.camera import Camera
+from scenes.camera import Camera, CameraError
 
 
 def fit_distance(fov: float, width: int, height: int, spread_deg: float = 0.0, margin: float = 1.0) -> float:
@@ -38,6 +38,22 @@ def fit_distance(fov: float, width: int, height: int, spread_deg: float = 0.0, m
     h = np.arctan(np.tan(v) * width / height)
     a = min(v, h)
     return float(margin / (2.0 * np.sin(a) * np.cos(np.radians(spread_deg))))
+
+
+def peeling_camera(cameras: Sequence[Camera]) -> Camera:
+    """The peeling viewpoint of a set's cameras (as the Fig. 8 rig places it):
+    the single camera, or the eyes' centroid looking at the first camera's target
+    with its up, fov and size. Raises CameraError naming it where that camera is
+    invalid (the centroid on the target, or the view along up)."""
+    if len(cameras) == 1:
+        return cameras[0]
+    c0 = cameras[0]
+    centroid = tuple(float(x) for x in np.mean([c.eye for c in cameras], axis=0))
+    try:
+        return Camera(centroid, c0.target, c0.up, c0.fov, c0.width, c0.height)
+    except CameraError as exc:
+        raise CameraError(f"the peeling camera (the eyes' centroid {centroid} looking at the first camera's "
+                          f"target) is invalid: {exc}") from None
 
 
 def fig8_rig(bounds: tuple[np.ndarray, np.ndarray], width: int, height: int, spread_deg: float = 20.0,

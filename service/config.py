@@ -33,7 +33,8 @@ gl_backend             unset (EGL, OSMesa fallback) ``egl`` or ``osmesa`` (``DEP
 gl_device              unset                        EGL device index
 workers                ``auto``: one per NVIDIA     render worker processes, each with its own GL
                        GPU, else one per two cores  context and Embree devices; 0 = one worker
-                       (at least 1)                 thread in the service process instead
+                       (at least 1)                 thread in the service process instead (tests:
+                                                    a timed-out job still runs to its end there)
 max_json_bytes         1 MiB (1048576)              largest request body of every endpoint but a
                                                     scene upload (Content-Length or counted) → 413
 max_job_bytes          4 GiB (4294967296)           memory budget of one render request, estimated

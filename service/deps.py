@@ -26,10 +26,11 @@ from starlette.concurrency import run_in_threadpool
 
 from scenes.model import Scene
 from service.config import Settings
+from service.errors import short
 from service.jobs import Job
 from service.metrics import Metrics
 from service.process_worker import ProcessWorkerPool
-from service.store import SceneStore
+from service.store import SceneNotFound, SceneStore
 from service.worker import JobExpired, QueueFull, RenderWorker, WorkerUnavailable
 
 log = logging.getLogger("depthview.service")
@@ -124,8 +125,9 @@ class Render:
     async def job(self, job: Job[T], label: str, pin: str | None = None) -> T:
         """Submit a job (GL or Embree) to the worker and await its result: 503 (+ Retry-After)
         when the queue is full, there is no context or the worker process died running
-        it, 504 past the job timeout, 422 when the job rejects its parameters
-        (ValueError), 500 when it raised anything else. Jobs with the same `pin` run on
+        it, 504 past the job timeout, 404 when its scene was deleted before it ran,
+        422 when the job rejects its parameters (ValueError), 500 when it raised
+        anything else. Jobs with the same `pin` run on
         the same worker (a stream's stateful reuser)."""
         settings = self.settings
         try:
@@ -142,6 +144,8 @@ class Render:
             raise unavailable(str(exc), settings) from None
         except HTTPException:
             raise
+        except SceneNotFound as exc:  # deleted while its job waited (the worker loads scenes by id)
+            raise HTTPException(404, short(str(exc))) from None
         except ValueError as exc:  # a job rejecting its parameters
             raise HTTPException(422, str(exc)[:500]) from None
         except Exception as exc:  # noqa: BLE001

@@ -14,19 +14,20 @@ from reference.visibility import non_redundant_visibility
 from scenes.camera import Camera
 from scenes.depth_image import DepthImage
 from scenes.model import Scene
-from scenes.rig import fig8_rig, intermediate_views
+from scenes.rig import fig8_rig, intermediate_views, peeling_camera
 from service import image_io
+from service.excerpts import quoted
 
 
 @dataclass
 class SetPlan:
     """What to render: the reference cameras (near/far fitted) and, for peeling,
-    the peeling camera."""
+    the peeling camera (None for the other methods of requested cameras)."""
 
     method: str
     redundancy: str
     cameras: list[Camera]
-    peel_camera: Camera
+    peel_camera: Camera | None
     layers: int
 
 
@@ -38,12 +39,7 @@ def plan_set(scene: Scene, method: str, redundancy: str, cameras: list[Camera] |
         cams, peel = fig8_rig(scene.bounds, width, height)
     else:
         cams = [c.fit_clip(scene.bounds) for c in cameras]
-        if len(cams) == 1:
-            peel = cams[0]
-        else:
-            c0 = cams[0]
-            centroid = tuple(np.mean([c.eye for c in cams], axis=0))
-            peel = Camera(centroid, c0.target, c0.up, c0.fov, width, height).fit_clip(scene.bounds)
+        peel = peeling_camera(cams).fit_clip(scene.bounds) if method == "peeling" else None
     return SetPlan(method, redundancy, cams, peel, layers)
 
 
@@ -79,4 +75,4 @@ def encode_set(images: list[DepthImage], fmt: str) -> bytes:
         stack["view"] = np.stack([im.camera.view_matrix() for im in images])
         stack["projection"] = np.stack([im.camera.projection_matrix() for im in images])
         return image_io.encode_npz(stack)
-    raise ValueError(f"unknown depth-image set format {fmt!r}")
+    raise ValueError(f"unknown depth-image set format {quoted(fmt)}")

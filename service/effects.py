@@ -22,6 +22,7 @@ from reference.reflections import raytrace_reflections
 from scenes.camera import Camera
 from scenes.model import Scene
 from service import image_io
+from service.excerpts import quoted
 
 #: Embree BVHs kept (one per scene content address, least recently used dropped).
 BVH_CACHE = 4
@@ -103,4 +104,4 @@ def encode_reflections(result: Any, fmt: str) -> bytes:
             "specular": np.asarray(result.specular, np.float32),
             "ray_length": np.nan_to_num(np.asarray(result.ray_length, np.float32), nan=0.0, posinf=np.inf),
         })
-    raise ValueError(f"unknown frame format {fmt!r}")
+    raise ValueError(f"unknown frame format {quoted(fmt)}")

@@ -27,6 +27,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match
 
 from scenes.loaders import SceneLoadError
+from service.excerpts import EXCERPT_CHARS
 from service.store import (
     InvalidBuiltin,
     InvalidSceneId,
@@ -40,8 +41,6 @@ from service.store import (
 
 log = logging.getLogger("depthview.service")
 
-#: Longest excerpt of an input value an error message repeats (characters).
-EXCERPT_CHARS = 80
 #: Longest error message (a loader's or a library's message may quote its input).
 DETAIL_CHARS = 500
 

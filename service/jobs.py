@@ -135,7 +135,11 @@ class RaytraceJob(SceneJob):
 
 
 def _shadow_pass(state: GLState, samples: int) -> SoftShadowPass:
-    return state.resource(f"soft_shadows_{samples}", lambda gl: SoftShadowPass(gl, ShadowSettings(samples=samples)))
+    """The worker's soft-shadow pass, for k = `samples` (one at a time: its atlas
+    and buffers are remade when k changes; kept maps stay valid for any pass of
+    their settings)."""
+    settings = ShadowSettings(samples=samples)
+    return state.resource("soft_shadows", lambda gl: SoftShadowPass(gl, settings), settings)
 
 
 def _reconstruction(state: GLState, scene_key: str, scene: Scene, cameras: Sequence[Camera], method: str,
@@ -249,6 +253,7 @@ def _gl_set(state: GLState, scene_key: str, scene: Scene, plan: SetPlan, want_co
     if plan.method == "conventional":
         images = conventional(gl, gpu, plan.cameras, renderer=renderer)
     elif plan.method == "peeling":
+        assert plan.peel_camera is not None  # plan_set makes it for peeling
         images = depth_peeling(gl, gpu, plan.peel_camera, plan.layers, renderer=renderer)
     elif plan.redundancy == "pixel":
         images = non_redundant(gl, gpu, plan.cameras, renderer=renderer)

@@ -14,6 +14,9 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictFloat, StrictInt, field_validator, model_validator
 
 from scenes.camera import Camera, CameraError
+from scenes.lights import MIN_LIGHT_SINE, light_sine
+from scenes.rig import peeling_camera
+from service.excerpts import quoted
 
 #: Strict scalars (issue 15): ``true`` is not a number, ``"64"`` is not a number,
 #: ``"no"`` is not a boolean; an integer is accepted where a float is expected.
@@ -99,11 +102,9 @@ class LightSpec(BaseModel):
 
     @model_validator(mode="after")
     def _rectangle(self) -> LightSpec:
-        area = math.dist((0, 0, 0), (self.u[1] * self.v[2] - self.u[2] * self.v[1],
-                                     self.u[2] * self.v[0] - self.u[0] * self.v[2],
-                                     self.u[0] * self.v[1] - self.u[1] * self.v[0]))
-        if not (math.isfinite(area) and area > 0):
-            raise ValueError("light u and v must be non-zero and not parallel")
+        if light_sine(self.u, self.v) < MIN_LIGHT_SINE:  # the rule light_normal applies
+            raise ValueError("light u and v must be non-zero and not parallel (their angle's sine under "
+                             f"{MIN_LIGHT_SINE:g})")
         return self
 
 
@@ -142,7 +143,7 @@ class Effects(BaseModel):
     def _reflections(cls, v: str) -> str:
         if v not in REFLECTION_METHODS:
             raise ValueError(
-                f"reflections method {v!r} is not available; supported: {', '.join(REFLECTION_METHODS)}")
+                f"reflections method {quoted(v)} is not available; supported: {', '.join(REFLECTION_METHODS)}")
         return v
 
     @model_validator(mode="after")
@@ -278,6 +279,16 @@ class DepthImagesRequest(BaseModel):
     intermediate_views: StrictInt = Field(default=16, ge=1, le=MAX_METRIC_VIEWS,
                                     description="intermediate views for the useful/available metrics")
     seed: StrictInt = Field(default=0, ge=0, lt=2**63, description="seed of the intermediate views")
+
+    @model_validator(mode="after")
+    def _peeling_camera_is_valid(self) -> DepthImagesRequest:
+        cams = self.to_cameras()
+        if self.method == "peeling" and cams:
+            try:
+                peeling_camera(cams)
+            except CameraError as exc:  # a ValueError → 422 naming the problem
+                raise ValueError(str(exc)) from exc
+        return self
 
     def to_cameras(self) -> list[Camera] | None:
         """The requested cameras (without near/far), or None for the rig."""

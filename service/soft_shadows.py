@@ -23,6 +23,7 @@ from scenes.model import AreaLight, Scene
 from scenes.shading import area_light_shade
 from service import image_io
 from service.effects import CASTERS
+from service.excerpts import quoted
 
 #: A mesh read back: positions (N,3), RGBA8 colours (N,4), triangles (M,3).
 MeshArrays = tuple[np.ndarray, np.ndarray, np.ndarray]
@@ -69,6 +70,6 @@ def encode_shadowed(color: np.ndarray, gbuf: Any, counts: np.ndarray, fmt: str) 
     if fmt == "exr":
         return image_io.encode_exr({"RGB": color, "Z": gbuf.depth, "N": gbuf.normal, "id": gbuf.tri_id,
                                     "object": gbuf.obj_id, "visible": counts.astype(np.uint32)})
-    raise ValueError(f"unknown frame format {fmt!r}")
+    raise ValueError(f"unknown frame format {quoted(fmt)}")
 
 

@@ -53,6 +53,7 @@ from typing import Any
 from scenes import builtin as builtin_scenes
 from scenes import loaders
 from scenes.model import Scene
+from service.excerpts import quoted
 
 log = logging.getLogger("depthview.store")
 
@@ -136,11 +137,11 @@ def normalise_builtin_params(params: Mapping[str, Any] | None) -> dict[str, Any]
     out.update({k: v for k, v in params.items() if v is not None})
     detail, seed = out["detail"], out["seed"]
     if isinstance(detail, bool) or not isinstance(detail, (int, float)) or not math.isfinite(detail) or detail <= 0:
-        raise InvalidBuiltin(f"built-in parameter detail must be a finite number > 0, got {detail!r}")
+        raise InvalidBuiltin(f"built-in parameter detail must be a finite number > 0, got {quoted(detail)}")
     if isinstance(seed, bool) or not isinstance(seed, (int, float)) or not float(seed).is_integer():
-        raise InvalidBuiltin(f"built-in parameter seed must be an integer, got {seed!r}")
+        raise InvalidBuiltin(f"built-in parameter seed must be an integer, got {quoted(seed)}")
     if seed < 0:
-        raise InvalidBuiltin(f"built-in parameter seed must be >= 0, got {seed!r}")
+        raise InvalidBuiltin(f"built-in parameter seed must be >= 0, got {quoted(seed)}")
     return {"detail": float(detail), "seed": int(seed)}
 
 
@@ -378,7 +379,7 @@ class SceneStore:
         fmt = (fmt or "").lower().lstrip(".")
         if fmt not in loaders.SUPPORTED_FORMATS:
             raise UnsupportedFormat(
-                f"unsupported scene format {fmt!r}; supported: {', '.join(loaders.SUPPORTED_FORMATS)}")
+                f"unsupported scene format {quoted(fmt)}; supported: {', '.join(loaders.SUPPORTED_FORMATS)}")
         sid = upload_id(fmt, data)
         try:
             return self._read_meta(sid), False
@@ -406,7 +407,7 @@ class SceneStore:
         default entries are exempt)."""
         if name not in builtin_scenes.BUILTIN_NAMES:
             names = ", ".join(builtin_scenes.BUILTIN_NAMES)
-            raise InvalidBuiltin(f"unknown built-in scene {name!r}; available: {names}")
+            raise InvalidBuiltin(f"unknown built-in scene {quoted(name)}; available: {names}")
         p = normalise_builtin_params(params)
         try:
             estimate = int(builtin_scenes.estimate_triangles(name, p["detail"]))

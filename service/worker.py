@@ -37,6 +37,7 @@ from gl_passes.gbuffer import GBuffer, GBufferPass
 from gl_passes.upload import SceneGPU
 from scenes.model import Scene
 from service import image_io
+from service.excerpts import quoted
 
 log = logging.getLogger("depthview.worker")
 
@@ -90,7 +91,7 @@ class GLState:
     scene_loader: Callable[[str], Scene] | None = None
     _gpu: OrderedDict[str, SceneGPU] = field(default_factory=OrderedDict)
     _kept: OrderedDict[tuple[str, Hashable], tuple[Sequence[Any], int]] = field(default_factory=OrderedDict)
-    _resources: dict[str, Any] = field(default_factory=dict)
+    _resources: dict[str, tuple[Hashable, Any]] = field(default_factory=dict)
     #: Per-client state on this worker (a stream's ReflectionReuser), by client key.
     clients: dict[str, Any] = field(default_factory=dict)
 
@@ -169,13 +170,20 @@ class GLState:
         """How many `kept` entries are held."""
         return len(self._kept)
 
-    def resource(self, name: str, factory: Callable[[GLContext], Any]) -> Any:
+    def resource(self, name: str, factory: Callable[[GLContext], Any], variant: Hashable = None) -> Any:
         """A long-lived GL object (e.g. another pass) created on first use with
-        `factory(gl)` and released (``.release()``) at shutdown."""
+        `factory(gl)` and released (``.release()``) at shutdown. One per name:
+        asked for with another `variant` (the settings it was made with), the held
+        one is released and a new one made, so that what requests vary (a pass per
+        sample count) never piles up."""
         self.gl.check_thread()
+        held = self._resources.get(name)
+        if held is not None and held[0] != variant:
+            del self._resources[name]
+            held[1].release()
         if name not in self._resources:
-            self._resources[name] = factory(self.gl)
-        return self._resources[name]
+            self._resources[name] = (variant, factory(self.gl))
+        return self._resources[name][1]
 
     @property
     def gpu_cached(self) -> int:
@@ -207,7 +215,7 @@ class GLState:
             except Exception:  # noqa: BLE001 - release the rest anyway
                 log.exception("releasing a kept reconstruction or shadow maps failed")
         self._kept.clear()
-        for name, obj in list(self._resources.items()):
+        for name, (_, obj) in list(self._resources.items()):
             try:
                 obj.release()
             except Exception:  # noqa: BLE001
@@ -492,4 +500,4 @@ def encode_frame(gbuf: GBuffer, fmt: str) -> bytes:
     if fmt == "exr":
         return image_io.encode_exr({"RGB": gbuf.color, "Z": gbuf.depth, "N": gbuf.normal,
                                     "id": gbuf.tri_id, "object": gbuf.obj_id})
-    raise ValueError(f"unknown frame format {fmt!r}")
+    raise ValueError(f"unknown frame format {quoted(fmt)}")

@@ -646,6 +646,35 @@ def test_worker_keeps_reconstructions_and_maps_within_their_byte_budget(gl):
     assert st.kept_count == 1
 
 
+def test_worker_resources_hold_one_object_per_name(gl):
+    """GLState.resource: the same name and variant give the same object; another
+    variant (a pass's settings) releases the held one before making the next, so
+    requests that vary it (a soft-shadow pass per sample count) never pile up; all
+    are released with the state's objects."""
+    from service.worker import GLState
+
+    made, released = [], []
+
+    class Pass:
+        def __init__(self, k: int) -> None:
+            self.k = k
+            made.append(k)
+
+        def release(self) -> None:
+            released.append(self.k)
+
+    st = GLState(gl=gl, gbuffer=None)
+    a = st.resource("pass", lambda _: Pass(4), 4)
+    assert st.resource("pass", lambda _: Pass(-1), 4) is a and made == [4]
+    for k in (8, 16, 8):
+        assert st.resource("pass", lambda _, k=k: Pass(k), k).k == k
+    assert made == [4, 8, 16, 8] and released == [4, 8, 16]
+    st.resource("other", lambda _: Pass(0))
+    released.clear()
+    st.release_objects()
+    assert sorted(released) == [0, 8]
+
+
 # --- CLI -------------------------------------------------------------------------------------------
 def test_cli_scenes_lists_builtins(capsys):
     from service.cli import main

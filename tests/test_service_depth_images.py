@@ -119,6 +119,23 @@ def test_bad_requests_name_the_problem(client, body, status, needle):
     assert needle in r.text
 
 
+#: Two eyes whose centroid is the first camera's target: no peeling viewpoint between them.
+FACING = [{"eye": [0, 1, 3.5], "target": [0, 1, 0]}, {"eye": [0, 1, -3.5], "target": [0, 1, 0]}]
+
+
+def test_a_peeling_viewpoint_on_the_target_is_422_other_methods_render(client):
+    """Peeling renders from the eyes' centroid toward the first camera's target: where
+    they coincide the request is 422 naming the peeling camera; the other methods do
+    not use that viewpoint and render the same cameras."""
+    c, sid = client
+    r = post(c, sid, method="peeling", cameras=FACING, width=16, height=16, format="npz")
+    assert r.status_code == 422, r.text
+    assert "peeling camera" in r.text and "coincide" in r.text
+    for method in ("conventional", "non_redundant"):
+        r = post(c, sid, method=method, cameras=FACING, width=16, height=16, format="npz")
+        assert r.status_code == 200, r.text
+
+
 def test_unknown_scene_is_404(client):
     c, _ = client
     assert post(c, "0" * 64).status_code == 404

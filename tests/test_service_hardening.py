@@ -116,6 +116,18 @@ def test_validation_errors_repeat_only_an_excerpt_of_the_input(client):
     assert r.status_code == 422 and r.json()["detail"][0]["input"] == "x"  # short inputs in full
 
 
+@pytest.mark.parametrize("path, body", [
+    ("frames", {"effects": {"reflections": "y" * 5000}}),  # a validator's own message
+    ("/scenes", {"builtin": "z" * 5000}),  # the store's
+])
+def test_error_messages_quote_only_an_excerpt_of_the_input(client, path, body):
+    url = path if path.startswith("/") else f"/scenes/{CORNELL}/{path}"
+    r = client.post(url, json=body if path.startswith("/") else frame_body(**body))
+    assert r.status_code == 422, r.text
+    assert "(5,002 characters)" in r.text
+    assert "y" * 81 not in r.text and "z" * 81 not in r.text
+
+
 # --- the memory budget -----------------------------------------------------------------------------
 def test_memory_budget_refuses_large_requests_up_front(client):
     """16 layers at 2048² (6.8 GB measured) is over the default 4 GiB; the scene is not

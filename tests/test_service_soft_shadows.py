@@ -181,6 +181,8 @@ def test_frames_under_one_light_reuse_its_reconstruction_and_maps(client, monkey
     ({"reconstruction": "mesh"}, "reconstruction"),
     ({"resolution": 4096}, "resolution"),
     ({"light": {"center": [0, 5, 0], "u": [1, 0, 0], "v": [2, 0, 0]}}, "not parallel"),
+    # |u × v| = 1e-170 is positive, but its square underflows: no normal to aim the maps by
+    ({"light": {"center": [0, 5, 0], "u": [1, 0, 0], "v": [1, 0, 1e-170]}}, "not parallel"),
     ({"light": {"center": [0, 5, 0], "u": [1, 0, 0], "v": [0, 0, float("inf")]}}, "finite"),
     ({"light": {"center": [0, 5, 0], "u": [1, 0, 0], "v": [0, 0, 1]}}, "in front of the light"),
     ({"bias": 3}, "bias"),

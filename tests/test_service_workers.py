@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import signal
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -213,6 +214,27 @@ def test_uploaded_scenes_load_in_the_worker_by_id(client):
     assert r.status_code == 204 and r.content == b"", r.text
     r = client.post(f"/scenes/{sid}/frames", json={"camera": cam, "width": 16, "height": 16})
     assert r.status_code == 404
+
+
+def test_a_scene_deleted_while_its_frame_waits_is_404(client):
+    """The worker process loads a job's scene by id when the job starts: a scene
+    deleted while its frame waits in the queue answers that frame 404, not 500."""
+    pool: ProcessWorkerPool = client.app.state.worker
+    r = client.post("/scenes", files={"file": ("quad3.obj", obj_text(3), "text/plain")})
+    assert r.status_code == 201, r.text
+    sid = r.json()["id"]
+    blocker = pool.submit(Sleep(2.0), label="blocker")
+    wait_until(lambda: pool.busy, 10)
+    with ThreadPoolExecutor(1) as ex:
+        waiting = ex.submit(client.post, f"/scenes/{sid}/frames",
+                            json={"camera": {"eye": [0.5, 0.5, 3.0], "target": [0.5, 0.5, 0.0]},
+                                  "width": 16, "height": 16})
+        wait_until(lambda: pool.queue_depth == 1, 10)  # the frame waits behind the blocker
+        assert client.delete(f"/scenes/{sid}").status_code == 204
+        r = waiting.result(60)
+    blocker.result(30)
+    assert r.status_code == 404, r.text
+    assert sid[:12] in r.json()["detail"]
 
 
 def test_two_workers_share_the_queue_and_pin_streams_apart(tmp_path):

@@ -1,0 +1,16 @@
+"""How much of its input an error message repeats: a value is quoted whole when
+short, else its start and its length (so that no error echoes a large input)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+#: Longest excerpt of an input value an error message repeats (characters).
+EXCERPT_CHARS = 80
+
+
+def quoted(value: Any, limit: int = EXCERPT_CHARS) -> str:
+    """repr(value) when at most `limit` characters, else its first `limit`
+    characters, an ellipsis and the full length."""
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[:limit]}… ({len(text):,} characters)"
