@@ -309,6 +309,7 @@ def test_bad_cameras_are_422_naming_the_problem(client, cornell_id, camera_text,
     ({"effects": {"shadows": "pcss"}}, "shadows"),
     ({"effects": {"reflections": "ssr"}}, "reflections method 'ssr' is not available"),
     ({"effects": {"reflections": "cluster", "glossy_rays": 0}}, "glossy_rays"),
+    ({"effects": {"reflections": "cluster", "glossy_rays": 65}}, "less than or equal to 64"),
     ({"effects": {"fog": "none"}}, "fog"),
     ({"colour": "red"}, "colour"),
 ])
