@@ -57,7 +57,7 @@ import numpy as np
 from gl_passes.bindings import Units
 from gl_passes.context import GLContext
 from gl_passes.readback import read_buffer
-from gl_passes.releasable import Releasable, grown_buffer
+from gl_passes.releasable import Releasable, ReleasedOnError, grown_buffer
 from gl_passes.shaders import compute_program, program
 from scenes.lights import light_camera
 from scenes.model import AreaLight
@@ -273,10 +273,11 @@ class SoftShadowPass(Releasable):
     def _new_atlas(self) -> tuple[moderngl.Texture, moderngl.Framebuffer]:
         """A depth atlas of `tiles`² maps, read unfiltered, and its framebuffer."""
         size = self.settings.shadow_map_resolution * self.tiles
-        atlas = self.gl.ctx.depth_texture((size, size))
-        atlas.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        atlas.compare_func = ""
-        return atlas, self.gl.ctx.framebuffer(depth_attachment=atlas)
+        with ReleasedOnError() as made:
+            atlas = made(self.gl.ctx.depth_texture((size, size)))
+            atlas.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            atlas.compare_func = ""
+            return atlas, self.gl.ctx.framebuffer(depth_attachment=atlas)
 
     @property
     def maps_nbytes(self) -> int:
