@@ -708,6 +708,13 @@ class ClusterReflections(Releasable):
                 albedo.value = rgb
             vao.render(moderngl.TRIANGLES, vertices=3 * count, first=3 * first)
 
+    def forget_scene(self, scene_gpu: SceneGPU) -> None:
+        """Release what is cached of `scene_gpu` (its face normals, levels of detail
+        and their vertex arrays over its buffers): its owner is releasing it."""
+        self.gl.check_thread()
+        if self._chunk_cache_hit(scene_gpu):
+            self._release_entry(self._chunk_cache.pop(id(scene_gpu)))
+
     def release(self) -> None:
         self.gl.check_thread()
         self.gbuffer.release()

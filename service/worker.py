@@ -107,12 +107,21 @@ class GLState:
         while len(self._gpu) > self.gpu_cache_size:
             old_key, old = self._gpu.popitem(last=False)
             log.debug("releasing GPU upload of scene %s", old_key)
-            old.release()
+            self._release_upload(old)
         return gpu
+
+    def _release_upload(self, gpu: SceneGPU) -> None:
+        """Release a scene's upload, after the resources that cache something of it
+        (those with `forget_scene`, e.g. the reflection renderer's per-scene records)."""
+        for _, obj in self._resources.values():
+            if hasattr(obj, "forget_scene"):
+                obj.forget_scene(gpu)
+        gpu.release()
 
     def has_scene(self, key: str) -> bool:
         """Whether the GPU upload of the scene under `key` is cached."""
         return key in self._gpu
+
     def scene(self, key: str) -> Scene:
         """The scene stored under the content address `key` (from the scene loader)."""
         if self.scene_loader is None:
@@ -124,7 +133,7 @@ class GLState:
         self.gl.check_thread()
         gpu = self._gpu.pop(key, None)
         if gpu is not None:
-            gpu.release()
+            self._release_upload(gpu)
         for k in [k for k in self._kept if k[0] == key]:
             _release_all(self._kept.pop(k)[0])
 

@@ -733,6 +733,33 @@ def test_cluster_reflections_release_what_they_create():
     assert after == before
 
 
+def test_forgetting_a_scene_releases_what_the_renderer_cached_of_it():
+    """forget_scene (called by the service before it releases an upload) frees the
+    scene's cached records at once: with each frame's scene forgotten, live GL
+    objects stay those of one frame, not CHUNK_CACHE scenes' records."""
+    from tests.gl_leaks import gl_object_growth
+
+    scene = mirror_object_scene(sphere_mesh(), "sphere")
+    cam = mirror_camera(24).fit_clip(scene.bounds)
+
+    class State:
+        def __init__(self, gl) -> None:
+            self.gl, self.refl = gl, ClusterReflections(gl)
+            self.frame(-1)
+
+        def frame(self, _: int) -> None:
+            with SceneGPU(self.gl, scene) as sg:
+                self.refl.render(sg, cam)
+                self.refl.forget_scene(sg)
+            assert not self.refl._chunk_cache
+
+        def release(self) -> None:
+            self.refl.release()
+
+    before, after = gl_object_growth(State, State.frame, 3)
+    assert after == before
+
+
 def test_clustering_refuses_a_frame_that_lost_samples(gl, monkeypatch):
     """A reflective sample whose segment lies past the statistics (as on the lent GPU's
     wrong 2048² frame: a bin index past the cluster table; here a label made to point

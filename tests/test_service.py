@@ -676,6 +676,32 @@ def test_worker_resources_hold_one_object_per_name(gl):
     assert sorted(released) == [0, 8]
 
 
+def test_worker_resources_forget_a_released_upload_first(gl):
+    """Before GLState releases a scene's upload (evicted, or forgotten when the scene
+    is deleted), each resource with forget_scene drops what it cached of it."""
+    from service.worker import GLState
+
+    forgotten = []
+
+    class Cache:
+        def forget_scene(self, gpu) -> None:
+            assert gpu.vbo.glo > 0  # still alive
+            forgotten.append(gpu.scene)
+
+        def release(self) -> None:
+            pass
+
+    a, b = make_builtin("cornell"), make_builtin("mirror")
+    st = GLState(gl=gl, gbuffer=None, gpu_cache_size=1)
+    st.resource("cache", lambda _: Cache())
+    st.scene_gpu("a", a)
+    st.scene_gpu("b", b)  # evicts a
+    assert forgotten == [a]
+    st.forget("b")
+    assert forgotten == [a, b]
+    st.release_objects()
+
+
 # --- CLI -------------------------------------------------------------------------------------------
 def test_cli_scenes_lists_builtins(capsys):
     from service.cli import main
