@@ -135,6 +135,11 @@ class RayCaster:
         self.twin = _reversed_twins(scene.vertices, self._f)
         # Offset for restarting rays past a surface: tiny against the scene size.
         self.eps = 1e-6 * max(scene.diagonal, 1e-6)
+        length = np.linalg.norm(self.face_normals, axis=1, keepdims=True)
+        self._unit_normals = self.face_normals / np.where(length > 0, length, 1.0)
+        # float32 vertices are off their exact plane by up to ~half an ulp of the
+        # largest coordinate: a plane offset within 16 such ulps is the same plane.
+        self._plane_tol = 16 * 2.0**-24 * max(float(np.abs(self._v).max(initial=0.0)), 1e-30)
 
     def _viewpoint_scene(self, eye: np.ndarray) -> tuple[object | None, np.ndarray]:
         """Embree scene of the faces front-facing as seen from `eye`, and the map
@@ -153,24 +158,29 @@ class RayCaster:
             self._viewpoint_cache.popitem(last=False)
         return entry
 
-    def cast_from(self, eye: np.ndarray, directions: np.ndarray, tmax: np.ndarray | float | None = None) -> Hits:
+    def cast_from(self, eye: np.ndarray, directions: np.ndarray, tmax: np.ndarray | float | None = None,
+                  start: np.ndarray | None = None) -> Hits:
         """Closest front-facing hit of rays from the single point `eye` (3,) along
-        unit `directions` (N,3), with exact back-face culling (a per-viewpoint BVH of
-        the faces front-facing from `eye`, cached for the last few viewpoints: worth
-        it for a whole image of rays, not for a handful)."""
+        unit `directions` (N,3), at distances t in (start, tmax) from `eye` (start
+        (N,) default 0: a walk through a ray's surfaces restarts past each), with
+        exact back-face culling: a per-viewpoint BVH of the faces front-facing from
+        `eye`, cached for the last few viewpoints. So a back face never hides a
+        front face it meets at the same t (a silhouette edge shared by a front and
+        a back face), which culling hit by hit cannot promise."""
         eye = np.asarray(eye, np.float64)
         d = np.asarray(directions, np.float64).reshape(-1, 3)
         n = len(d)
         limit = _ray_limits(tmax, n)
+        t0 = np.zeros(n) if start is None else np.asarray(start, np.float64).reshape(n)
         emb, faces = self._viewpoint_scene(eye)
         t = np.full(n, np.inf)
         tri = np.zeros(n, np.uint32)
         u = np.zeros(n)
         v = np.zeros(n)
-        if emb is not None:
-            r = _embree_run(emb, np.broadcast_to(eye, d.shape), d, limit, output=1)
-            hit = r["primID"] >= 0
-            t[hit] = r["tfar"][hit]
+        if emb is not None and n:
+            r = _embree_run(emb, eye + d * t0[:, None], d, np.maximum(limit - t0, 0.0), output=1)
+            hit = (r["primID"] >= 0) & (limit > t0)
+            t[hit] = t0[hit] + r["tfar"][hit]
             tri[hit] = faces[r["primID"][hit]].astype(np.uint32) + 1
             u[hit], v[hit] = r["u"][hit], r["v"][hit]
         return Hits(t=t, tri_id=tri, u=u, v=v, front=tri > 0)
@@ -224,6 +234,17 @@ class RayCaster:
             travelled[again] = th[~keep] + self.eps
             active = again
         return Hits(t=t, tri_id=tri, u=u, v=v, front=front)
+
+    def same_plane(self, tri_a: np.ndarray, tri_b: np.ndarray) -> np.ndarray:
+        """(N,) bool: triangles tri_a (N,) lie in the plane of triangles tri_b (N,)
+        (1-based ids): the same orientation within 1e-6 and every vertex of tri_a
+        within float32 rounding of tri_b's plane."""
+        a = np.asarray(tri_a, np.int64).reshape(-1) - 1
+        b = np.asarray(tri_b, np.int64).reshape(-1) - 1
+        n = self._unit_normals[b]
+        parallel = np.einsum("ij,ij->i", self._unit_normals[a], n) > 1 - 1e-6
+        off = np.einsum("nkj,nj->nk", self._v[self._f[a]] - self._v[self._f[b, 0]][:, None], n)
+        return parallel & (np.abs(off).max(axis=1, initial=0.0) <= self._plane_tol)
 
     def _barycentrics(self, faces: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Barycentrics (u, v) of vertices 1 and 2 for points (N,3) on faces (N,)."""

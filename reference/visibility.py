@@ -9,9 +9,10 @@ every depth image in the project, DESIGN.md "Back-face culling on"):
 * x is *visible from* V when it is inside V's frustum, T is front-facing to V
   (n_T · (x − eye) < 0, back faces are culled) and the segment eye → x crosses no
   triangle that is front-facing to V (back-facing triangles are culled, so they
-  never occlude). T itself is ignored along the segment (a line meets a plane
-  once, so any hit on T is x's own surface) and the segment is shortened by a
-  relative 1e-4 at x, as `RayCaster.occluded` does.
+  never occlude). T and the triangles in T's plane are ignored along the segment
+  (a line meets a plane once, so any hit on that plane is x's own surface, met
+  early only by the float32 rounding of x and of the vertices) and the segment is
+  shortened by a relative 1e-4 at x, as `RayCaster.occluded` does.
 * Alg. 2 (visibility-redundancy test): a sample s of image I_i is redundant with
   I_j (j < i) iff the point s is visible from V_j in the sense above. The
   non-redundant image I_i stores, per pixel, the nearest front-facing hit of the
@@ -80,7 +81,10 @@ def count_front_hits(caster: RayCaster, a: np.ndarray, b: np.ndarray, tri_b: np.
 
     a (3,) or (N,3); b (N,3) surface points on triangles tri_b (N,) (ignored along
     the segment, see module docstring); max_count scalar or (N,). Back faces are
-    culled (skipped)."""
+    culled (skipped): from a single point `a` exactly, as the images are cast
+    (`RayCaster.cast_from`: a back face met at the same t as a front face, at a
+    silhouette edge, does not hide it), else hit by hit."""
+    eye = np.asarray(a, np.float64) if np.ndim(a) == 1 else None
     b = np.asarray(b, np.float64).reshape(-1, 3)
     a = np.broadcast_to(np.asarray(a, np.float64), b.shape)
     n = len(b)
@@ -105,13 +109,20 @@ def count_front_hits(caster: RayCaster, a: np.ndarray, b: np.ndarray, tri_b: np.
     for _ in range(MAX_LAYERS):
         if len(active) == 0:
             break
-        h = caster.intersect(a[active] + d[active] * travelled[active, None], d[active],
-                             tmax[active] - travelled[active], cull_back_faces=True)
+        if eye is not None:
+            h = caster.cast_from(eye, d[active], tmax[active], start=travelled[active])
+        else:
+            h = caster.intersect(a[active] + d[active] * travelled[active, None], d[active],
+                                 tmax[active] - travelled[active], cull_back_faces=True)
+            h = Hits(t=h.t + travelled[active], tri_id=h.tri_id, u=h.u, v=h.v, front=h.front)
         hit = h.hit
         idx = active[hit]
-        th = travelled[idx] + h.t[hit]
+        th = h.t[hit]
         tri = h.tri_id[hit]
-        real = (tri != tri_b[idx]) & (tri != last[idx])  # own surface / re-hit of the last one
+        # own surface (T or a triangle in T's plane: the segment meets it at b) /
+        # re-hit of the last one
+        real = (tri != tri_b[idx]) & (tri != last[idx])
+        real[real] = ~caster.same_plane(tri[real], tri_b[idx][real])
         count[idx[real]] += 1
         travelled[idx] = th + eps
         last[idx] = tri
@@ -198,8 +209,7 @@ def conventional_reference(scene: Scene, cameras: Sequence[Camera],
     for cam in cameras:
         cam = clipped(cam, scene)
         d = cam.pixel_directions().reshape(-1, 3)
-        o = np.broadcast_to(np.asarray(cam.eye, np.float64), d.shape)
-        out.append(depth_image_from_hits(rc, cam, rc.intersect(o, d, cull_back_faces=True), d))
+        out.append(depth_image_from_hits(rc, cam, rc.cast_from(np.asarray(cam.eye, np.float64), d), d))
     return out
 
 
@@ -234,10 +244,10 @@ def non_redundant_reference(scene: Scene, cameras: Sequence[Camera], redundancy:
         for _ in range(max_layers):
             if len(active) == 0:
                 break
-            h = rc.intersect(eye + d[active] * travelled[active, None], d[active], cull_back_faces=True)
+            h = rc.cast_from(eye, d[active], start=travelled[active])
             hit = h.hit
             idx = active[hit]
-            th = travelled[idx] + h.t[hit]
+            th = h.t[hit]
             ht = h.tri_id[hit]
             # Test the point the image will store (float32 positions, as
             # depth_image_from_hits writes them), so that re-testing the stored

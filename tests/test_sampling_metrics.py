@@ -21,6 +21,7 @@ from reference.visibility import (
 )
 from scenes.camera import Camera
 from scenes.model import Scene, SceneObject
+from tests.helpers import box
 
 # --- the "strip" scene: counted by hand -------------------------------------------
 #
@@ -171,13 +172,12 @@ def test_pixel_redundancy_edge_ties(strip):
 
 
 def _box(name: str, lo, hi) -> SceneObject:
-    """An axis-aligned box of 8 shared corners (not tests.helpers.box, nor
-    scenes.builtin.geometry.box: both give each side its own vertices and another vertex
-    order). The cameras below send rays exactly through edges of A and B (e.g. from
-    x = -2 through x = -1.5, y = 1.5 at z = 5.43); with either of those boxes Embree
-    breaks those ties the other way: 4 samples of each conventional image are judged
-    invisible from their own camera, 2 from both (occluded [2, 2], against
-    test_boxes_metrics's [0, 0])."""
+    """An axis-aligned box of 8 shared corners, in another vertex order than
+    tests.helpers.box (each side its own vertices). The cameras below send rays
+    exactly through silhouette edges of A and B (e.g. from x = -2 through x = -1.5,
+    y = 1.5 at z = 5.43), where a front and a back face meet at the same t: the
+    boxes fixture runs with both builders, so that how Embree breaks those ties
+    cannot decide a sample's visibility from its own camera."""
     x0, y0, z0 = lo
     x1, y1, z1 = hi
     v = np.array([[x0, y0, z0], [x1, y0, z0], [x1, y1, z0], [x0, y1, z0],
@@ -187,18 +187,18 @@ def _box(name: str, lo, hi) -> SceneObject:
     return SceneObject(name, v, f)  # outward normals (CCW seen from outside)
 
 
-def boxes_scene() -> Scene:
+def boxes_scene(make_box=_box) -> Scene:
     return Scene([
-        _box("A", (-1.5, -1.5, 4.5), (-0.5, 1.5, 5.5)),
-        _box("B", (0.5, -1.5, 4.5), (1.5, 1.5, 5.5)),
-        _box("C", (-0.5, -1.0, -0.5), (0.5, 1.0, 0.5)),
-        _box("D", (-10.0, -6.0, -3.0), (10.0, 6.0, -2.0)),
+        make_box("A", (-1.5, -1.5, 4.5), (-0.5, 1.5, 5.5)),
+        make_box("B", (0.5, -1.5, 4.5), (1.5, 1.5, 5.5)),
+        make_box("C", (-0.5, -1.0, -0.5), (0.5, 1.0, 0.5)),
+        make_box("D", (-10.0, -6.0, -3.0), (10.0, 6.0, -2.0)),
     ], name="abcd")
 
 
-@pytest.fixture(scope="module")
-def boxes():
-    scene = boxes_scene()
+@pytest.fixture(scope="module", params=[_box, box], ids=["shared_corners", "helpers_box"])
+def boxes(request):
+    scene = boxes_scene(request.param)
     rc = RayCaster(scene)
     cams = [Camera((x, 0.0, 10.0), (x, 0.0, 0.0), (0.0, 1.0, 0.0), 90.0, 64, 64) for x in (-2.0, 2.0)]
     conv = conventional_reference(scene, cams, rc)
@@ -343,3 +343,22 @@ def test_gl_pixel_nr_offset_scene_as_counted(gl, offset):
     with SceneGPU(gl, scene) as sg:
         nr = depth_images.non_redundant(gl, sg, cams)
     assert _columns(nr[0]) == list("BBBBBABB") and _columns(nr[1]) == list("----B--B")
+
+
+@pytest.mark.parametrize("centre", [0.0, 1e4])
+def test_every_sample_is_visible_from_its_own_camera_far_from_the_origin(centre):
+    """A tilted quad (two triangles sharing a diagonal) 1e4 from the origin: the
+    float32 positions a depth image stores lie up to ~5e-4 off their plane, so an
+    occlusion segment to one can cross the plane early, on the other triangle.
+    That triangle is in the sample's plane, not an occluder: every sample of the
+    conventional image is visible from its own camera (it lost one before)."""
+    c = np.full(3, centre)
+    e1, e2 = np.array([1.0, 0.0, -0.3]), np.array([0.0, 1.0, -0.2])
+    v = np.array([c - e1 / 2 - e2 / 2, c + e1 / 2 - e2 / 2, c + e1 / 2 + e2 / 2, c - e1 / 2 + e2 / 2])
+    scene = Scene([SceneObject("quad", v, np.array([[0, 1, 2], [0, 2, 3]]))])
+    rc = RayCaster(scene)
+    cam = Camera(tuple(c + np.array([-0.8, 0.5, 1.0])), tuple(c), (0.0, 1.0, 0.0), 60.0, 128, 128)
+    image = conventional_reference(scene, [cam], rc)[0]
+    m = image.mask
+    assert m.sum() > 4000
+    assert visible_from(rc, image.camera, image.position[m], image.tri_id[m]).all()
