@@ -58,6 +58,7 @@ from bench.sampling_report import (
     view_dependent_table,
     view_independent_table,
 )
+from reference import REVISION
 
 DEFAULT_SCENES = ("nest", "grass", "city", "tree", "diorama")
 
@@ -393,11 +394,14 @@ def write_report(args, info: dict, results: list[dict], sweep: dict | None, swee
 
     runs = [(f"{args.res}², {args.views} views", results)]
     runs += [(f"{e['config']['res']}², {e['config']['views']} views", e["scenes"]) for e in extra_runs or []]
+    revisions = [getattr(args, "reference_revision", 1)] + [e["config"].get("reference_revision", 1)
+                                                             for e in extra_runs or []]
     crit_md, crit = criteria_tables(runs, results)
     md += ["## Issue 3, \"Done when\": the criteria, scene by scene", "",
-           "Runs: " + "; ".join(f"{label} ({'this file' if k == 0 else 'see ' + e['_path']})"
-                                for k, ((label, _), e) in enumerate(zip(runs, [{}] + list(extra_runs or []),
-                                                                          strict=True))) + ".", "",
+           "Runs: " + "; ".join(f"{label} ({'this file' if k == 0 else 'see ' + e['_path']}"
+                                f"{revision_note(rev)})"
+                                for k, ((label, _), e, rev) in enumerate(zip(runs, [{}] + list(extra_runs or []),
+                                                                               revisions, strict=True))) + ".", "",
            crit_md, criteria_notes(), ""]
     md += ["## Table 2: view-independent metrics, pixel definition [%]", "", t2, "", gap(d2), ""]
     md += ["## Table 4: available samples, pixel definition [%]", "", t4, "", gap(d4), ""]
@@ -517,7 +521,16 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     args.sweep_scenes = [s for s in args.sweep_scenes.split(",") if s]
     args.sweep_res = [int(r) for r in args.sweep_res.split(",") if r]
     args.command = "python -m bench.sampling " + " ".join(argv if argv is not None else sys.argv[1:])
+    args.reference_revision = REVISION  # recorded in the run's config
     return args
+
+
+def revision_note(revision: int) -> str:
+    """'' for a run against the current reference, else which revision it measured."""
+    if revision >= REVISION:
+        return ""
+    return (f"; measured against reference revision {revision}, before revision {REVISION}'s rules "
+            "(`reference.REVISION`)")
 
 
 def load_extra(args: argparse.Namespace) -> list[dict]:
