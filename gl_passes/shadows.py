@@ -57,7 +57,7 @@ import numpy as np
 from gl_passes.bindings import Units
 from gl_passes.context import GLContext
 from gl_passes.readback import read_buffer
-from gl_passes.releasable import Releasable, ReleasedOnError, grown_buffer
+from gl_passes.releasable import Releasable, ReleasedOnError, Scratch, grown_buffer
 from gl_passes.shaders import compute_program, program
 from scenes.lights import light_camera
 from scenes.model import AreaLight
@@ -282,8 +282,7 @@ class SoftShadowPass(Releasable):
     @property
     def maps_nbytes(self) -> int:
         """GPU bytes of the `ShadowMaps` that `render_maps` makes (one atlas per batch)."""
-        batches = -(-self.settings.n_samples // self.batch)
-        return batches * _atlas_bytes(self.atlas)
+        return self._n_batches * _atlas_bytes(self.atlas)
 
     def _buffer(self, name: str, nbytes: int) -> moderngl.Buffer:
         """The storage buffer `name`, at least `nbytes` long (replaced when smaller)."""
@@ -330,6 +329,10 @@ class SoftShadowPass(Releasable):
             for e in [GL_DEPTH_CLAMP, GL_PROGRAM_POINT_SIZE, *clips]:
                 ctx.disable_direct(e)
             ctx.disable(moderngl.DEPTH_TEST)
+
+    @property
+    def _n_batches(self) -> int:
+        return -(-self.settings.n_samples // self.batch)
 
     def _batches(self) -> Iterator[tuple[int, int]]:
         """(first, count) of each batch of maps."""
@@ -433,20 +436,15 @@ class SoftShadowPass(Releasable):
         """All k² shadow maps of `light` over `occluders` (as `visibility` draws
         them), kept in `maps_nbytes` of atlases for `lookup`."""
         self.gl.check_thread()
-        maps = ShadowMaps(shadow_cameras(light, bounds, self.settings.samples, self.settings.shadow_map_resolution),
-                          [], self.settings)
-        try:
+        cams = shadow_cameras(light, bounds, self.settings.samples, self.settings.shadow_map_resolution)
+        with ReleasedOnError() as made:
+            maps = made(ShadowMaps(cams, [], self.settings))
             for first, count in self._batches():
                 atlas, fbo = self._new_atlas()
                 maps.atlases.append(atlas)
-                try:
-                    self._render_maps(occluders, maps.cams, first, count, fbo)
-                finally:
-                    fbo.release()
-        except BaseException:
-            maps.release()
-            raise
-        return maps
+                with Scratch() as temp:
+                    self._render_maps(occluders, cams, first, count, temp(fbo))
+            return maps
 
     def lookup(self, maps: ShadowMaps, points: np.ndarray, normals: np.ndarray, mask: np.ndarray) -> ShadowResult:
         """`visibility` of the receivers (shapes as there) from maps that
@@ -455,7 +453,7 @@ class SoftShadowPass(Releasable):
         if maps.settings != self.settings:
             raise ValueError(f"the maps were made with other settings ({maps.settings}) than this pass's "
                              f"({self.settings})")
-        if len(maps.atlases) != len(list(self._batches())):
+        if len(maps.atlases) != self._n_batches:
             raise ValueError(f"{len(maps.atlases)} atlases are not the maps of this pass's {self.settings.samples}² "
                              "light samples (released)")
         timings = {"upload": 0.0, "shadow_maps": 0.0, "lookup": 0.0, "readback": 0.0}

@@ -79,14 +79,13 @@ def count_front_hits(caster: RayCaster, a: np.ndarray, b: np.ndarray, tri_b: np.
     """Number of triangles front-facing to `a` that the segment a → b crosses
     before b, capped at max_count + 1 (so `== 0` means b is visible from a).
 
-    a (3,) or (N,3); b (N,3) surface points on triangles tri_b (N,) (ignored along
+    a (3,) the eye; b (N,3) surface points on triangles tri_b (N,) (ignored along
     the segment, see module docstring); max_count scalar or (N,). Back faces are
-    culled (skipped): from a single point `a` exactly, as the images are cast
-    (`RayCaster.cast_from`: a back face met at the same t as a front face, at a
-    silhouette edge, does not hide it), else hit by hit."""
-    eye = np.asarray(a, np.float64) if np.ndim(a) == 1 else None
+    culled exactly, as the images are cast (`RayCaster.cast_from`: a back face met
+    at the same t as a front face, at a silhouette edge, does not hide it)."""
+    eye = np.asarray(a, np.float64).reshape(3)
     b = np.asarray(b, np.float64).reshape(-1, 3)
-    a = np.broadcast_to(np.asarray(a, np.float64), b.shape)
+    a = np.broadcast_to(eye, b.shape)
     n = len(b)
     count = np.zeros(n, np.int64)
     if n == 0:
@@ -109,12 +108,7 @@ def count_front_hits(caster: RayCaster, a: np.ndarray, b: np.ndarray, tri_b: np.
     for _ in range(MAX_LAYERS):
         if len(active) == 0:
             break
-        if eye is not None:
-            h = caster.cast_from(eye, d[active], tmax[active], start=travelled[active])
-        else:
-            h = caster.intersect(a[active] + d[active] * travelled[active, None], d[active],
-                                 tmax[active] - travelled[active], cull_back_faces=True)
-            h = Hits(t=h.t + travelled[active], tri_id=h.tri_id, u=h.u, v=h.v, front=h.front)
+        h = caster.cast_from(eye, d[active], tmax[active], start=travelled[active])
         hit = h.hit
         idx = active[hit]
         th = h.t[hit]

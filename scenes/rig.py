@@ -94,9 +94,7 @@ def fig8_rig(bounds: tuple[np.ndarray, np.ndarray], width: int, height: int, spr
         d = np.cos(s) * axis + np.sin(s) * (np.cos(phi) * right + np.sin(phi) * up)
         eye = c + distance * diag * d
         cams.append(Camera(tuple(eye), tuple(c), tuple(world_up), fov, width, height).fit_clip((lo, hi)))
-    centroid = np.mean([cam.eye for cam in cams], axis=0)
-    peel = Camera(tuple(centroid), tuple(c), tuple(world_up), fov, width, height).fit_clip((lo, hi))
-    return cams, peel
+    return cams, peeling_camera(cams).fit_clip((lo, hi))
 
 
 def intermediate_views(cameras: Sequence[Camera], count: int, seed: int = 0) -> list[Camera]:

@@ -27,7 +27,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match
 
 from scenes.loaders import SceneLoadError
-from service.excerpts import EXCERPT_CHARS
+from service.excerpts import EXCERPT_CHARS, cut
 from service.store import (
     InvalidBuiltin,
     InvalidSceneId,
@@ -63,7 +63,7 @@ def excerpt(value: Any, limit: int = EXCERPT_CHARS) -> Any:
         text = repr(value)
     if len(text) <= limit:
         return _json_safe(jsonable_encoder(value)) if not isinstance(value, (bytes, bytearray)) else text
-    return f"{text[:limit]}… ({len(text):,} characters)"
+    return cut(text, limit)
 
 
 def _json_safe(obj: Any) -> Any:

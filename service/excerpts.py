@@ -9,8 +9,12 @@ from typing import Any
 EXCERPT_CHARS = 80
 
 
-def quoted(value: Any, limit: int = EXCERPT_CHARS) -> str:
-    """repr(value) when at most `limit` characters, else its first `limit`
-    characters, an ellipsis and the full length."""
-    text = repr(value)
+def cut(text: str, limit: int = EXCERPT_CHARS) -> str:
+    """`text` when at most `limit` characters, else its first `limit` characters,
+    an ellipsis and the full length."""
     return text if len(text) <= limit else f"{text[:limit]}… ({len(text):,} characters)"
+
+
+def quoted(value: Any, limit: int = EXCERPT_CHARS) -> str:
+    """repr(value), `cut` to `limit` characters."""
+    return cut(repr(value), limit)
