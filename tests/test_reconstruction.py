@@ -503,22 +503,35 @@ def test_reconstruction_frees_its_gl_objects(kind):
     scene = figure11_scene()
     cam = Camera((2.0, 0.0, 10.0), (0.0, 0.0, 0.0), fov=40.0, width=32, height=32)
 
-    class State:
-        def __init__(self, gl) -> None:
-            self.sg, self.rec = SceneGPU(gl, scene), Reconstructor(gl)
-            self.ss = render_set(gl, self.sg, "conventional", [cam])
-            self.frame(0)
-
+    class State(_SetState):
         def frame(self, _: int) -> None:
             img, off = self.ss.images[0], self.ss.offsets[0]
             self.rec.reconstruct(img, off, ReconstructionSettings(kind=kind)).release()
 
-        def release(self) -> None:
-            self.rec.release()
-            self.sg.release()
-
-    before, after = gl_object_growth(State, State.frame, 50)
+    before, after = gl_object_growth(lambda gl: State(gl, scene, [cam]), State.frame, 50)
     assert after == before
+
+
+class _SetState:
+    """gl_object_growth state: a scene's upload, a Reconstructor and the conventional
+    set of `cams` (with offset images); `prepare()` then one `frame` run on creation."""
+
+    def __init__(self, gl, scene: Scene, cams: list[Camera]) -> None:
+        self.gl = gl
+        self.sg, self.rec = SceneGPU(gl, scene), Reconstructor(gl)
+        self.ss = render_set(gl, self.sg, "conventional", cams)
+        self.prepare()
+        self.frame(0)
+
+    def prepare(self) -> None:
+        pass
+
+    def frame(self, _: int) -> None:
+        raise NotImplementedError
+
+    def release(self) -> None:
+        self.rec.release()
+        self.sg.release()
 
 
 class _Failing(RuntimeError):
@@ -540,27 +553,18 @@ def test_a_failing_reconstruction_releases_what_it_made(where):
             Camera((0.0, 2.0, 10.0), (0.0, 0.0, 0.0), fov=40.0, width=32, height=32)]
     settings = replace(HYBRID, kind="grid") if where == "grid" else HYBRID
 
-    class State:
-        def __init__(self, gl) -> None:
-            self.gl = gl
-            self.sg, self.rec = SceneGPU(gl, scene), Reconstructor(gl)
-            ss = render_set(gl, self.sg, "conventional", cams)
+    class State(_SetState):
+        def prepare(self) -> None:
             if where == "later_image":  # the second image's offset image has the wrong shape
-                ss = replace(ss, offsets=[ss.offsets[0], ss.images[1]])
-            elif where in ("hybrid", "grid"):
+                self.ss = replace(self.ss, offsets=[self.ss.offsets[0], self.ss.images[1]])
+            else:
                 self.rec._set_camera = _fail
-            self.ss = ss
-            self.frame(0)
 
         def frame(self, _: int) -> None:
             with pytest.raises((_Failing, ValueError)):
                 reconstruct_set(self.gl, self.ss, settings, self.rec)
 
-        def release(self) -> None:
-            self.rec.release()
-            self.sg.release()
-
-    before, after = gl_object_growth(State, State.frame, 10)
+    before, after = gl_object_growth(lambda gl: State(gl, scene, cams), State.frame, 10)
     assert after == before
 
 
