@@ -298,7 +298,8 @@ def sweep_main(args: Any, stem: str, values: Sequence[Any], key: Callable[[Any],
     (`values`, keyed in JSON by key(value)): measure_one(gl, value) on one GL context,
     then <out>/<stem>.json ({"args", "machine", "seconds", "runs"}) and
     write_report(out, args, machine, runs, seconds); with args.report_only only the
-    report is rewritten from that JSON (its saved arguments, `out` from args)."""
+    report is rewritten from that JSON (its saved arguments, `out` from args).
+    The arguments saved include `reference_revision` (`reference.REVISION`)."""
     import argparse
 
     if args.report_only:
@@ -308,6 +309,9 @@ def sweep_main(args: Any, stem: str, values: Sequence[Any], key: Callable[[Any],
         write_report(args.out, saved, data["machine"], runs, data["seconds"])
         print(f"rewrote {args.out / f'{stem}.md'}")
         return 0
+    from reference import REVISION
+
+    args.reference_revision = REVISION  # recorded with the run's arguments
     runs, info, seconds = measure_with_gl(lambda gl: {v: measure_one(gl, v) for v in values})
     write_json(args.out / f"{stem}.json", {"args": {k: v for k, v in vars(args).items() if k != "out"},
                                            "machine": info, "seconds": seconds,

@@ -394,8 +394,8 @@ def write_report(args, info: dict, results: list[dict], sweep: dict | None, swee
 
     runs = [(f"{args.res}², {args.views} views", results)]
     runs += [(f"{e['config']['res']}², {e['config']['views']} views", e["scenes"]) for e in extra_runs or []]
-    revisions = [getattr(args, "reference_revision", 1)] + [e["config"].get("reference_revision", 1)
-                                                             for e in extra_runs or []]
+    revisions = [scene_revisions(getattr(args, "reference_revision", 1), results)]
+    revisions += [scene_revisions(e["config"].get("reference_revision", 1), e["scenes"]) for e in extra_runs or []]
     crit_md, crit = criteria_tables(runs, results)
     md += ["## Issue 3, \"Done when\": the criteria, scene by scene", "",
            "Runs: " + "; ".join(f"{label} ({'this file' if k == 0 else 'see ' + e['_path']}"
@@ -525,12 +525,27 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return args
 
 
-def revision_note(revision: int) -> str:
-    """'' for a run against the current reference, else which revision it measured."""
-    if revision >= REVISION:
+def scene_revisions(run_revision: int, scenes: list[dict]) -> dict[str, int]:
+    """{scene: reference revision it was measured against}: a scene's own
+    "reference_revision" (set by --merge from its part's run), else the run's."""
+    return {r["scene"]: r.get("reference_revision", run_revision) for r in scenes}
+
+
+def revision_note(revisions: dict[str, int]) -> str:
+    """'' for a run whose scenes all measured the current reference, else which
+    scenes measured which earlier revision (`revisions` from scene_revisions)."""
+    old = {}
+    for scene, rev in revisions.items():
+        if rev < REVISION:
+            old.setdefault(rev, []).append(scene)
+    if not old:
         return ""
-    return (f"; measured against reference revision {revision}, before revision {REVISION}'s rules "
-            "(`reference.REVISION`)")
+    rules = f"before revision {REVISION}'s rules (`reference.REVISION`)"
+    (rev, scenes), *_ = old.items()
+    if len(old) == 1 and len(scenes) == len(revisions):
+        return f"; measured against reference revision {rev}, {rules}"
+    which = "; ".join(f"{', '.join(sc)} measured against reference revision {r}" for r, sc in old.items())
+    return f"; {which}, {rules}; the other scenes against revision {REVISION}"
 
 
 def load_extra(args: argparse.Namespace) -> list[dict]:
@@ -577,6 +592,7 @@ def merge_runs(args: argparse.Namespace) -> int:
     scenes, stages = [], {}
     for path, d in parts:
         for r in d["scenes"]:
+            r.setdefault("reference_revision", d["config"].get("reference_revision", 1))
             png = path.parent / r["table3_png"]
             r["table3_png"] = os.path.relpath(png, out)
             scenes.append(r)
@@ -586,6 +602,7 @@ def merge_runs(args: argparse.Namespace) -> int:
             "command": " ; ".join(d["command"] for _, d in parts), "scenes_without_ground": [], "sweep": None,
             "merged_from": [os.path.relpath(p, out) for p, _ in parts]}
     data["config"]["scenes"] = [r["scene"] for r in scenes]
+    data["config"]["reference_revision"] = min(r["reference_revision"] for r in scenes)
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "sampling.json", data)
     return report_only(args)

@@ -110,8 +110,8 @@ def write_report(out: Path, args: argparse.Namespace, info: dict, runs: dict[int
         f"--res {args.res} --views {args.views} --seed {args.seed}",
         [f"Every triangle of each scene split into 4^L (midpoint subdivision, `bench.tessellation.subdivided`), "
          f"same surfaces; the Fig. 8 rig of `bench.sampling` (20°), {args.res}² images, {args.views} intermediate "
-         f"views (seed {args.seed}), the metrics of `reference.sampling_metrics` and the criteria of "
-         "`bench.sampling`.",
+         f"views (seed {args.seed}), the metrics of `reference.sampling_metrics` (reference revision "
+         f"{getattr(args, 'reference_revision', 1)}, `reference.REVISION`) and the criteria of `bench.sampling`.",
          f"Check that the surfaces are unchanged: the visibility-definition available samples (every method, "
          f"scene and level) move by at most {visibility_drift(runs):.3f} points from level 0.",
          f"The pixel-definition NR set rendered by Embree instead of GL gives the GL set's available samples "

@@ -163,6 +163,36 @@ def test_sampling_prose_numbers_follow_the_results(tmp_path):
     assert "missing (rig_spread.json)" in criteria_notes(tmp_path)
 
 
+def test_sampling_merge_names_each_scenes_reference_revision(tmp_path):
+    """Per-scene parts of the target run measured against different reference
+    revisions: the merged report says which scenes measured the older one."""
+    import json
+    import shutil
+
+    from bench.sampling import main, revision_note
+    from reference import REVISION
+    from tests.helpers import ROOT
+
+    assert revision_note({"nest": REVISION, "city": REVISION}) == ""
+    assert "revision 1," in revision_note({"nest": 1, "city": 1}) and "other scenes" not in revision_note({"nest": 1})
+    parts = []
+    for scene, rev in (("nest", REVISION - 1), ("city", REVISION)):
+        src = ROOT / "bench/results/sampling_1024_1000v" / scene
+        shutil.copytree(src, tmp_path / scene)
+        data = json.loads((tmp_path / scene / "sampling.json").read_text())
+        data["config"]["reference_revision"] = rev
+        (tmp_path / scene / "sampling.json").write_text(json.dumps(data))
+        parts.append(str(tmp_path / scene / "sampling.json"))
+    assert main(["--merge", *parts, "--out", str(tmp_path / "merged")]) == 0
+    merged = json.loads((tmp_path / "merged" / "sampling.json").read_text())
+    assert [(r["scene"], r["reference_revision"]) for r in merged["scenes"]] == [("nest", REVISION - 1),
+                                                                                 ("city", REVISION)]
+    assert merged["config"]["reference_revision"] == REVISION - 1
+    md = " ".join((tmp_path / "merged" / "sampling.md").read_text().split())
+    assert (f"nest measured against reference revision {REVISION - 1}, before revision {REVISION}'s rules "
+            f"(`reference.REVISION`); the other scenes against revision {REVISION}") in md
+
+
 def test_reflection_step_breakdown_from_the_timing_rows():
     from bench.reflections import step_breakdown
 
