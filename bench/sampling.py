@@ -394,8 +394,8 @@ def write_report(args, info: dict, results: list[dict], sweep: dict | None, swee
 
     runs = [(f"{args.res}², {args.views} views", results)]
     runs += [(f"{e['config']['res']}², {e['config']['views']} views", e["scenes"]) for e in extra_runs or []]
-    revisions = [scene_revisions(getattr(args, "reference_revision", 1), results)]
-    revisions += [scene_revisions(e["config"].get("reference_revision", 1), e["scenes"]) for e in extra_runs or []]
+    revisions = [scene_revisions(vars(args), results)] + [scene_revisions(e["config"], e["scenes"])
+                                                          for e in extra_runs or []]
     crit_md, crit = criteria_tables(runs, results)
     md += ["## Issue 3, \"Done when\": the criteria, scene by scene", "",
            "Runs: " + "; ".join(f"{label} ({'this file' if k == 0 else 'see ' + e['_path']}"
@@ -525,9 +525,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return args
 
 
-def scene_revisions(run_revision: int, scenes: list[dict]) -> dict[str, int]:
+def scene_revisions(config: dict, scenes: list[dict]) -> dict[str, int]:
     """{scene: reference revision it was measured against}: a scene's own
-    "reference_revision" (set by --merge from its part's run), else the run's."""
+    "reference_revision" (set by --merge from its part's run), else the run's
+    `config`'s, else 1 (runs from before revisions were recorded)."""
+    run_revision = config.get("reference_revision", 1)
     return {r["scene"]: r.get("reference_revision", run_revision) for r in scenes}
 
 
@@ -591,8 +593,9 @@ def merge_runs(args: argparse.Namespace) -> int:
         raise SystemExit(f"--merge: runs differ in (res, views, seed): {sorted(keys)}")
     scenes, stages = [], {}
     for path, d in parts:
+        revisions = scene_revisions(d["config"], d["scenes"])
         for r in d["scenes"]:
-            r.setdefault("reference_revision", d["config"].get("reference_revision", 1))
+            r["reference_revision"] = revisions[r["scene"]]
             png = path.parent / r["table3_png"]
             r["table3_png"] = os.path.relpath(png, out)
             scenes.append(r)
