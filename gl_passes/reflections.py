@@ -34,12 +34,10 @@ shaders comes from gl_passes.cluster_units.UNITS.
    the inside of a bathtub or a bowl); and, for non-planar clusters
    (`others_peel`), the other objects' second surface (one depth peel of the first
    layer): a curved cluster's shifted centre e_c does not lie on its rays, so what
-   a ray meets can be hidden from e_c behind another object. Measured (4+4
-   frames of the bench paths at 256²): the occlusion error (thesis definition,
-   per reflected ray) falls from 2.09 to 1.23 % (living_room) and from 3.23 to
-   0.92 % (bathroom), per output pixel from 3.89 to 2.29 % and 5.33 to 1.75 %,
-   for +60 % / +50 % depth-image time (planar clusters: e_c = e0 lies on every
-   ray, nothing on a ray is hidden from it, so they skip this layer). Each
+   a ray meets can be hidden from e_c behind another object (its cost and its
+   effect on the occlusion error: the reflections report's cluster-image layers
+   sweep; planar clusters: e_c = e0 lies on every ray, nothing on a ray is hidden
+   from it, so they skip this layer). Each
    layer's fragment shader also writes its depth into that layer's channel of one
    pack texture (a colour mask per framebuffer) and its colour (11/11/10 bits)
    into its channel of a colour pack; per frame only the pack (to the background)
@@ -78,14 +76,13 @@ shaders comes from gl_passes.cluster_units.UNITS.
    marching every texel; with (b) or the crossing rule, behind only). The march
    loop holds only the per-step test and the hit processing runs after it:
    llvmpipe executes a branch's body under a lane mask even when no lane takes it,
-   so refinement code inside the loop cost every step (4× the intersection time),
+   so refinement code inside the loop cost every step (reflections_notes.json,
+   "march_loop_refinement_cost"),
    and the hit processing reads each layer's depth and colour from the packs
    (one fetch whatever the layer) rather than choosing among per-layer textures.
-   Measured (4 frames of each bench path,
-   living_room and bathroom at 256², planar clusters unshrunk): occlusion-error
-   pixels 9.05 % with (a) alone (the default), 8.43 % with (b) slope 10, 8.06 %
-   with (b)+(c) near_steps 4, for +28 % and +62 % intersection time (which
-   dominates the frame), hence both opt-in; (c) without (b) is worse (9.30 %). Optional crossing rule (`continuity`
+   (b) and (c) are opt-in: they lowered the occlusion error less than they raised
+   the intersection time, and (c) without (b) raised the error
+   (bench/results/reflections_notes.json, "opt_in_hit_rules"). Optional crossing rule (`continuity`
    > 0, compiled in only then; superseded by (b)): a surface the ray was in front of at
    the previous step and is behind now is hit when its texel-centre depth jumps by
    at most `continuity` of itself between the two texels. For glossy reflectors

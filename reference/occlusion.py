@@ -48,11 +48,9 @@ at X's depth) of X's tangent plane is as close as the image can resolve. Without
 normals the test falls back to D* = X's own depth (a fronto-parallel surface) and
 the depth form only.
 
-Sensitivity, measured on the bench's Table 12 views (living_room 3.36 %, bathroom
-4.08 % at 256², 2×2 samples): rel_tol 0.5 % or 5 % moves the percentage by ≤ 0.25
-point; plane_tol 0.25 / 1.0 by +0.2–0.3 / −0.3 point; the depth form alone
-(plane_tol = 0) adds 1.1–1.3 points (grazing surfaces); radius 2 lowers it by ~0.7
-point, radius 0 (X's own texel only) doubles it.
+How far each tolerance moves the error on the bench's Table 12 views:
+bench/results/reflections_notes.json, "occlusion_metric_sensitivity" (the depth
+form alone misses grazing surfaces; radius 0 is X's own texel only).
 
 Pixels. An output pixel is an occlusion-error pixel when one of its ss×ss reflective
 samples has a true hit (finite Embree hit within the mirror ray's far limit) that its
