@@ -76,13 +76,14 @@ shaders comes from gl_passes.cluster_units.UNITS.
    marching every texel; with (b) or the crossing rule, behind only). The march
    loop holds only the per-step test and the hit processing runs after it:
    llvmpipe executes a branch's body under a lane mask even when no lane takes it,
-   so refinement code inside the loop cost every step (reflections_notes.json,
-   "march_loop_refinement_cost"),
+   so refinement code inside the loop cost every step
+   (bench/results/reflections_notes.json, "march_loop_refinement_cost"),
    and the hit processing reads each layer's depth and colour from the packs
    (one fetch whatever the layer) rather than choosing among per-layer textures.
-   (b) and (c) are opt-in: they lowered the occlusion error less than they raised
-   the intersection time, and (c) without (b) raised the error
-   (bench/results/reflections_notes.json, "opt_in_hit_rules"). Optional crossing rule (`continuity`
+   (b) and (c) are opt-in: (b), and (b) with (c), lowered the strict occlusion
+   error a little for much more intersection time, which dominates the frame,
+   and (c) without (b) raised the error (bench/results/reflections_notes.json, "opt_in_hit_rules").
+   Optional crossing rule (`continuity`
    > 0, compiled in only then; superseded by (b)): a surface the ray was in front of at
    the previous step and is behind now is hit when its texel-centre depth jumps by
    at most `continuity` of itself between the two texels. For glossy reflectors
