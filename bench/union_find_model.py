@@ -1,10 +1,10 @@
 """Lock-step model of the clustering's union-find on a GPU (issue 17; §4.3 components).
 
-On the lent H200 the clustering grew about 5.5× per 4× samples (living room 92 ms at
-256² to 14.3 s at 2048²) where llvmpipe grows about 4×, and the issue's 2048²
-criterion waits on it. This script counts, on the real G-buffers of the rooms, the
-global memory accesses and lock-step rounds of the two union-finds that
-gl_passes.clustering has had, under a simple model of a GPU:
+On the lent H200 the clustering with the per-sample union grew faster than linearly
+in the samples, where llvmpipe's grew about linearly (timings:
+bench/results/reflections_gpu.json and reflections.md). This script counts, on the
+real G-buffers of the rooms, the global memory accesses and lock-step rounds of the
+two union-finds that gl_passes.clustering has had, under a simple model of a GPU:
 
 - work groups of 16×16 invocations start in launch order (x fastest) and at most
   `resident_groups` of them run at once (an H200: 132 SMs × 8 groups of 256);

@@ -18,22 +18,26 @@ other non-finite value is an infinite error.
 
 Metrics — each bounds the whole image and each pixel; a check passes when the
 image score is within `tolerance` and at most `max_bad_fraction` of the (masked)
-pixels exceed the per-pixel threshold ("bad" pixels):
+pixels exceed the per-pixel `threshold` ("bad" pixels):
 
-=========  ============================  ==========================  ==========  =========
-metric     image score                   bad pixel                   tolerance   max bad
-=========  ============================  ==========================  ==========  =========
-``mae``    mean |a − b| over pixels and  some channel's |a − b| >     2/255       0.5 %
-           channels ≤ tolerance          tolerance
-``psnr``   10·log10(1 / MSE) dB ≥        some channel's |a − b| >     40 dB       0.5 %
-           tolerance                     10^(−tolerance/20) (0.01)
-``flip``   mean LDR-FLIP ≤ tolerance     FLIP > tolerance             0.05        0.5 %
-=========  ============================  ==========================  ==========  =========
+=========  ============================  ==========================  =========  =========  =======
+metric     image score                   bad pixel                   tolerance  threshold  max bad
+=========  ============================  ==========================  =========  =========  =======
+``mae``    mean |a − b| over pixels and  some channel's |a − b| >    0.5/255    1/255      1 %
+           channels ≤ tolerance          threshold
+``psnr``   10·log10(1 / MSE) dB ≥        some channel's |a − b| >    35 dB      0.01       1 %
+           tolerance                     threshold
+``flip``   mean LDR-FLIP ≤ tolerance     FLIP > threshold            0.01       0.3        0.5 %
+=========  ============================  ==========================  =========  =========  =======
 
-(Defaults measured: the GL G-buffer against Embree on the built-in scenes and the
-diorama at 128² has ≤ 0.06 % of pixels with a channel off by more than 2/255 and
-≤ 0.3 % with FLIP > 0.05 — silhouette pixels where the two pick different
-triangles.) FLIP (`flip-evaluator`, NVIDIA's perceptual difference at 67 pixels
+A caller that gives a tolerance and no threshold gets the threshold that tolerance
+implies (`pixel_threshold`: mae and flip the tolerance, psnr 10^(−tolerance/20)).
+The defaults (`DEFAULTS`) are the ones bench/image_check_defaults.py selects: the GL
+frame against Embree's truth of it passes on every frame it measures, with a
+margin, and the most of its changed frames fail (its report:
+bench/results/image_check_defaults.md).
+
+FLIP (`flip-evaluator`, NVIDIA's perceptual difference at 67 pixels
 per degree) compares (H,W) or (H,W,3) images with values in [0, 1] (clipped).
 """
 
@@ -43,12 +47,27 @@ import re
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
 METRICS = ("mae", "psnr", "flip")
-#: metric → (tolerance, max_bad_fraction) used when the caller gives none.
-DEFAULTS: dict[str, tuple[float, float]] = {"mae": (2 / 255, 0.005), "psnr": (40.0, 0.005), "flip": (0.05, 0.005)}
+
+
+class CheckBounds(NamedTuple):
+    """A check's bounds: the image score's tolerance, the per-pixel threshold above
+    which a pixel is bad, and the share of bad pixels allowed."""
+
+    tolerance: float
+    threshold: float
+    max_bad_fraction: float
+
+
+#: metric → the bounds used where the caller gives none (module docstring; calibrated
+#: by bench/image_check_defaults.py, whose json records the selection).
+DEFAULTS: dict[str, CheckBounds] = {"mae": CheckBounds(0.5 / 255, 1 / 255, 0.01),
+                                    "psnr": CheckBounds(35.0, 0.01, 0.01),
+                                    "flip": CheckBounds(0.01, 0.3, 0.005)}
 SPACES = ("auto", "srgb", "linear")
 #: The error image maps per-pixel error / (ERROR_SCALE × threshold) to magma's [0, 1].
 ERROR_SCALE = 2.0
@@ -94,16 +113,28 @@ class Comparison:
                 f"allowed {100 * self.max_bad_fraction:.3g} %")
 
 
+def pixel_threshold(metric: str, tolerance: float) -> float:
+    """The per-pixel threshold a tolerance implies when no threshold is given: mae
+    and flip the tolerance itself, psnr the error 10^(−tolerance/20)."""
+    return 10.0 ** (-tolerance / 20.0) if metric == "psnr" else tolerance
+
+
 def compare_images(actual: np.ndarray, expected: np.ndarray, *, metric: str = "mae", tolerance: float | None = None,
-                   max_bad_fraction: float | None = None, mask: np.ndarray | None = None,
-                   space: str = "auto") -> Comparison:
+                   threshold: float | None = None, max_bad_fraction: float | None = None,
+                   mask: np.ndarray | None = None, space: str = "auto") -> Comparison:
     """Compare two images (module docstring); raises ValueError on unusable input
-    (unknown metric or space, shapes that differ, an empty mask)."""
+    (unknown metric or space, shapes that differ, an empty mask). Bounds not given
+    are the metric's DEFAULTS, except that a given tolerance without a threshold
+    also sets the threshold (pixel_threshold)."""
     if metric not in METRICS:
         raise ValueError(f"metric must be one of {METRICS}, got {metric!r}")
-    tol_default, bad_default = DEFAULTS[metric]
-    tol = float(tol_default if tolerance is None else tolerance)
-    max_bad = float(bad_default if max_bad_fraction is None else max_bad_fraction)
+    default = DEFAULTS[metric]
+    tol = float(default.tolerance if tolerance is None else tolerance)
+    if threshold is not None:
+        thr = float(threshold)
+    else:
+        thr = default.threshold if tolerance is None else pixel_threshold(metric, tol)
+    max_bad = float(default.max_bad_fraction if max_bad_fraction is None else max_bad_fraction)
     space = resolve_space(actual, expected, space)
     a, b = as_unit(actual, space), as_unit(expected, space)
     if a.shape != b.shape:
@@ -116,18 +147,17 @@ def compare_images(actual: np.ndarray, expected: np.ndarray, *, metric: str = "m
     diff = abs_diff(a, b)
     pixel = diff.max(axis=2)
     if metric == "mae":
-        score, threshold = float(diff[sel].mean()), tol
+        score = float(diff[sel].mean())
     elif metric == "psnr":
         mse = float(np.mean(diff[sel] ** 2))
         score = float("inf") if mse == 0 else (0.0 if np.isinf(mse) else 10.0 * np.log10(1.0 / mse))
-        threshold = 10.0 ** (-tol / 20.0)
     else:
         from reference.image_metrics import flip_map
 
         flip = flip_map(a, b, srgb=space == "srgb").astype(np.float64)
         pixel = np.where(np.isinf(pixel), np.inf, flip)  # a non-finite mismatch is a bad pixel whatever FLIP says
-        score, threshold = float(pixel[sel].mean()), tol
-    return Comparison(metric, space, score, tol, threshold, max_bad, pixel, (pixel > threshold) & sel, sel,
+        score = float(pixel[sel].mean())
+    return Comparison(metric, space, score, tol, thr, max_bad, pixel, (pixel > thr) & sel, sel,
                       int(sel.sum()))
 
 
@@ -247,8 +277,9 @@ def mask_picture(cmp: Comparison) -> np.ndarray:
 # --- the assertions --------------------------------------------------------------------
 
 def assert_images_close(actual: np.ndarray, expected: np.ndarray, *, metric: str = "mae",
-                        tolerance: float | None = None, max_bad_fraction: float | None = None,
-                        mask: np.ndarray | None = None, space: str = "auto", name: str | None = None) -> Comparison:
+                        tolerance: float | None = None, threshold: float | None = None,
+                        max_bad_fraction: float | None = None, mask: np.ndarray | None = None,
+                        space: str = "auto", name: str | None = None) -> Comparison:
     """Assert that `actual` is close to `expected` (module docstring: metrics,
     defaults, colour spaces); returns the Comparison. On failure, writes
     <name>_actual, <name>_expected (PNG for sRGB, EXR for linear float data),
@@ -262,8 +293,8 @@ def assert_images_close(actual: np.ndarray, expected: np.ndarray, *, metric: str
         files = [write_image(out.stem("actual"), actual, space), write_image(out.stem("expected"), expected, space)]
         raise AssertionError(f"images differ in shape: actual {np.shape(actual)}, expected {np.shape(expected)}\n"
                              + _listing(files))
-    cmp = compare_images(actual, expected, metric=metric, tolerance=tolerance, max_bad_fraction=max_bad_fraction,
-                         mask=mask, space=space)
+    cmp = compare_images(actual, expected, metric=metric, tolerance=tolerance, threshold=threshold,
+                         max_bad_fraction=max_bad_fraction, mask=mask, space=space)
     if cmp.ok:
         return cmp
     out = _artifacts(name)
@@ -276,7 +307,8 @@ def assert_images_close(actual: np.ndarray, expected: np.ndarray, *, metric: str
 
 
 def assert_matches_reference(actual: np.ndarray, name: str | None = None, *, metric: str = "mae",
-                             tolerance: float | None = None, max_bad_fraction: float | None = None,
+                             tolerance: float | None = None, threshold: float | None = None,
+                             max_bad_fraction: float | None = None,
                              mask: np.ndarray | None = None, space: str = "auto",
                              ref_dir: str | Path | None = None) -> Path:
     """Assert that `actual` is close to the stored reference image `name` (default:
@@ -304,15 +336,15 @@ def assert_matches_reference(actual: np.ndarray, name: str | None = None, *, met
                              "Create it with `pytest --depthview-update-refs` (then look at it and commit it).")
     expected = read_image(path)
     if update:
-        cmp = compare_images(actual, expected, metric=metric, tolerance=tolerance,
+        cmp = compare_images(actual, expected, metric=metric, tolerance=tolerance, threshold=threshold,
                              max_bad_fraction=max_bad_fraction, mask=mask, space=space) \
             if _shape3(actual) == _shape3(expected) else None
         if cmp is None or not cmp.ok:
             run.wrote(write_image(path.with_suffix(""), actual, space))
         return path
     try:
-        assert_images_close(actual, expected, metric=metric, tolerance=tolerance, max_bad_fraction=max_bad_fraction,
-                            mask=mask, space=space, name=stem)
+        assert_images_close(actual, expected, metric=metric, tolerance=tolerance, threshold=threshold,
+                            max_bad_fraction=max_bad_fraction, mask=mask, space=space, name=stem)
     except AssertionError as exc:
         raise AssertionError(f"{exc}\nreference: {path} (rewrite it with `pytest --depthview-update-refs` if the "
                              "change is intended)") from None

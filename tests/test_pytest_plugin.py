@@ -6,6 +6,7 @@ fail with error images when the model changes, and take a new reference on reque
 
 from __future__ import annotations
 
+import json
 import re
 import sys
 from pathlib import Path
@@ -13,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from service.image_check import compare_images, read_image
+from service.image_check import DEFAULTS, compare_images, read_image
 from tests.helpers import ROOT, write_small_glb
 
 FILES = re.compile(r"^E?\s*(actual|expected|error|bad pixels):\s+(\S+)", re.M)
@@ -29,7 +30,9 @@ def image(level=120, spot=None):
     return img
 
 def test_close():
-    assert_images_close(image(), image(121))
+    near = image()
+    near[::2, ::2] += 1  # a quarter of the pixels one level up: mean 0.25/255, none above 1/255
+    assert_images_close(near, image())
 
 def test_spot_srgb():
     assert_images_close(image(spot=250), image(), name="spot")
@@ -158,18 +161,41 @@ def test_plain():
 # --- the comparisons themselves (no pytest run inside) -------------------------------------
 
 def test_mae_bounds_the_mean_and_each_pixel():
-    a = np.zeros((10, 10, 3))
+    a = np.zeros((20, 20, 3))
     b = a.copy()
-    b[0, 0, 1] = 1.0  # one pixel, one channel: MAE 1/300, 1 % bad
+    b[0, :5, 1] = 0.3  # five pixels (1.25 %), one channel each: MAE 1.5/1200
     c = compare_images(b, a, metric="mae")
-    assert c.score == pytest.approx(1 / 300) and c.bad_fraction == pytest.approx(0.01)
-    assert c.score_ok and not c.ok  # the mean is within 2/255, the 1 % bad pixels are over 0.5 %
-    assert compare_images(b, a, metric="mae", max_bad_fraction=0.01).ok
-    assert not compare_images(b, a, tolerance=0.01, max_bad_fraction=0.009).ok  # the one bad pixel is too many
-    flat = np.full((10, 10, 3), 3 / 255)  # every pixel off by 3/255: mean and pixels both over 2/255
-    c = compare_images(flat, a)
-    assert c.bad_fraction == 1.0 and not c.score_ok
-    assert compare_images(flat, a, tolerance=3.01 / 255).ok
+    assert c.score == pytest.approx(1.5 / 1200) and c.bad_fraction == pytest.approx(0.0125)
+    assert (c.tolerance, c.threshold, c.max_bad_fraction) == DEFAULTS["mae"]
+    assert c.score_ok and not c.ok  # the mean is within 0.5/255, the 1.25 % bad pixels are over 1 %
+    assert compare_images(b, a, metric="mae", max_bad_fraction=0.0125).ok
+    assert compare_images(b, a, threshold=0.3).ok  # |a − b| = 0.3 is not above 0.3
+    assert not compare_images(b, a, tolerance=0.01, max_bad_fraction=0.0124).ok  # one bad pixel too many
+    flat = np.full((10, 10, 3), 1 / 255)  # every pixel off by one level: mean over 0.5/255, no pixel over 1/255
+    c = compare_images(flat, a[:10, :10])
+    assert c.bad_fraction == 0.0 and not c.score_ok
+    assert compare_images(flat, a[:10, :10], tolerance=1.01 / 255).ok
+
+
+def test_a_tolerance_without_a_threshold_sets_both():
+    a = np.zeros((4, 4, 3))
+    assert compare_images(a, a, metric="mae", tolerance=0.02).threshold == 0.02
+    assert compare_images(a, a, metric="flip", tolerance=0.02).threshold == 0.02
+    assert compare_images(a, a, metric="psnr", tolerance=30.0).threshold == pytest.approx(10 ** -1.5)
+    c = compare_images(a, a, metric="mae", tolerance=0.02, threshold=0.5)
+    assert (c.tolerance, c.threshold) == (0.02, 0.5)
+    for metric, d in DEFAULTS.items():  # nothing given: the defaults, threshold included
+        c = compare_images(a, a, metric=metric)
+        assert (c.tolerance, c.threshold, c.max_bad_fraction) == d
+
+
+def test_defaults_are_the_benchmarks_selection():
+    """DEFAULTS are what bench/image_check_defaults.py selected (the module docstring and
+    README cite its report)."""
+    data = json.loads((ROOT / "bench" / "results" / "image_check_defaults.json").read_text())
+    for metric, d in DEFAULTS.items():
+        sel = data["selected"][metric]
+        assert (sel["tolerance"], sel["threshold"], sel["max_bad"]) == pytest.approx(tuple(d), rel=1e-12), metric
 
 
 def test_psnr_hand_value_and_its_pixel_threshold():
@@ -178,7 +204,10 @@ def test_psnr_hand_value_and_its_pixel_threshold():
     assert c.score == pytest.approx(20.0) and c.threshold == pytest.approx(0.1)
     assert c.score_ok and c.bad_fraction == 0.0  # |a − b| = 0.1 is not above 0.1
     assert compare_images(a, a, metric="psnr").score == float("inf")
-    assert not compare_images(a + 0.1, a, metric="psnr").ok  # the default 40 dB
+    assert not compare_images(a + 0.1, a, metric="psnr").ok  # the default 35 dB
+    assert compare_images(a + 0.015, a, metric="psnr").score == pytest.approx(36.478, abs=1e-3)
+    c = compare_images(a + 0.015, a, metric="psnr")  # within 35 dB, but every pixel above 0.01
+    assert c.score_ok and c.bad_fraction == 1.0 and not c.ok
 
 
 def test_flip_sees_a_change_and_not_its_absence():
