@@ -236,7 +236,7 @@ def report(rows: list[dict], info: dict, command: str, seconds: float, commit: s
         "(`service.testing.render_frame` against `reference_frame`, no effects: the G-buffer's linear colour), "
         "compared with `service.image_check.compare_images`: a check passes when the image score is within the "
         "tolerance and at most the allowed share of pixels is bad (above the per-pixel threshold). "
-        f"{n} frames: {len({r['scene'] for r in rows})} scenes (triangles: "
+        f"{len(rows)} frames: {len({r['scene'] for r in rows})} scenes (triangles: "
         + ", ".join(f"{s} {t:,}" for s, t in dict((r["scene"], r["triangles"]) for r in rows).items())
         + f"), azimuths {', '.join(f'{a:g}°' for a in AZIMUTHS)} at elevation 30°, distances "
         f"{' and '.join(f'{d:g}' for d in DISTANCES)} scene diagonals, "
@@ -252,7 +252,7 @@ def report(rows: list[dict], info: dict, command: str, seconds: float, commit: s
         "## Candidates",
         "",
         f"Candidates: every tolerance × threshold × allowed bad share of the lists in `bench.image_check_defaults`. "
-        f"Margin: every truth frame passes with its score within {MARGIN:.2g} of the tolerance (psnr: of the "
+        f"Margin: every truth comparison passes with its score within {MARGIN:.2g} of the tolerance (psnr: of the "
         f"allowed MSE) and its bad share within {MARGIN:.2g} of the allowed one. Selected: with the margin, the most "
         "changes caught; ties: the loosest. Shown per metric: the selection, the defaults before this calibration, "
         "and the best with the margin at each other threshold. `service.image_check.DEFAULTS`: "
