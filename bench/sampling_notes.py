@@ -200,7 +200,7 @@ def num(x: float, fmt: str) -> str:
 
 
 def signed(x: float, fmt: str) -> str:
-    """x with its sign always shown (+0.86, −0.32)."""
+    """x with its sign always shown, e.g. "+1.50", "−0.25"."""
     return ("+" if x >= 0 else "") + num(x, fmt)
 
 
@@ -255,7 +255,7 @@ def lead(rows: list[dict], what: str, other: int) -> dict[str, float]:
 
 
 def points_on(values: dict[str, float]) -> str:
-    """'0.21 / 0.72 points on grass / city' (values are gaps, printed positive)."""
+    """E.g. 'a / b points on grass / city' for {"grass": a, "city": b} (gaps, printed positive, 2 decimals)."""
     return f"{' / '.join(f'{abs(v):.2f}' for v in values.values())} points on {' / '.join(values)}"
 
 
@@ -297,7 +297,7 @@ class Runs:
 
 
 def target_minutes_per_scene(root: Path = RESULTS_DIR) -> str | None:
-    """'17-43': the target run's minutes per scene (None without that run)."""
+    """The span of the target run's minutes per scene, e.g. 'lo-hi' (None without that run)."""
     runs = Runs(root)
     if (runs.root / FILES["target"]).exists():
         return span(runs.target_minutes(), ".0f")

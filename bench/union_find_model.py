@@ -274,8 +274,8 @@ def scene_edges(gl, name: str, res: int) -> tuple[np.ndarray, np.ndarray, np.nda
     scene = load_named_scene(name)
     with ClusterReflections(gl, DEFAULT_SETTINGS) as refl, SceneGPU(gl, scene) as sg:
         res_ = refl.render(sg, view_camera(scene, res), diagnostics=True)
-        cluster = res_.diagnostics.cluster_of_sample[::-1].astype(np.int64)
-        normal = read_texture(refl.clustering.mnormal_tex)[::-1, :, :3].astype(np.float64)
+        cluster = res_.diagnostics.cluster_of_sample[::-1].astype(np.int64)  # rows as the shaders index them
+        normal = read_texture(refl.clustering.mnormal_tex, gl_rows=True)[:, :, :3].astype(np.float64)
         cos_break = np.cos(np.radians(refl.settings.normal_break))
     left = np.zeros(cluster.shape, bool)
     up = np.zeros(cluster.shape, bool)

@@ -20,7 +20,8 @@ shaders comes from gl_passes.cluster_units.UNITS.
 4. cluster depth images (local-shaded colour + linear depth) rendered into one
    atlas texture, one viewport per cluster (over `atlas_budget` the images shrink
    but planar mirrors'; those keep their texel = sample grid, on which their rays
-   are exact: shrinking them caused ~1.2 points of the occlusion error), with
+   are exact: shrinking them raised the occlusion error, measured in
+   bench/results/reflections_notes.json, planar_grid_under_budget), with
    frustum culling of triangle
    chunks (gl_passes.chunks; finer than SceneGPU.object_bounds, so large floors and walls are mostly
    culled), back-face culling of whole chunks (cluster_camera.backfacing_chunks:

@@ -22,7 +22,7 @@ class EmbreeTracer:
     centre, then its mirror ray (or glossy lobe, `glossy_rays` rays). The BVH is
     built once per tracer. per_viewpoint=True casts the primary rays with the exact
     per-viewpoint culling of raytrace_reflections (a BVH of the front faces built per
-    eye: on living_room's 278k triangles about as long as tracing a 256² frame);
+    eye; its cost: bench/results/reflections_notes.json, per_viewpoint_primary_rays_cost);
     the default False restarts past back faces in the one BVH (identical but where a
     back face is coplanar with a front face), so the cost scales with the pixels
     asked for."""

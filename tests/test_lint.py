@@ -15,7 +15,7 @@ def test_ruff_clean():
     assert out.returncode == 0, out.stdout + out.stderr
 
 
-#: (pattern, the one module allowed to use it, the rule it keeps) over gl_passes/ and service/.
+#: (pattern, the one module allowed to use it, the rule it keeps) over gl_passes/, service/ and bench/.
 GL_RULES = (
     (r"\.use\(\s*location\s*=", "gl_passes/bindings.py", "texture units come from a unit table (bindings.Units)"),
     (r"\.read\(\s*size\s*=|\.read_into\(", "gl_passes/readback.py", "GL buffers are read back in one place"),
@@ -28,7 +28,7 @@ def test_gl_rules_hold_in_one_place():
     no shader in a Python string), checked on the source: each pattern appears only
     in the one module that owns it."""
     offenders = []
-    for path in sorted([*(ROOT / "gl_passes").rglob("*.py"), *(ROOT / "service").rglob("*.py")]):
+    for path in sorted(p for d in ("gl_passes", "service", "bench") for p in (ROOT / d).rglob("*.py")):
         rel = path.relative_to(ROOT).as_posix()
         text = path.read_text()
         for pattern, owner, rule in GL_RULES:

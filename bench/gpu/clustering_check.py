@@ -21,15 +21,9 @@ from bench.reflections import view_camera
 from gl_passes.cluster_units import UNITS
 from gl_passes.clustering import STATS_STRIDE, bins_per_reflector
 from gl_passes.context import create_gl_context
+from gl_passes.readback import read_buffer, read_texture
 from gl_passes.reflections import DEFAULT_SETTINGS, ClusterReflections
 from gl_passes.upload import SceneGPU
-
-
-def gl_rows(tex, dtype, comps: int = 1) -> np.ndarray:
-    """A texture in GL row order (linear index W·y + x, as the labels)."""
-    w, h = tex.size
-    a = np.frombuffer(tex.read(), dtype).reshape(h, w, comps)
-    return a[..., 0] if comps == 1 else a
 
 
 def components(bins: np.ndarray, normals: np.ndarray, cos_break: float) -> np.ndarray:
@@ -51,14 +45,14 @@ def analyse(refl: ClusterReflections, n_objects: int) -> None:
     (raw bins rebuilt from the segments and the split list)."""
     st = refl.settings
     cp = refl.clustering
-    obj = np.frombuffer(cp.buffer("obj_count").read(size=4 * (n_objects + 1)), np.uint32)
+    obj = read_buffer(cp.buffer("obj_count"), np.uint32, n_objects + 1)
     n_bins = int(np.prod(bins_per_reflector(obj, st.bin_scale, st.bin_rule), axis=1).sum())
-    seg = gl_rows(cp.bins_tex, np.uint32).ravel().astype(np.int64)
+    seg = read_texture(cp.bins_tex, gl_rows=True).ravel().astype(np.int64)  # linear index W·y + x
     n = seg.size
-    n_split = int(np.frombuffer(cp.buffer("split").read(size=4), np.uint32)[0])
-    split = np.frombuffer(cp.buffer("split").read(size=4 + 12 * n_split), np.uint32)[1:].reshape(-1, 3)
+    n_split = int(read_buffer(cp.buffer("split"), np.uint32, 1)[0])
+    split = read_buffer(cp.buffer("split"), np.uint32, 3 * n_split, offset=4).reshape(-1, 3)
     n_seg = n_bins + n_split
-    raw = np.frombuffer(cp.buffer("bin_stats").read(size=4 * n_seg * STATS_STRIDE), np.uint32)
+    raw = read_buffer(cp.buffer("bin_stats"), np.uint32, n_seg * STATS_STRIDE)
     got = raw.reshape(n_seg, STATS_STRIDE)[:, 0]
     refl_mask = seg > 0
     s = seg[refl_mask] - 1
@@ -68,7 +62,7 @@ def analyse(refl: ClusterReflections, n_objects: int) -> None:
     diff = np.nonzero(hist != got)[0]
     print(f"  segments whose count differs from the bin image: {len(diff)} "
           f"{[(int(i), int(hist[i]), int(got[i])) for i in diff[:6]]}", flush=True)
-    labels = np.frombuffer(cp.buffer("labels").read(size=4 * n), np.uint32).astype(np.int64)
+    labels = read_buffer(cp.buffer("labels"), np.uint32, n).astype(np.int64)
     lab = labels[refl_mask]
     ok = lab < n
     print(f"  labels NONE/out of range {int((~ok).sum())}, not a root {int((labels[lab[ok]] != lab[ok]).sum())}")
@@ -76,7 +70,7 @@ def analyse(refl: ClusterReflections, n_objects: int) -> None:
     bins = np.zeros(n, np.int64)
     bins[refl_mask] = rawbin + 1
     w, h = cp.bins_tex.size
-    normals = gl_rows(cp.mnormal_tex, np.float32, 4)[..., :3]
+    normals = read_texture(cp.mnormal_tex, gl_rows=True)[..., :3]
     truth = components(bins.reshape(h, w), normals, float(np.cos(np.radians(st.normal_break))))[refl_mask]
     least = np.full(truth.max() + 1, n, np.int64)
     np.minimum.at(least, truth, np.nonzero(refl_mask)[0])
