@@ -195,12 +195,13 @@ def measure_kind(kind: Kind, reset_peak: bool) -> tuple[dict[str, Any], dict[str
 
     from service.app import create_app
     from service.config import Settings
+    from service.testing import wait_ready
 
     with tempfile.TemporaryDirectory() as tmp:
         app = create_app(Settings(**{"data_dir": Path(tmp), "workers": 0, "job_timeout_s": 900.0,
                                      **kind.settings}))
         with TestClient(app) as client:
-            ready = wait_ready(client)
+            ready = wait_ready(client, timeout=60.0)
             r = client.post("/scenes", json={"builtin": kind.scene})
             r.raise_for_status()
             sid = r.json()["id"]
@@ -223,17 +224,6 @@ def measure_kind(kind: Kind, reset_peak: bool) -> tuple[dict[str, Any], dict[str
             "kept_bytes": (after - before) * 1024, "settings": kind.settings,
             "response_bytes": body_bytes, "request_seconds": seconds, "estimate_bytes": need,
             "estimate_terms": terms, "estimate_over_measured": need / added if added > 0 else None}, ready
-
-
-def wait_ready(client: Any, timeout: float = 60.0) -> dict[str, Any]:
-    """/readyz's JSON once the worker's GL context is up."""
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < timeout:
-        r = client.get("/readyz")
-        if r.status_code == 200:
-            return r.json()
-        time.sleep(0.05)
-    raise RuntimeError(f"service not ready: {r.text}")
 
 
 def measure_all(selected: list[Kind], reset_peak: bool, repeat: int) -> tuple[list[dict[str, Any]], dict[str, Any]]:

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, TypeVar
@@ -77,6 +78,19 @@ class GLThread:
 
     def close(self) -> None:
         self.worker.stop()
+
+
+def wait_ready(client: Any, timeout: float = 20.0, poll_s: float = 0.02) -> dict:
+    """/readyz's JSON once the service's render worker is up (client: a TestClient
+    or httpx client on the app); TimeoutError naming the last answer after `timeout` s."""
+    t0 = time.monotonic()
+    while True:
+        r = client.get("/readyz")
+        if r.status_code == 200:
+            return r.json()
+        if time.monotonic() - t0 >= timeout:
+            raise TimeoutError(f"service not ready after {timeout:g} s: {r.text}")
+        time.sleep(poll_s)
 
 
 _LOADED: dict[tuple[str, int, int], Scene] = {}

@@ -37,6 +37,7 @@ from scenes import Camera, Material, Scene, SceneObject
 from scenes.builtin import make_builtin
 from scenes.camera import look_at_scene
 from service.image_check import assert_images_close
+from service.testing import wait_ready  # noqa: F401  (tests import it from here)
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_SCENES = Path(os.environ.get("DEPTHVIEW_SHARED_SCENES", ROOT.parent / "shared" / "scenes"))
@@ -289,16 +290,6 @@ def obj_text(n_quads: int = 1, z: float = 0.0) -> bytes:
         b = 4 * i + 1
         lines += [f"f {b} {b + 1} {b + 2}", f"f {b} {b + 2} {b + 3}"]
     return ("\n".join(lines) + "\n").encode()
-
-
-def wait_ready(client: Any, timeout: float = 20.0) -> dict:
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < timeout:
-        r = client.get("/readyz")
-        if r.status_code == 200:
-            return r.json()
-        time.sleep(0.02)
-    raise AssertionError(f"service not ready: {r.json()}")
 
 
 @contextlib.contextmanager
