@@ -138,9 +138,9 @@ def score_of(stats: dict) -> float:
 def score_ok(metric: str, score: float, tol: float, margin: float = 1.0) -> bool:
     """The image score within the tolerance; with margin < 1, within that share of it
     (psnr: of its allowed MSE)."""
-    if metric == "psnr":
-        return score >= tol + 10.0 * np.log10(1.0 / margin)
-    return score <= margin * tol
+    from service.image_check import score_within
+
+    return score_within(metric, score, tol + 10.0 * np.log10(1.0 / margin) if metric == "psnr" else margin * tol)
 
 
 def passes(pair: dict, metric: str, c: dict) -> bool:

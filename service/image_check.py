@@ -97,7 +97,7 @@ class Comparison:
 
     @property
     def score_ok(self) -> bool:
-        return self.score >= self.tolerance if self.metric == "psnr" else self.score <= self.tolerance
+        return score_within(self.metric, self.score, self.tolerance)
 
     @property
     def ok(self) -> bool:
@@ -111,6 +111,11 @@ class Comparison:
         return (f"{label} {self.score:.5g}{unit} {op} tolerance {self.tolerance:.5g}{unit}; "
                 f"{100 * self.bad_fraction:.3g} % of {self.pixels} pixels bad (error > {self.threshold:.5g}), "
                 f"allowed {100 * self.max_bad_fraction:.3g} %")
+
+
+def score_within(metric: str, score: float, tolerance: float) -> bool:
+    """The image score within the tolerance: PSNR at least it, MAE and mean FLIP at most."""
+    return score >= tolerance if metric == "psnr" else score <= tolerance
 
 
 def pixel_threshold(metric: str, tolerance: float) -> float:
