@@ -43,11 +43,12 @@ from types import SimpleNamespace
 from typing import Any
 
 from bench.common import RESULTS_DIR, git_revision, machine_info, machine_markdown, md_table, write_json, write_text
+from scenes.builtin import mirror
 
 MIB = 2**20
 CLEAR_REFS = Path("/proc/self/clear_refs")
-#: The reflections tests' oblique view of the built-in mirror scene (the mirror fills part of the frame).
-MIRROR_CAMERA = {"eye": [2.5, 1.6, 3.0], "target": [0.0, 0.9, -0.5]}
+#: The built-in mirror scene's oblique view (the mirror fills part of the frame), as the reflections tests.
+MIRROR_CAMERA = {"eye": list(mirror.VIEW_EYE), "target": list(mirror.VIEW_TARGET)}
 
 
 @dataclass(frozen=True)

@@ -34,7 +34,7 @@ import pytest
 import trimesh
 
 from scenes import Camera, Material, Scene, SceneObject
-from scenes.builtin import make_builtin
+from scenes.builtin import make_builtin, mirror
 from scenes.camera import look_at_scene
 from service.image_check import assert_images_close
 from service.testing import wait_ready  # noqa: F401  (tests import it from here)
@@ -73,6 +73,10 @@ def assert_depth_close(actual: np.ndarray, expected: np.ndarray, rtol: float, ma
 #: assert_images_close keywords for a bound on the mean error only (single pixels may be
 #: far off: silhouettes, where two renderers pick different surfaces).
 MEAN_ONLY = {"max_bad_fraction": 1.0}
+
+#: The built-in mirror scene seen obliquely (JSON camera), and the same view moved 5 cm.
+MIRROR_CAMERA = {"eye": list(mirror.VIEW_EYE), "target": list(mirror.VIEW_TARGET)}
+MIRROR_CAMERA_MOVED = {**MIRROR_CAMERA, "eye": [2.45, 1.6, 3.02]}
 
 
 def face_normals(vertices: np.ndarray, faces: np.ndarray, unit: bool = False) -> np.ndarray:

@@ -4,22 +4,20 @@ from __future__ import annotations
 
 from reference.image_metrics import mean_abs_error
 from reference.reflections import raytrace_reflections
-from scenes.builtin import make_builtin
+from scenes.builtin import make_builtin, mirror
 from scenes.camera import Camera
 from service import image_io
 from service.image_check import assert_images_close
-from tests.helpers import service, service_client
+from tests.helpers import MIRROR_CAMERA, service, service_client
 
 RES = 48
-# The built-in mirror scene seen obliquely so the mirror fills part of the frame.
-CAMERA = {"eye": [2.5, 1.6, 3.0], "target": [0.0, 0.9, -0.5]}
 
 
 client = service_client("mirror")
 
 
 def frame(c, sid, method, fmt="exr", rays=8):
-    r = c.post(f"/scenes/{sid}/frames", json={"camera": CAMERA, "width": RES, "height": RES, "format": fmt,
+    r = c.post(f"/scenes/{sid}/frames", json={"camera": MIRROR_CAMERA, "width": RES, "height": RES, "format": fmt,
                                                "effects": {"reflections": method, "glossy_rays": rays}})
     assert r.status_code == 200, r.text
     return r
@@ -30,7 +28,7 @@ def test_raytrace_frame_is_the_reference(client):
     c, sid = client
     ch = image_io.decode_exr(frame(c, sid, "raytrace").content)
     scene = make_builtin("mirror")
-    cam = Camera(tuple(CAMERA["eye"]), tuple(CAMERA["target"]), width=RES, height=RES).fit_clip(scene.bounds)
+    cam = Camera(mirror.VIEW_EYE, mirror.VIEW_TARGET, width=RES, height=RES).fit_clip(scene.bounds)
     ref = raytrace_reflections(scene, cam, supersample=2, glossy_rays=8)
     assert_images_close(ch["RGB"], ref.color, tolerance=1e-6, max_bad_fraction=0.0)
 
@@ -93,9 +91,9 @@ def test_raytraced_frames_survive_the_scene_cache_evicting_their_scene(tmp_path)
         sid = c.post("/scenes", json={"builtin": "mirror"}).json()["id"]
         other = c.post("/scenes", json={"builtin": "cornell"}).json()["id"]
         frame(c, sid, "raytrace", rays=1)
-        r = c.post(f"/scenes/{other}/frames", json={"camera": CAMERA, "width": 16, "height": 16})
+        r = c.post(f"/scenes/{other}/frames", json={"camera": MIRROR_CAMERA, "width": 16, "height": 16})
         assert r.status_code == 200  # the cache of one scene now holds cornell
         frame(c, sid, "raytrace", rays=1)  # mirror loaded again: a new Scene object
-        r = c.post(f"/scenes/{sid}/frames", json={"camera": CAMERA, "width": 16, "height": 16, "effects": {
+        r = c.post(f"/scenes/{sid}/frames", json={"camera": MIRROR_CAMERA, "width": 16, "height": 16, "effects": {
             "soft_shadows": {"samples": 2, "method": "raytrace"}}})
         assert r.status_code == 200, r.text  # the soft-shadow truth shares the cache

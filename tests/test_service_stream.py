@@ -20,7 +20,7 @@ from service import image_io
 from service.image_check import assert_images_close, compare_images
 from service.store import builtin_id
 from service.stream import CLOSE_NO_SCENE, CLOSE_TRY_LATER, SourceFrame
-from tests.helpers import frame_camera, service, service_client, wait_until
+from tests.helpers import MIRROR_CAMERA, MIRROR_CAMERA_MOVED, frame_camera, service, service_client, wait_until
 
 CORNELL = builtin_id("cornell")
 W, H = 48, 32
@@ -91,9 +91,9 @@ def test_reflective_frames_go_through_the_streams_reflection_reuser(client, monk
     monkeypatch.setattr(ReflectionReuser, "release", lambda self: (released.append(self), real_release(self)))
     mirror = builtin_id("mirror")
     size = {"width": 96, "height": 64}
-    body = {"camera": {"eye": [2.5, 1.6, 3.0], "target": [0.0, 0.9, -0.5]}, **size,
+    body = {"camera": MIRROR_CAMERA, **size,
             "effects": {"reflections": method}}
-    moved = {**body, "camera": {"eye": [2.45, 1.6, 3.02], "target": [0.0, 0.9, -0.5]}}
+    moved = {**body, "camera": MIRROR_CAMERA_MOVED}
     with client.websocket_connect(f"/scenes/{mirror}/stream") as ws:
         ws.receive_json()
         ws.send_json({**body, "id": 1})
@@ -132,9 +132,9 @@ def test_the_full_trace_baseline_recomputes_every_frame(tmp_path):
     every reflective frame is traced whole, a keyframe with nothing reused, and looks like
     the reused stream's frame of the same view."""
     mirror = builtin_id("mirror")
-    body = {"camera": {"eye": [2.5, 1.6, 3.0], "target": [0.0, 0.9, -0.5]}, "width": 96, "height": 64,
+    body = {"camera": MIRROR_CAMERA, "width": 96, "height": 64,
             "effects": {"reflections": "cluster"}}
-    moved = {**body, "camera": {"eye": [2.45, 1.6, 3.02], "target": [0.0, 0.9, -0.5]}}
+    moved = {**body, "camera": MIRROR_CAMERA_MOVED}
     frames = {}
     for mode in ("full", "reuse"):
         with service(tmp_path / mode, stream_reflection_mode=mode) as c, \

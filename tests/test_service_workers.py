@@ -18,7 +18,15 @@ from service.config import Settings, default_workers
 from service.process_worker import ProcessWorkerPool
 from service.store import builtin_id
 from service.worker import JobExpired, WorkerDied
-from tests.helpers import frame_camera, obj_text, service, service_client, wait_until
+from tests.helpers import (
+    MIRROR_CAMERA,
+    MIRROR_CAMERA_MOVED,
+    frame_camera,
+    obj_text,
+    service,
+    service_client,
+    wait_until,
+)
 
 CORNELL = builtin_id("cornell")
 
@@ -112,9 +120,9 @@ def stream_frame(ws, msg: dict, id_: int) -> dict:
             return m
 
 
-MIRROR_VIEW = {"camera": {"eye": [2.5, 1.6, 3.0], "target": [0.0, 0.9, -0.5]}, "width": 64, "height": 48,
+MIRROR_VIEW = {"camera": MIRROR_CAMERA, "width": 64, "height": 48,
                "effects": {"reflections": "cluster"}}
-MIRROR_MOVED = {**MIRROR_VIEW, "camera": {"eye": [2.45, 1.6, 3.02], "target": [0.0, 0.9, -0.5]}}
+MIRROR_MOVED = {**MIRROR_VIEW, "camera": MIRROR_CAMERA_MOVED}
 
 
 def test_a_stream_is_pinned_to_one_worker_and_reuses_there(client):

@@ -20,6 +20,11 @@ DESCRIPTION = "planar mirror (s=1, g=0) facing a sphere, a box and a cylinder on
 MIRROR_Z = -1.5
 FLOOR_HALF = 3.0
 
+#: An oblique viewpoint (metres) from which the mirror fills part of the frame beside the
+#: objects it reflects: the view the reflection tests and benchmarks share.
+VIEW_EYE = (2.5, 1.6, 3.0)
+VIEW_TARGET = (0.0, 0.9, -0.5)
+
 _MIRROR = Material(albedo=(0.9, 0.9, 0.9), specular=1.0, glossiness=0.0)
 _FRAME = Material(albedo=(0.25, 0.16, 0.10))
 _FLOOR = Material(albedo=(0.6, 0.58, 0.55))
