@@ -44,6 +44,10 @@ log = logging.getLogger("depthview.service")
 #: Longest error message (a loader's or a library's message may quote its input).
 DETAIL_CHARS = 500
 
+#: Most invalid fields a 422 lists (a body of 100,000 unknown keys is answered with
+#: these and their count, not 100,000 issues).
+MAX_ISSUES = 20
+
 #: Store/loader error → status (first match wins).
 STORE_STATUS: tuple[tuple[type[Exception] | tuple[type[Exception], ...], int], ...] = (
     ((InvalidSceneId, SceneNotFound), 404),
@@ -115,10 +119,21 @@ async def validation_error(request: Request, exc: Exception) -> JSONResponse:
 
 def validation_details(errors: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     """pydantic's errors as ValidationIssue dicts (JSON-safe), each with an excerpt of
-    its input (the 422 body; the stream sends the same in its error messages)."""
-    out = [{"loc": list(e.get("loc", ())), "msg": str(e.get("msg", ""))[:300], "type": e.get("type", ""),
-            "input": excerpt(e.get("input"))} for e in errors]
+    its input and of each key of its location, the first MAX_ISSUES of them and then
+    one ``too_many_errors`` issue counting the rest (the 422 body; the stream sends the
+    same in its error messages)."""
+    out = [{"loc": [loc_part(p) for p in e.get("loc", ())], "msg": str(e.get("msg", ""))[:300],
+            "type": e.get("type", ""), "input": excerpt(e.get("input"))} for e in errors[:MAX_ISSUES]]
+    if len(errors) > MAX_ISSUES:
+        out.append({"loc": [], "msg": f"and {len(errors) - MAX_ISSUES:,} more invalid fields, not listed",
+                    "type": "too_many_errors", "input": None})
     return _json_safe(jsonable_encoder(out))
+
+
+def loc_part(part: Any) -> str | int:
+    """One key of an error location: an index, or a field name cut to an excerpt
+    (an unknown key is the client's own text, of any length)."""
+    return part if isinstance(part, int) and not isinstance(part, bool) else cut(str(part))
 
 
 async def http_error(request: Request, exc: Exception) -> JSONResponse:

@@ -116,6 +116,38 @@ def test_validation_errors_repeat_only_an_excerpt_of_the_input(client):
     assert r.status_code == 422 and r.json()["detail"][0]["input"] == "x"  # short inputs in full
 
 
+LONG_KEY = "k" * 5000
+
+
+@pytest.mark.parametrize("path, body, where", [
+    ("frames", frame_body(**{LONG_KEY: 1}), ["body"]),
+    ("frames", frame_body(camera={**CAMERA, LONG_KEY: 1}), ["body", "camera"]),
+    ("frames", frame_body(effects={LONG_KEY: 1}), ["body", "effects"]),
+    ("frames", frame_body(effects={"soft_shadows": {LONG_KEY: 1}}), ["body", "effects", "soft_shadows"]),
+    ("reconstruction", {LONG_KEY: 1}, ["body"]),
+    ("depth-images", {LONG_KEY: 1}, ["body"]),
+    ("/scenes", {"builtin": "cornell", LONG_KEY: 1}, ["body"]),
+    ("/scenes", {"builtin": "cornell", "params": {LONG_KEY: 1}}, ["body", "params"]),
+])
+def test_a_long_unknown_key_is_named_by_an_excerpt(client, path, body, where):
+    """The key of an unknown field is the client's text: its location quotes an excerpt."""
+    r = post_text(client, path if path.startswith("/") else f"/scenes/{CORNELL}/{path}", json.dumps(body))
+    assert r.status_code == 422, r.text
+    assert "k" * 81 not in r.text and len(r.content) < 2000, len(r.content)
+    locs = [e["loc"] for e in r.json()["detail"] if e["type"] == "extra_forbidden"]
+    assert locs and locs[0][:len(where)] == where and locs[0][-1].endswith("(5,000 characters)"), locs
+
+
+def test_many_invalid_fields_are_counted_not_listed(client):
+    """60,000 unknown keys (a 0.8 MB body, under the 1 MiB JSON limit): the first 20 issues and their count."""
+    body = frame_body(**{f"x{i}": 0 for i in range(60_000)})
+    r = post_text(client, f"/scenes/{CORNELL}/frames", json.dumps(body))
+    assert r.status_code == 422 and len(r.content) < 5000, len(r.content)
+    errs = r.json()["detail"]
+    assert [e["loc"] for e in errs[:2]] == [["body", "x0"], ["body", "x1"]] and len(errs) == 21
+    assert errs[-1]["type"] == "too_many_errors" and errs[-1]["msg"] == "and 59,980 more invalid fields, not listed"
+
+
 @pytest.mark.parametrize("path, body", [
     ("frames", {"effects": {"reflections": "y" * 5000}}),  # a validator's own message
     ("/scenes", {"builtin": "z" * 5000}),  # the store's
