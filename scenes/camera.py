@@ -7,6 +7,7 @@ Matrices are float64 (4,4) in row-major numpy layout acting on column vectors.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -159,6 +160,24 @@ def perspective(fov_deg: float, aspect: float, near: float, far: float) -> np.nd
     m[2, 3] = 2 * far * near / (near - far)
     m[3, 2] = -1.0
     return m
+
+
+def framing_distance(bounds: tuple[np.ndarray, np.ndarray], azimuth: float, elevation: float,
+                     fov: float) -> float:
+    """The least `distance` of `look_at_scene` (in box diagonals) at which every
+    corner of the box lies inside a square image of `fov` degrees (so in any image at
+    least as wide as tall): per corner q (from the centre), t ≥ q·w + max(|q·r|, |q·u|) /
+    tan(fov/2), with w the unit direction to the eye and r, u the image axes."""
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
+    diag = float(np.linalg.norm(hi - lo)) or 1.0
+    a, e = np.radians(azimuth), np.radians(elevation)
+    w = np.array([np.cos(e) * np.sin(a), np.sin(e), np.cos(e) * np.cos(a)])
+    r = np.cross(-w, (0.0, 1.0, 0.0))
+    r /= np.linalg.norm(r)
+    u = np.cross(r, -w)
+    q = np.array(list(itertools.product(*zip(lo, hi, strict=True)))) - (lo + hi) / 2
+    t = q @ w + np.maximum(np.abs(q @ r), np.abs(q @ u)) / np.tan(np.radians(fov) / 2)
+    return float(t.max()) / diag
 
 
 def look_at_scene(bounds: tuple[np.ndarray, np.ndarray], azimuth: float = 35.0, elevation: float = 25.0,

@@ -58,7 +58,7 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 from gl_passes.cluster_tracer import ClusterTracer
 from gl_passes.reprojection import ReflectionReuser, ReuseSettings
 from reference.reflection_tracer import EmbreeTracer
-from scenes.camera import Camera, look_at_scene
+from scenes.camera import Camera, framing_distance, look_at_scene
 from scenes.model import Scene
 from service import errors, image_io
 from service.budget import check_budget, frame_bytes
@@ -333,11 +333,18 @@ def _message_id(text: str) -> int | None:
     return value if isinstance(value, int) and not isinstance(value, bool) else None
 
 
+#: The hello view: direction and vertical field of view (degrees), and its distance
+#: beyond the one at which the scene's box just fits (`framing_distance`).
+HELLO_AZIMUTH, HELLO_ELEVATION, HELLO_FOV = 20.0, 15.0, 50.0
+HELLO_MARGIN = 1.05
+
+
 def hello(scene_id: str, bounds: Any, settings: Settings) -> dict[str, Any]:
     lo, hi = (np.asarray(b, np.float64) for b in bounds)
-    cam = look_at_scene((lo, hi), azimuth=20.0, elevation=15.0, distance=1.0, fov=50.0)
+    distance = HELLO_MARGIN * framing_distance((lo, hi), HELLO_AZIMUTH, HELLO_ELEVATION, HELLO_FOV)
+    cam = look_at_scene((lo, hi), HELLO_AZIMUTH, HELLO_ELEVATION, distance, HELLO_FOV)
     return {"type": "hello", "scene": scene_id, "bounds": [lo.tolist(), hi.tolist()],
-            "view": {"eye": list(cam.eye), "target": list(cam.target), "up": [0.0, 1.0, 0.0], "fov": 50.0},
+            "view": {"eye": list(cam.eye), "target": list(cam.target), "up": [0.0, 1.0, 0.0], "fov": HELLO_FOV},
             "limits": {"max_pixels": settings.stream_max_pixels, "max_width": settings.max_width,
                        "max_height": settings.max_height, "max_message_bytes": settings.stream_max_message_bytes,
                        "jpeg_quality": settings.stream_jpeg_quality, "rest_s": settings.stream_rest_s}}

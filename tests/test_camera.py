@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from scenes.camera import Camera, CameraError, flythrough_path, look_at_scene, orbit_path
+from gl_passes.chunks import box_corners
+from scenes.camera import Camera, CameraError, flythrough_path, framing_distance, look_at_scene, orbit_path
 
 BOUNDS = (np.array([-1.0, 0.0, -2.0]), np.array([3.0, 2.0, 1.0]))
 
@@ -37,6 +38,17 @@ def test_look_at_hand_values():
         assert c[2] / c[3] == pytest.approx(ndc)
     # fov 90, 2×2: the top-left pixel centre ray is at 45° / 2 offsets: (-0.5, 0.5, -1) normalised.
     np.testing.assert_allclose(cam.pixel_directions()[0, 0], np.array([-0.5, 0.5, -1]) / np.sqrt(1.5))
+
+
+@pytest.mark.parametrize("azimuth, elevation, fov", [(20, 15, 50), (35, 25, 45), (-120, 60, 30), (90, -10, 70)])
+def test_framing_distance_is_the_least_that_shows_every_corner(azimuth, elevation, fov):
+    corners = box_corners(np.array([BOUNDS]))[0]
+    t = framing_distance(BOUNDS, azimuth, elevation, fov)
+    px, z = look_at_scene(BOUNDS, azimuth, elevation, t, fov, 100, 100).project(corners)
+    assert (z > 0).all() and px.min() > -1e-6 and px.max() < 100 + 1e-6  # all in view ...
+    assert min(px.min(), 100 - px.max()) < 1e-6  # ... one on the border
+    px, _ = look_at_scene(BOUNDS, azimuth, elevation, 0.99 * t, fov, 100, 100).project(corners)
+    assert px.min() < 0 or px.max() > 100  # nearer, one leaves the image
 
 
 def test_fit_clip_encloses_bounds():

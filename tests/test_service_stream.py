@@ -16,6 +16,8 @@ import pytest
 from PIL import Image
 from starlette.websockets import WebSocketDisconnect
 
+from gl_passes.chunks import box_corners
+from scenes.camera import Camera
 from service import image_io
 from service.image_check import assert_images_close, compare_images
 from service.store import builtin_id
@@ -51,11 +53,20 @@ def decode(body: bytes) -> np.ndarray:
 client = service_client(stream_rest_s=0.2)
 
 
+def assert_frames_box(view: dict, bounds: list) -> None:
+    """Every corner of the box projects inside a square image of the view, in front of it."""
+    corners = box_corners(np.array([bounds]))[0]
+    cam = Camera(tuple(view["eye"]), tuple(view["target"]), tuple(view["up"]), view["fov"], 100, 100)
+    px, z = cam.project(corners)
+    assert (z > 0).all() and (px >= 0).all() and (px <= 100).all(), f"box corners at {px.round(1).tolist()} px"
+
+
 def test_frames_are_jpeg_while_moving_then_png_at_rest(client):
     with client.websocket_connect(f"/scenes/{CORNELL}/stream") as ws:
         hello = ws.receive_json()
         assert hello["type"] == "hello" and hello["scene"] == CORNELL and len(hello["bounds"]) == 2
         assert hello["limits"]["rest_s"] == 0.2 and set(hello["view"]) == {"eye", "target", "up", "fov"}
+        assert_frames_box(hello["view"], hello["bounds"])
         ws.send_json(camera_msg(1))
         stats, jpeg = receive_frame(ws)
         assert jpeg[:3] == b"\xff\xd8\xff" and stats["format"] == "jpeg" and stats["bytes"] == len(jpeg)
