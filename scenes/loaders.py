@@ -177,6 +177,8 @@ def _trimesh_load(data: bytes, fmt: str, label: str, resolver: object | None):
         msg = f"{type(exc).__name__}: {exc}"
         if isinstance(exc, TypeError) and "NoneType" in msg and resolver is None:
             msg = "references an external file (not allowed for in-memory data)"
+        elif fmt == "obj":
+            msg = _obj_face_problem(data) or msg
         raise SceneLoadError(f"malformed {label}: {msg}") from exc
     if not isinstance(scene, trimesh.Scene):
         raise SceneLoadError(f"malformed {label}: trimesh returned {type(scene).__name__}")
@@ -292,6 +294,28 @@ def _obj_triangle_count(data: bytes) -> int:
     for match in _OBJ_FACE_LINE.finditer(data):
         total += max(len(match.group(1).split()) - 2, 0)
     return total
+
+
+_OBJ_VERTEX_LINE = re.compile(rb"^[ \t]*v[ \t]", re.MULTILINE)
+
+
+def _obj_face_problem(data: bytes) -> str | None:
+    """The first face corner of an OBJ that names no vertex (not an integer, 0, or
+    beyond the file's vertex count either way), in words with its line; None if none."""
+    n = len(_OBJ_VERTEX_LINE.findall(data))
+    for match in _OBJ_FACE_LINE.finditer(data):
+        for token in match.group(1).split():
+            ref = token.split(b"/")[0]
+            try:
+                index = int(ref)
+            except ValueError:
+                index = None
+            if index is None or index == 0 or not -n <= index <= n:
+                line = data.count(b"\n", 0, match.start()) + 1
+                what = (f"vertex {index}" if index is not None
+                        else f"{ref[:20].decode('utf-8', 'replace')!r}, not a vertex number")
+                return f"face on line {line:,} refers to {what}; the file defines {n:,} vertices"
+    return None
 
 
 def _ply_face_count(data: bytes) -> int | None:

@@ -394,3 +394,17 @@ def test_ply_declaring_more_vertices_than_its_body_holds_says_so():
         load_scene_bytes(head.format(fmt="binary_little_endian").encode() + bytes(40), "ply")
     exact = head.replace("1000000", "3").format(fmt="ascii").encode() + ascii_body
     assert load_scene_bytes(exact, "ply").n_triangles == 1
+
+
+@pytest.mark.parametrize("face, message", [
+    ("f 1 2 4", "face on line 5 refers to vertex 4; the file defines 3 vertices"),
+    ("f 1/1 -4 3", "face on line 5 refers to vertex -4; the file defines 3 vertices"),
+    ("f 1 2 x", "face on line 5 refers to 'x', not a vertex number; the file defines 3 vertices"),
+])
+def test_obj_face_naming_a_missing_vertex_says_which(face, message):
+    """Not the library's IndexError: the face's line, its reference and the vertex count."""
+    text = f"v 0 0 0\nv 1 0 0\n# a comment\nv 0 1 0\n{face}\n"
+    with pytest.raises(SceneLoadError) as info:
+        load_scene_bytes(text.encode(), "obj")
+    assert str(info.value) == f"malformed OBJ: {message}"
+    assert load_scene_bytes(text.replace(face, "f 1 2 -1").encode(), "obj").n_triangles == 1
