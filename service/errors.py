@@ -4,8 +4,9 @@
 
 * store and loader errors (``StoreError``, ``SceneLoadError``): one handler mapping
   each to its status (404, 409, 415, 422, 500);
-* request validation: malformed JSON is 400 on every endpoint; invalid fields 422
-  with their location, message and an excerpt of the offending value;
+* request validation: malformed JSON is 400 on every endpoint, a body sent without a
+  JSON content type 415; invalid fields 422 with their location, message and an
+  excerpt of the offending value;
 * 405 carries ``Allow`` listing every method the path answers (Starlette lists only
   the first route's when one path has several routes);
 * anything unexpected is a 500 ``ErrorResponse`` too (not Starlette's plain text).
@@ -105,8 +106,9 @@ async def store_error(request: Request, exc: Exception) -> JSONResponse:
 
 
 async def validation_error(request: Request, exc: Exception) -> JSONResponse:
-    """400 for a body that is not JSON (every endpoint alike), else 422 with the
-    invalid fields, each with an excerpt of its input."""
+    """400 for a body that is not JSON (every endpoint alike), 415 for a JSON body's
+    endpoint sent another content type, else 422 with the invalid fields, each with an
+    excerpt of its input."""
     assert isinstance(exc, RequestValidationError)
     errors = exc.errors()
     bad_json = [e for e in errors if e.get("type") == "json_invalid"]
@@ -114,6 +116,11 @@ async def validation_error(request: Request, exc: Exception) -> JSONResponse:
         where = str((bad_json[0].get("ctx") or {}).get("error", ""))[:EXCERPT_CHARS]
         return JSONResponse({"detail": "request body is not valid JSON" + (f": {where}" if where else "")},
                             status_code=400)
+    ctype = request.headers.get("content-type", "")
+    if "json" not in ctype.lower() and any(e.get("type") == "model_attributes_type" and tuple(e.get("loc", ())) ==
+                                           ("body",) for e in errors):  # e.g. curl -d without -H
+        return JSONResponse({"detail": "the request body is JSON: send Content-Type: application/json (got "
+                                       + (repr(cut(ctype)) if ctype else "none") + ")"}, status_code=415)
     return JSONResponse({"detail": validation_details(errors)}, status_code=422)
 
 

@@ -280,6 +280,20 @@ def test_malformed_json_is_400_on_every_endpoint(client, url):
     assert r.status_code == 400 and r.json()["detail"].startswith("request body is not valid JSON")
 
 
+@pytest.mark.parametrize("url", [f"/scenes/{CORNELL}/frames", f"/scenes/{CORNELL}/depth-images",
+                                 f"/scenes/{CORNELL}/reconstruction"])
+@pytest.mark.parametrize("ctype", ["application/x-www-form-urlencoded", "text/plain", None])
+def test_json_without_a_json_content_type_is_415_saying_so(client, url, ctype):
+    """curl -d sends form encoding: the answer names the header to send, not the body."""
+    body = json.dumps(frame_body()).encode()
+    r = client.post(url, content=body, headers={} if ctype is None else {"content-type": ctype})
+    assert r.status_code == 415, r.text
+    assert r.json()["detail"] == ("the request body is JSON: send Content-Type: application/json (got "
+                                  f"{ctype and repr(ctype) or 'none'})")
+    r = client.post(url, content=b"[1, 2]", headers={"content-type": "application/json"})
+    assert r.status_code == 422  # JSON, but not an object: still a validation error
+
+
 @pytest.mark.parametrize("method, url, allow", [
     ("POST", f"/scenes/{CORNELL}", "DELETE, GET, HEAD"),
     ("PUT", f"/scenes/{CORNELL}", "DELETE, GET, HEAD"),

@@ -29,6 +29,7 @@ SET_MEDIA_TYPES = {"exr": "image/x-exr", "npz": "application/x-npz"}
 #: Statuses every render route documents.
 RENDER_ERRORS = {400: "the body is not JSON", 401: "missing or wrong bearer token", 404: "unknown scene",
                  408: "the body stalled (DEPTHVIEW_BODY_TIMEOUT_S)", 413: "body over DEPTHVIEW_MAX_JSON_BYTES",
+                 415: "the body was sent without a JSON Content-Type",
                  503: "render queue full or no GL context (Retry-After)", 504: "the job timed out",
                  500: "the job failed unexpectedly"}
 
@@ -86,7 +87,7 @@ async def reconstruct(scene_id: str, req: ReconstructionRequest, r: RenderDep) -
         raise HTTPException(422, f"reconstruction viewpoints: {exc}") from None
     if req.method == "peeling":
         cams = cams[:1]
-    job = ReconstructionJob(scene_id, scene, cams, req.method, req.reconstruction, req.layers)
+    job = ReconstructionJob(scene_id, scene, cams, req.method, req.reconstruction, req.layers, req.sides)
     parts = await r.job(job, f"reconstruction {scene_id[:12]}")
     names = [f"{req.method}_{k}" for k in range(len(parts))]
     body = await r.encode(glb_bytes, parts, names)
