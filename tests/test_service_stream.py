@@ -399,3 +399,10 @@ def test_worker_chores_run_on_its_thread_even_when_the_queue_is_full():
         assert w.alive and w.submit(lambda state: "ok").result(10) == "ok"
     finally:
         w.stop()
+
+
+def test_a_plain_get_of_the_stream_is_426_not_404(client):
+    r = client.get(f"/scenes/{CORNELL}/stream")
+    assert r.status_code == 426 and r.headers["upgrade"] == "websocket" and "WebSocket" in r.json()["detail"]
+    with client.websocket_connect(f"/scenes/{CORNELL}/stream") as ws:  # the WebSocket route is unchanged
+        assert ws.receive_json()["type"] == "hello"
