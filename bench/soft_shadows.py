@@ -42,7 +42,10 @@ joins whatever is there):
            k = --sweep-k; the previous default and the default again at k = --k);
   compact  the compact reconstruction's error bound: triangles and visibility error
            over the hybrid's per bound (`bench.shadow_compact`, k = --k); Fig. 20
-           times every bound too, for its crossover.
+           times every bound too, for its crossover;
+  sides    the light's depth images with back faces culled (the thesis) or both
+           sides drawn, on the Table 8 scenes and the rooms (`bench.shadow_sides`,
+           k = --sweep-k; the service's `soft_shadows.sides`).
 
     python -m bench.soft_shadows --part table8 --scenes nest,grass,city,tree
     python -m bench.soft_shadows --report-only
@@ -66,6 +69,7 @@ from bench.shadow_bias import PREVIOUS, bias_report, part_bias, setting_key, sha
 from bench.shadow_budget import budget_criterion_row, budget_report, part_budget, part_widths
 from bench.shadow_compact import BOUNDS, bound_key, compact_report, crossover_of, part_compact, pieces
 from bench.shadow_holes import holes_report, part_holes
+from bench.shadow_sides import part_sides, sides_report
 from bench.shadow_stage import (
     Stage,
     approximate,
@@ -98,7 +102,7 @@ from scenes.shading import area_light_shade
 OUT = RESULTS_DIR / "soft_shadows"
 SCENES = ("nest", "grass", "city", "tree")
 PARTS = ("table8", "table9", "table10", "fig20", "peeling", "layered", "gap", "holes", "budget", "widths",
-         "bias", "compact")
+         "bias", "compact", "sides")
 #: The thesis's Table 8 (intensity mean/max, visibility mean/max) for NR, conventional, peeling.
 THESIS_TABLE8 = {
     "nest": {"non_redundant": (3.00, 106, 6.31, 110), "conventional": (5.62, 179, 7.72, 179),
@@ -1316,6 +1320,7 @@ def write_report(data: dict[str, dict[str, Any]], info: dict[str, Any] | None) -
         lines += [md_table(["scene", "light distance", *names], rows), ""]
     lines += gap_report(data["gap"])
     lines += holes_report(data["holes"])
+    lines += sides_report(data["sides"])
     lines += budget_report(data["budget"], data["widths"])
     lines += bias_report(data["bias"])
     f20 = data["fig20"].get("grass")
@@ -1397,7 +1402,8 @@ def main(argv: list[str] | None = None) -> int:
                     continue
                 fn = {"table8": part_table8, "table9": part_table9, "table10": part_table10,
                       "peeling": part_peeling, "gap": part_gap, "holes": part_holes,
-                      "budget": part_budget, "bias": part_bias, "compact": part_compact}[part]
+                      "budget": part_budget, "bias": part_bias, "compact": part_compact,
+                      "sides": part_sides}[part]
                 for name in args.scenes:
                     st = stage_scene(gl, make_builtin(name))
                     try:

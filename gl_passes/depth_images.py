@@ -121,9 +121,11 @@ class DepthImageRenderer(Releasable):
     gl_PrimitiveID in the fragment shader — only to measure its cost.
     The images are the same either way (up to float rounding at texel edges).
     cull_back_faces: False draws both sides of every triangle — not a method of
-    the thesis (every image of §2.3 culls back faces); it exists only for the
-    benchmark's two-sided peeling variant, which measures what the thesis's
-    peeling numbers suggest (bench/peeling_sides.py).
+    the thesis (every image of §2.3 culls back faces): the benchmark's two-sided
+    peeling variant, which measures what the thesis's peeling numbers suggest
+    (bench/peeling_sides.py), and soft shadows' `sides="both"` (a single-sided
+    surface seen from behind by the light still occludes; bench/soft_shadows.py's
+    sides part).
     footprint: 0 (default) is Alg. 3's test at the fragment's pixel centre; f > 0
     (at most ½) also requires the points ±f pixel from the centre along both screen
     axes (the pixel's corners at ½) to land on texels of the same earlier image

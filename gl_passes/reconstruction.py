@@ -571,7 +571,7 @@ def export_glb(meshes: Sequence[MeshGPU], names: Sequence[str] | None = None) ->
 
 
 def glb_bytes(parts: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], names: Sequence[str] | None = None) -> bytes:
-    """A binary glTF with one node (and mesh) per source image from (positions
+    """A binary glTF with one node (and mesh) per source image with triangles, from (positions
     (N,3), RGBA8 colours (N,4), triangles (M,3)) as `MeshGPU.read` returns them:
     COLOR_0 vertex colours (linear), triangles counter-clockwise from the capturing
     camera; vertices no triangle uses are dropped. No GL (call off the GL thread)."""

@@ -69,7 +69,7 @@ async def _soft_shadows(r: Render, scene_id: str, scene: Scene, camera: Camera, 
     assert spec is not None
     light = resolve_light(scene, None if spec.light is None else
                           AreaLight(spec.light.center, spec.light.u, spec.light.v))
-    ss = SoftShadowRequest(light, spec.samples, spec.method, spec.reconstruction, spec.resolution)
+    ss = SoftShadowRequest(light, spec.samples, spec.method, spec.reconstruction, spec.resolution, spec.sides)
     try:  # the light must see the whole scene from its corners (422 otherwise)
         reference_cameras(light, scene.bounds, "conventional", 16)
     except ValueError as exc:

@@ -143,17 +143,23 @@ def _shadow_pass(state: GLState, samples: int) -> SoftShadowPass:
 
 
 def _reconstruction(state: GLState, scene_key: str, scene: Scene, cameras: Sequence[Camera], method: str,
-                    kind: str, layers: int = PEEL_LAYERS) -> AbstractContextManager[Sequence[MeshGPU]]:
+                    kind: str, layers: int = PEEL_LAYERS, sides: str = "front"
+                    ) -> AbstractContextManager[Sequence[MeshGPU]]:
     """The reconstruction (one mesh per image, `ReconstructionSettings(kind=kind)`)
-    of the `method` images of `cameras`, from the worker's cache when a job before
-    made the same (`GLState.kept`): a light's depth images are made once
-    for every frame under it."""
+    of the `method` images of `cameras`, their back faces culled (sides = "front")
+    or not ("both"), from the worker's cache when a job before made the same
+    (`GLState.kept`): a light's depth images are made once for every frame under it."""
     def build() -> list[MeshGPU]:
         gpu = state.scene_gpu(scene_key, scene)
-        sampled = render_set(state.gl, gpu, method, cameras, layers=layers, offsets=kind != "grid")
+        renderer = DepthImageRenderer(state.gl, cull_back_faces=sides == "front")
+        try:
+            sampled = render_set(state.gl, gpu, method, cameras, layers=layers, offsets=kind != "grid",
+                                 renderer=renderer)
+        finally:
+            renderer.release()
         return reconstruct_set(state.gl, sampled, ReconstructionSettings(kind=kind))
 
-    what = (method, kind, layers if method == "peeling" else 0, tuple(cameras))
+    what = (method, kind, layers if method == "peeling" else 0, sides, tuple(cameras))
     return state.kept(scene_key, what, build)
 
 
@@ -187,7 +193,7 @@ class SoftShadowJob(SceneJob):
             with self._occluders(state, scene, gpu) as occ:
                 return [shadows.render_maps(occ, scene.bounds, req.light)]
 
-        images = (req.reconstruction, req.resolution) if req.method != "geometry" else ()
+        images = (req.reconstruction, req.resolution, req.sides) if req.method != "geometry" else ()
         what = ("shadow maps", req.method, *images, req.samples, req.light)
         with state.kept(self.scene_key, what, maps, shadows.maps_nbytes) as kept:
             res = shadows.lookup(kept[0], gbuf.position, gbuf.normal, gbuf.mask)
@@ -198,7 +204,8 @@ class SoftShadowJob(SceneJob):
         if self.req.method == "geometry":
             return nullcontext([gpu])
         cams = reference_cameras(self.req.light, scene.bounds, self.req.method, self.req.resolution)
-        return _reconstruction(state, self.scene_key, scene, cams, self.req.method, self.req.reconstruction)
+        return _reconstruction(state, self.scene_key, scene, cams, self.req.method, self.req.reconstruction,
+                               sides=self.req.sides)
 
 
 @dataclass(frozen=True)
@@ -212,10 +219,11 @@ class ReconstructionJob(SceneJob):
     method: str
     kind: str
     layers: int = PEEL_LAYERS
+    sides: str = "front"
 
     def __call__(self, state: GLState) -> list[MeshArrays]:
         with _reconstruction(state, self.scene_key, self.load(state), self.cameras, self.method, self.kind,
-                             self.layers) as meshes:
+                             self.layers, self.sides) as meshes:
             return [m.read() for m in meshes]
 
 

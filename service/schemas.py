@@ -108,6 +108,13 @@ class LightSpec(BaseModel):
         return self
 
 
+#: Which sides of the surfaces a reconstruction's depth images keep (`gl_passes.depth_images`).
+Sides = Literal["front", "both"]
+SIDES_DOC = ("surfaces the depth images keep: front (back faces culled, as the thesis's §2.3) or both "
+             "(a single-sided surface seen from behind, e.g. a room's walls and ceiling from a light outside, "
+             "then still casts its shadow)")
+
+
 class SoftShadowSpec(BaseModel):
     """Soft shadows of a rectangular area light (thesis Ch. 3, Alg. 5) from k×k
     shadow maps whose occluders are the original scene (`geometry`) or the
@@ -125,6 +132,7 @@ class SoftShadowSpec(BaseModel):
         default="hybrid", description="hybrid (Alg. 4), grid (baseline) or compact (simplified hybrid)")
     resolution: StrictInt = Field(default=1024, ge=16, le=MAX_RECONSTRUCTION_RES,
                             description="reference-image side in pixels")
+    sides: Sides = Field(default="front", description=SIDES_DOC + "; geometry and raytrace always see both")
 
 
 class Effects(BaseModel):
@@ -300,9 +308,10 @@ class DepthImagesRequest(BaseModel):
 
 class ReconstructionRequest(BaseModel):
     """``POST /scenes/{id}/reconstruction``: the reconstruction (thesis Ch. 3, Alg. 4)
-    of a depth-image set as GLB, one node per source image. Reference viewpoints:
-    ``cameras`` (square images of ``resolution``²), or the 4 corners of ``light``
-    (peeling: its centre), or, with neither, of the default light sized to the scene."""
+    of a depth-image set as GLB, one node per source image that holds samples.
+    Reference viewpoints: ``cameras`` (square images of ``resolution``²), or the 4
+    corners of ``light`` (peeling: its centre), or, with neither, of the default
+    light sized to the scene."""
 
     model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [
         {"method": "non_redundant", "reconstruction": "hybrid", "resolution": 256}]})
@@ -313,6 +322,7 @@ class ReconstructionRequest(BaseModel):
     reconstruction: Literal["hybrid", "grid", "compact"] = "hybrid"
     resolution: StrictInt = Field(default=512, ge=16, le=MAX_RECONSTRUCTION_RES, description="image side in pixels")
     layers: StrictInt = Field(default=4, ge=1, le=MAX_SET_IMAGES, description="peeling layers")
+    sides: Sides = Field(default="front", description=SIDES_DOC)
 
     @model_validator(mode="after")
     def _viewpoints(self) -> ReconstructionRequest:

@@ -38,6 +38,7 @@ class SoftShadowRequest:
     method: str
     reconstruction: str
     resolution: int
+    sides: str = "front"
 
 
 def resolve_light(scene: Scene, light: AreaLight | None) -> AreaLight:

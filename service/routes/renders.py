@@ -70,7 +70,7 @@ async def render_frame(scene_id: str, req: FrameRequest, r: RenderDep) -> Respon
 @reconstructions.post(
     "/reconstruction", summary="Reconstruct a depth-image set (GLB)", response_class=Response,
     responses={200: {"content": {"model/gltf-binary": {}},
-                     "description": "binary glTF, one node per source image, vertex colours"},
+                     "description": "binary glTF, one node per source image that holds samples, vertex colours"},
                **responses({**RENDER_ERRORS, 422: "invalid cameras, light or size, or over the memory budget"})})
 async def reconstruct(scene_id: str, req: ReconstructionRequest, r: RenderDep) -> Response:
     check_budget(r.settings, reconstruction_bytes(req))
