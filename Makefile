@@ -42,9 +42,9 @@ $(VENV)/.installed: pyproject.toml
 	$(PY) -m pip install -q -e '.[dev]'
 	touch $@
 
-# three.js for the /client page (package.json + lock file; node_modules is git-ignored)
+# three.js for the /client page and Swagger UI for /docs (package.json + lock file; node_modules is git-ignored)
 node_modules/.package-lock.json: package.json package-lock.json
-	npm ci --no-audit --no-fund --loglevel=error
+	npm ci --ignore-scripts --no-audit --no-fund --loglevel=error
 
 setup: system-deps $(VENV)/.installed node_modules/.package-lock.json
 

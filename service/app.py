@@ -55,7 +55,7 @@ from service.config import Settings
 from service.metrics import Metrics
 from service.middleware import RequestGuard
 from service.process_worker import ProcessWorkerPool, WorkerConfig
-from service.routes import client, renders, scenes, stream
+from service.routes import client, docs, renders, scenes, stream
 from service.routes import service as service_routes
 from service.schemas import BuiltinParams, BuiltinSceneRequest, ErrorResponse, ValidationErrorResponse
 from service.store import SceneStore
@@ -92,7 +92,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         finally:
             await run_in_threadpool(worker.stop)
 
-    app = FastAPI(title="depthview", version="0.1.0", lifespan=lifespan,
+    app = FastAPI(title="depthview", version="0.1.0", lifespan=lifespan, docs_url=None, redoc_url=None,
                   description="Headless rendering service approximating scenes with depth images.")
     app.state.settings = settings
     app.state.metrics = Metrics()
@@ -101,7 +101,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.frame_source = ReuseFrameSource
     errors.install(app)
     for router in (service_routes.probes, service_routes.metrics_router, scenes.router, renders.frames,
-                   renders.reconstructions, renders.depth_images, stream.router, client.router):
+                   renders.reconstructions, renders.depth_images, stream.router, client.router, docs.router):
         app.include_router(router)
     app.add_middleware(RequestGuard, settings=settings, metrics=app.state.metrics,
                        templates=lambda: list(app.openapi()["paths"]))

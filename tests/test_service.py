@@ -112,7 +112,15 @@ def test_openapi_docs(client):
         assert path in spec["paths"]
     assert "BuiltinSceneRequest" in spec["components"]["schemas"]
     assert "FrameRequest" in spec["components"]["schemas"]
-    assert client.get("/docs").status_code == 200
+    page = client.get("/docs")
+    assert page.status_code == 200 and "/openapi.json" in page.text
+    # Swagger UI comes from this host (npm's swagger-ui-dist), not a CDN: the page works offline
+    assert "cdn." not in page.text and "//" not in page.text.replace("http://www.w3.org", "")
+    for name, ctype in (("swagger-ui-bundle.js", "text/javascript"), ("swagger-ui.css", "text/css")):
+        assert f'/docs/static/{name}' in page.text
+        r = client.get(f"/docs/static/{name}")
+        assert r.status_code == 200 and r.headers["content-type"].startswith(ctype) and len(r.content) > 10_000
+    assert client.get("/docs/static/package.json").status_code == 404  # only the page's files
 
 
 def test_list_includes_every_builtin(client):

@@ -438,6 +438,7 @@ def test_bearer_token(tmp_path):
     with service(tmp_path, token="s3cret") as c:
         assert c.get("/healthz").status_code == 200 and c.get("/readyz").status_code == 200
         assert c.get("/openapi.json").status_code == 200
+        assert c.get("/docs").status_code == 200 and c.get("/docs/static/swagger-ui.css").status_code == 200
         for method, url in (("GET", "/scenes"), ("GET", f"/scenes/{CORNELL}"), ("GET", "/metrics"),
                             ("POST", f"/scenes/{CORNELL}/frames"), ("DELETE", f"/scenes/{UNKNOWN}")):
             r = c.request(method, url, json=frame_body() if method == "POST" else None)

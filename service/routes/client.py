@@ -18,6 +18,7 @@ from pathlib import Path
 from fastapi import APIRouter, HTTPException, Request
 from fastapi.responses import FileResponse, HTMLResponse
 
+from service.config import Settings
 from service.deps import SettingsDep, presented_token, token_ok, unauthorized
 from service.errors import responses
 
@@ -27,6 +28,12 @@ THREE_DIRS = ("build", "examples/jsm")
 MEDIA = {".js": "text/javascript", ".css": "text/css", ".html": "text/html"}
 
 router = APIRouter(prefix="/client", tags=["client"])
+
+
+def not_installed(what: str, settings: Settings) -> HTTPException:
+    """404 naming the npm package missing from the node_modules the service uses."""
+    return HTTPException(404, f"{what} is not installed in {settings.node_modules}: run `npm ci` at the "
+                              "repository root (make setup does) or set DEPTHVIEW_NODE_MODULES")
 
 
 @router.get("", response_class=HTMLResponse, summary="The thin-client page",
@@ -51,8 +58,7 @@ async def static(name: str) -> FileResponse:
 async def three(path: str, settings: SettingsDep) -> FileResponse:
     root = settings.node_modules / "three"
     if not root.is_dir():
-        raise HTTPException(404, f"three.js is not installed in {settings.node_modules}: run `npm ci` at the "
-                                 "repository root (make setup does) or set DEPTHVIEW_NODE_MODULES")
+        raise not_installed("three.js", settings)
     target = (root / path).resolve()
     allowed = [(root / d).resolve() for d in THREE_DIRS]
     if target.suffix != ".js" or not any(target.is_relative_to(a) for a in allowed) or not target.is_file():
