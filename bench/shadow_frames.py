@@ -12,9 +12,10 @@ none, frame by frame in turn (the machine is shared: the two see the same load).
 are the job's (the worker's share of a frame; shading and encoding run beside it in the
 service and do not change).
 
-Settings: the thin client's (k = 6, reference images 256², a 640×480 frame:
-`service/static/client.js`) on the four soft-shadow scenes, and the HTTP defaults
-(k = 16, 1024², 512²) on city, NR + hybrid throughout.
+Settings: the thin client's (k = 6, reference images 256², both sides of the surfaces,
+a 640×480 frame: `service/static/client.js`) on the four soft-shadow scenes and the
+cornell room, and the HTTP defaults (k = 16, 1024², back faces culled, 512²) on city,
+NR + hybrid throughout.
 
     python -m bench.shadow_frames [--frames 8] [--http-frames 3] [--out bench/results]
 """
@@ -37,17 +38,18 @@ from service.jobs import SoftShadowJob
 from service.soft_shadows import SoftShadowRequest
 from service.worker import GLState
 
-SCENES = ("city", "grass", "nest", "tree")
-#: (label, k, reference resolution, frame width, frame height, scenes).
-SETTINGS = (("thin client", 6, 256, 640, 480, SCENES), ("HTTP default", 16, 1024, 512, 512, ("city",)))
+SCENES = ("city", "grass", "nest", "tree", "cornell")
+#: (label, k, reference resolution, sides, frame width, frame height, scenes).
+SETTINGS = (("thin client", 6, 256, "both", 640, 480, SCENES), ("HTTP default", 16, 1024, "front", 512, 512, ("city",)))
 
 
-def orbit(gl: Any, name: str, k: int, res: int, width: int, height: int, frames: int) -> dict[str, Any]:
+def orbit(gl: Any, name: str, k: int, res: int, sides: str, width: int, height: int, frames: int
+          ) -> dict[str, Any]:
     """Job seconds per frame of `frames` cameras orbiting scene `name`, with the
     reconstruction cache (the service's default size) and without, in turn."""
     scene = make_builtin(name)
     light = default_area_light(scene.bounds, scene.sun_direction)
-    req = SoftShadowRequest(light, k, "non_redundant", "hybrid", res)
+    req = SoftShadowRequest(light, k, "non_redundant", "hybrid", res, sides)
     states = {"kept": GLState(gl=gl, gbuffer=GBufferPass(gl),
                               reconstruction_cache_bytes=Settings.reconstruction_cache_bytes),
               "remade": GLState(gl=gl, gbuffer=GBufferPass(gl), reconstruction_cache_bytes=0)}
@@ -66,14 +68,14 @@ def orbit(gl: Any, name: str, k: int, res: int, width: int, height: int, frames:
     finally:
         for st in states.values():
             st.release_objects()
-    return {"scene": name, "k": k, "res": res, "width": width, "height": height, "seconds": seconds}
+    return {"scene": name, "k": k, "res": res, "sides": sides, "width": width, "height": height, "seconds": seconds}
 
 
 def measure(gl: Any, frames: int, http_frames: int, show: bool) -> list[dict[str, Any]]:
-    jobs = [(label, k, res, w, h, name) for label, k, res, w, h, names in SETTINGS for name in names]
+    jobs = [(label, k, res, sides, w, h, name) for label, k, res, sides, w, h, names in SETTINGS for name in names]
     out = []
-    for label, k, res, w, h, name in progress(jobs, show, desc="orbits"):
-        run = orbit(gl, name, k, res, w, h, http_frames if label == "HTTP default" else frames)
+    for label, k, res, sides, w, h, name in progress(jobs, show, desc="orbits"):
+        run = orbit(gl, name, k, res, sides, w, h, http_frames if label == "HTTP default" else frames)
         out.append({"setting": label, **run})
     return out
 
@@ -84,7 +86,7 @@ def write_report(out: Path, args: argparse.Namespace, info: dict[str, Any], runs
     for r in runs:
         kept, remade = r["seconds"]["kept"], r["seconds"]["remade"]
         later_kept, later_remade = statistics.median(kept[1:]), statistics.median(remade[1:])
-        rows.append([r["setting"], r["scene"], f"{r['k']}² · {r['res']}² · {r['width']}×{r['height']}",
+        rows.append([r["setting"], r["scene"], f"{r['k']}² · {r['res']}² {r['sides']} · {r['width']}×{r['height']}",
                      len(kept), f"{kept[0]:.2f} / {remade[0]:.2f}", f"{later_kept:.2f}", f"{later_remade:.2f}",
                      f"{later_remade / later_kept:.2f}×"])
     text = report_head(
@@ -100,7 +102,8 @@ def write_report(out: Path, args: argparse.Namespace, info: dict[str, Any], runs
         seconds, info) + [
         "## Seconds per frame",
         "",
-        "Settings: k² light samples · reference images · frame. First frame: kept / remade (the kept state "
+        "Settings: k² light samples · reference images and the sides of the surfaces they keep (`soft_shadows."
+        "sides`) · frame. First frame: kept / remade (the kept state "
         "builds its reconstruction and maps there too); later frames: the median of the rest.",
         "",
         md_table(["setting", "scene", "settings", "frames", "first frame", "later frames, kept",

@@ -576,11 +576,11 @@ def test_shadow_frames_report_by_hand(tmp_path):
 
     from bench.shadow_frames import write_report
 
-    run = {"setting": "thin client", "scene": "city", "k": 6, "res": 256, "width": 640, "height": 480,
+    run = {"setting": "thin client", "scene": "city", "k": 6, "res": 256, "sides": "both", "width": 640, "height": 480,
            "seconds": {"kept": [2.0, 1.0, 3.0, 1.0], "remade": [2.5, 2.0, 2.0, 9.0]}}
     write_report(tmp_path, Namespace(frames=4, http_frames=3), {}, [run], 60.0)
     text = (tmp_path / "shadow_frames.md").read_text()
-    assert "| thin client | city | 6² · 256² · 640×480 | 4 | 2.00 / 2.50 | 1.00 | 2.00 | 2.00× |" in text
+    assert "| thin client | city | 6² · 256² both · 640×480 | 4 | 2.00 / 2.50 | 1.00 | 2.00 | 2.00× |" in text
 
 
 def test_speedup_ranges_say_faster_or_slower_by_sign():

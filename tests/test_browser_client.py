@@ -243,4 +243,5 @@ def test_soft_shadows_stream_while_orbiting(page, server, tmp_path):
         moved = page.evaluate(CANVAS_STATS, "frame")
         assert moved["std"] > 10 and moved["hash"] != shadowed["hash"], (shadowed, moved)
         assert sent_effects[0].get("soft_shadows") is None and "soft_shadows" in sent_effects[-1], sent_effects
+        assert sent_effects[-1]["soft_shadows"]["sides"] == "both"  # the rooms' walls occlude too
         assert state(page)["errors"] == [] and page.problems == []

@@ -72,7 +72,9 @@ function status(text, isError = false) {
 }
 
 function effects() {
-  if ($('shadows').checked) return { soft_shadows: { samples: 6, resolution: 256 } };
+  // both sides: a single-sided surface the light sees from behind (a room's walls and
+  // ceiling, as in the default cornell scene) still casts its shadow (bench/results/shadow_frames.md)
+  if ($('shadows').checked) return { soft_shadows: { samples: 6, resolution: 256, sides: 'both' } };
   return { reflections: $('reflections').value };
 }
 
