@@ -276,8 +276,9 @@ def test_ply_declaring_more_vertices_than_it_holds_is_422_saying_so(client):
 @pytest.mark.parametrize("url", ["/scenes", f"/scenes/{CORNELL}/frames", f"/scenes/{CORNELL}/depth-images",
                                  f"/scenes/{CORNELL}/reconstruction"])
 def test_malformed_json_is_400_on_every_endpoint(client, url):
-    r = post_text(client, url, '{"camera": ')
-    assert r.status_code == 400 and r.json()["detail"].startswith("request body is not valid JSON")
+    for body in ('{"camera": ', '{"camera": ' + "[" * 5000 + "]" * 5000 + "}"):  # cut short; nested too deeply
+        r = post_text(client, url, body)
+        assert r.status_code == 400 and r.json()["detail"].startswith("request body is not valid JSON"), r.text
 
 
 @pytest.mark.parametrize("url", [f"/scenes/{CORNELL}/frames", f"/scenes/{CORNELL}/depth-images",
