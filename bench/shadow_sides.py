@@ -8,7 +8,7 @@ no shadow, while the geometry shadow maps (drawn without culling) and the exact
 Embree truth see it. Per scene, at k = --sweep-k with reference images of --ref-res²
 and the hybrid reconstruction, this part measures NR, conventional and peeling images
 with back faces culled (``front``, the default) and with both sides drawn
-(``both``, `DepthImageRenderer(cull_back_faces=False)`), against both truths.
+(``both``, `render_set(cull_back_faces=False)`), against both truths.
 Run it on the Table 8 scenes and on the rooms (cornell, bathroom).
 """
 
@@ -18,12 +18,11 @@ import argparse
 from typing import Any
 
 from bench.common import cpu_model, md_table
-from bench.shadow_stage import Stage, errors, truths
+from bench.shadow_stage import Stage, set_errors, truths
 from gl_passes.context import GLContext
-from gl_passes.depth_images import DepthImageRenderer
-from gl_passes.reconstruction import SAMPLING_METHODS, ReconstructionSettings, reconstruct_set, render_set
+from gl_passes.reconstruction import SAMPLING_METHODS
 from gl_passes.shadows import ShadowSettings, SoftShadowPass
-from scenes.lights import PEEL_LAYERS, default_area_light, reference_cameras
+from scenes.lights import default_area_light, reference_cameras
 
 #: The two settings of ``sides`` (service ``soft_shadows.sides``): back faces culled or not.
 SIDES = ("front", "both")
@@ -42,19 +41,8 @@ def part_sides(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str, 
             out[method] = {}
             cams = reference_cameras(light, st.scene.bounds, method, args.ref_res)
             for sides in SIDES:
-                renderer = DepthImageRenderer(gl, cull_back_faces=sides == "front")
-                try:
-                    sampled = render_set(gl, st.gpu, method, cams, layers=PEEL_LAYERS, renderer=renderer)
-                finally:
-                    renderer.release()
-                meshes = reconstruct_set(gl, sampled, ReconstructionSettings())
-                try:
-                    r = sp.visibility(meshes, st.scene.bounds, st.points, st.normals, st.mask, light)
-                    out[method][sides] = {**errors(r.bits, geo, exact, st.mask),
-                                          "triangles": sum(m.n_triangles for m in meshes)}
-                finally:
-                    for m in meshes:
-                        m.release()
+                out[method][sides] = set_errors(gl, st, sp, light, method, cams, geo, exact,
+                                                cull_back_faces=sides == "front")
     return {"methods": out, "cpu": cpu_model()}
 
 

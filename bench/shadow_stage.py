@@ -110,6 +110,21 @@ def errors(bits: np.ndarray, geo: np.ndarray, exact: np.ndarray, mask: np.ndarra
             "too_bright_mean": float(np.clip(s, 0, None).mean()) if s.size else 0.0}
 
 
+def set_errors(gl: GLContext, st: Stage, sp: SoftShadowPass, light: AreaLight, method: str,
+               cameras: list[Camera], geo: np.ndarray, exact: np.ndarray, **images: Any) -> dict[str, Any]:
+    """`errors` and the triangle count of the default (hybrid) reconstruction of the
+    `method` images of `cameras` (`render_set` with `images`: a renderer, or
+    cull_back_faces) as occluders; the meshes are released."""
+    sampled = render_set(gl, st.gpu, method, cameras, layers=PEEL_LAYERS, **images)
+    meshes = reconstruct_set(gl, sampled, ReconstructionSettings())
+    try:
+        r = sp.visibility(meshes, st.scene.bounds, st.points, st.normals, st.mask, light)
+        return {**errors(r.bits, geo, exact, st.mask), "triangles": sum(m.n_triangles for m in meshes)}
+    finally:
+        for m in meshes:
+            m.release()
+
+
 def iv(x: dict[str, Any]) -> str:
     """'intensity · visibility' mean errors of one set of §3.4.2 errors (`shadow_errors`)."""
     return f"{x['intensity_mean']:.3f} · {x['visibility_mean']:.3f}"

@@ -76,6 +76,7 @@ from bench.shadow_stage import (
     errors,
     iv,
     iv_sign_triangles,
+    set_errors,
     stage_scene,
     truths,
     unpack_visibility,
@@ -179,17 +180,8 @@ def part_peeling(gl: GLContext, st: Stage, args: argparse.Namespace) -> dict[str
             out[str(distance)] = {}
             for method, culled in variants:
                 cams = reference_cameras(light, st.scene.bounds, method, args.ref_res)
-                sampled = render_set(gl, st.gpu, method, cams, layers=PEEL_LAYERS,
-                                     renderer=None if culled else two_sided)
-                meshes = reconstruct_set(gl, sampled, ReconstructionSettings())
-                try:
-                    r = sp.visibility(meshes, st.scene.bounds, st.points, st.normals, st.mask, light)
-                    name = method if culled else "peeling_two_sided"
-                    out[str(distance)][name] = {**errors(r.bits, geo, exact, st.mask),
-                                                "triangles": sum(m.n_triangles for m in meshes)}
-                finally:
-                    for m in meshes:
-                        m.release()
+                out[str(distance)][method if culled else "peeling_two_sided"] = set_errors(
+                    gl, st, sp, light, method, cams, geo, exact, renderer=None if culled else two_sided)
     two_sided.release()
     return out
 

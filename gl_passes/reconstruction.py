@@ -512,17 +512,20 @@ class SampledSet:
 
 
 def render_set(gl: GLContext, scene_gpu: SceneGPU, method: SamplingMethod, cameras: Sequence[Camera],
-               layers: int = 4, offsets: bool = True, renderer: DepthImageRenderer | None = None) -> SampledSet:
+               layers: int = 4, offsets: bool = True, renderer: DepthImageRenderer | None = None,
+               cull_back_faces: bool = True) -> SampledSet:
     """The depth images of `method` and (offsets=True) their offset images H.
 
     non_redundant / conventional: one image per camera (pixel redundancy, Alg. 3);
-    peeling: `layers` layers from cameras[0]. Cameras get near/far from the scene."""
+    peeling: `layers` layers from cameras[0]. Cameras get near/far from the scene.
+    Without `renderer`, one made here with `cull_back_faces` (False: both sides of
+    every surface, see `DepthImageRenderer`)."""
     if method not in SAMPLING_METHODS:
         raise ValueError(f"method must be one of {SAMPLING_METHODS}, got {method!r}")
     gl.check_thread()
     cams = prepare_cameras(scene_gpu, cameras)
     own = renderer is None
-    r = DepthImageRenderer(gl) if own else renderer
+    r = DepthImageRenderer(gl, cull_back_faces=cull_back_faces) if own else renderer
     try:
         offs = [offset_camera(c) for c in cams] if offsets else None
         if method == "non_redundant":

@@ -102,9 +102,8 @@ class Camera:
         """Copy with near/far enclosing the box `bounds` (min, max): far just past
         the farthest corner, near = far·1e-4 or the box distance if larger."""
         lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
-        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
         _, _, f = self.basis()
-        depth = (corners - np.asarray(self.eye)) @ f
+        depth = (box_corners((lo, hi)) - np.asarray(self.eye)) @ f
         far = max(float(depth.max()), 1e-3) * 1.01 + 1e-6
         # Closest point of the box to the eye bounds the near plane from below.
         closest = np.clip(self.eye, lo, hi)
@@ -162,6 +161,19 @@ def perspective(fov_deg: float, aspect: float, near: float, far: float) -> np.nd
     return m
 
 
+def box_corners(bounds: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """(8,3) float64 corners of the box (min, max)."""
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
+    return np.array(list(itertools.product(*zip(lo, hi, strict=True))))
+
+
+def orbit_direction(azimuth: float, elevation: float) -> np.ndarray:
+    """(3,) unit vector from a target toward an eye at (azimuth, elevation) degrees
+    (azimuth 0 = +Z, 90 = +X; elevation toward +Y)."""
+    a, e = np.radians(azimuth), np.radians(elevation)
+    return np.array([np.cos(e) * np.sin(a), np.sin(e), np.cos(e) * np.cos(a)])
+
+
 def framing_distance(bounds: tuple[np.ndarray, np.ndarray], azimuth: float, elevation: float,
                      fov: float) -> float:
     """The least `distance` of `look_at_scene` (in box diagonals) at which every
@@ -170,12 +182,11 @@ def framing_distance(bounds: tuple[np.ndarray, np.ndarray], azimuth: float, elev
     tan(fov/2), with w the unit direction to the eye and r, u the image axes."""
     lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
     diag = float(np.linalg.norm(hi - lo)) or 1.0
-    a, e = np.radians(azimuth), np.radians(elevation)
-    w = np.array([np.cos(e) * np.sin(a), np.sin(e), np.cos(e) * np.cos(a)])
+    w = orbit_direction(azimuth, elevation)
     r = np.cross(-w, (0.0, 1.0, 0.0))
     r /= np.linalg.norm(r)
     u = np.cross(r, -w)
-    q = np.array(list(itertools.product(*zip(lo, hi, strict=True)))) - (lo + hi) / 2
+    q = box_corners(bounds) - (lo + hi) / 2
     t = q @ w + np.maximum(np.abs(q @ r), np.abs(q @ u)) / np.tan(np.radians(fov) / 2)
     return float(t.max()) / diag
 
@@ -187,8 +198,7 @@ def look_at_scene(bounds: tuple[np.ndarray, np.ndarray], azimuth: float = 35.0, 
     lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
     c = (lo + hi) / 2
     diag = float(np.linalg.norm(hi - lo)) or 1.0
-    a, e = np.radians(azimuth), np.radians(elevation)
-    eye = c + distance * diag * np.array([np.cos(e) * np.sin(a), np.sin(e), np.cos(e) * np.cos(a)])
+    eye = c + distance * diag * orbit_direction(azimuth, elevation)
     return Camera(tuple(eye), tuple(c), (0.0, 1.0, 0.0), fov, width, height).fit_clip((lo, hi))
 
 

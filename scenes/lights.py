@@ -9,7 +9,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from scenes.camera import Camera
+from scenes.camera import Camera, box_corners
 from scenes.model import AreaLight
 
 
@@ -86,8 +86,7 @@ def light_camera(light: AreaLight, eye: np.ndarray, bounds: tuple[np.ndarray, np
         raise ValueError(f"aim must be one of {AIMS}, got {aim!r}")
     lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
     e = np.asarray(eye, dtype=np.float64)
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    d = corners - e
+    d = box_corners((lo, hi)) - e
     fwd = -light_normal(light)
     if np.any(d @ fwd <= 0):
         raise ValueError("the scene box is not entirely in front of the light")

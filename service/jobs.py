@@ -151,12 +151,8 @@ def _reconstruction(state: GLState, scene_key: str, scene: Scene, cameras: Seque
     (`GLState.kept`): a light's depth images are made once for every frame under it."""
     def build() -> list[MeshGPU]:
         gpu = state.scene_gpu(scene_key, scene)
-        renderer = DepthImageRenderer(state.gl, cull_back_faces=sides == "front")
-        try:
-            sampled = render_set(state.gl, gpu, method, cameras, layers=layers, offsets=kind != "grid",
-                                 renderer=renderer)
-        finally:
-            renderer.release()
+        sampled = render_set(state.gl, gpu, method, cameras, layers=layers, offsets=kind != "grid",
+                             cull_back_faces=sides == "front")
         return reconstruct_set(state.gl, sampled, ReconstructionSettings(kind=kind))
 
     what = (method, kind, layers if method == "peeling" else 0, sides, tuple(cameras))

@@ -5,8 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gl_passes.chunks import box_corners
-from scenes.camera import Camera, CameraError, flythrough_path, framing_distance, look_at_scene, orbit_path
+from scenes.camera import (
+    Camera,
+    CameraError,
+    box_corners,
+    flythrough_path,
+    framing_distance,
+    look_at_scene,
+    orbit_path,
+)
 
 BOUNDS = (np.array([-1.0, 0.0, -2.0]), np.array([3.0, 2.0, 1.0]))
 
@@ -42,7 +49,7 @@ def test_look_at_hand_values():
 
 @pytest.mark.parametrize("azimuth, elevation, fov", [(20, 15, 50), (35, 25, 45), (-120, 60, 30), (90, -10, 70)])
 def test_framing_distance_is_the_least_that_shows_every_corner(azimuth, elevation, fov):
-    corners = box_corners(np.array([BOUNDS]))[0]
+    corners = box_corners(BOUNDS)
     t = framing_distance(BOUNDS, azimuth, elevation, fov)
     px, z = look_at_scene(BOUNDS, azimuth, elevation, t, fov, 100, 100).project(corners)
     assert (z > 0).all() and px.min() > -1e-6 and px.max() < 100 + 1e-6  # all in view ...

@@ -16,8 +16,7 @@ import pytest
 from PIL import Image
 from starlette.websockets import WebSocketDisconnect
 
-from gl_passes.chunks import box_corners
-from scenes.camera import Camera
+from scenes.camera import Camera, box_corners
 from service import image_io
 from service.image_check import assert_images_close, compare_images
 from service.store import builtin_id
@@ -55,7 +54,7 @@ client = service_client(stream_rest_s=0.2)
 
 def assert_frames_box(view: dict, bounds: list) -> None:
     """Every corner of the box projects inside a square image of the view, in front of it."""
-    corners = box_corners(np.array([bounds]))[0]
+    corners = box_corners(bounds)
     cam = Camera(tuple(view["eye"]), tuple(view["target"]), tuple(view["up"]), view["fov"], 100, 100)
     px, z = cam.project(corners)
     assert (z > 0).all() and (px >= 0).all() and (px <= 100).all(), f"box corners at {px.round(1).tolist()} px"
