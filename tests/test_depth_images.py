@@ -19,6 +19,7 @@ from gl_passes.gbuffer import GBufferPass
 from gl_passes.upload import SceneGPU
 from reference.raycast import RayCaster
 from scenes import Camera, Material, Scene, SceneObject
+from scenes.camera import box_corners
 from scenes.depth_image import DepthImage
 from scenes.rig import fig8_rig, fit_distance, intermediate_views
 from service.image_check import assert_images_close
@@ -465,7 +466,7 @@ def test_fig8_rig_default_distance_fits_the_box_in_every_view():
         half = min(np.radians(22.5), np.arctan(np.tan(np.radians(22.5)) * w / h))
         assert np.arcsin(0.5 * diag / np.linalg.norm(np.subtract(peel.eye, c))) == pytest.approx(half)
         # every corner of the box projects inside every view of the rig
-        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        corners = box_corners((lo, hi))
         for v in views:
             xy, z = v.project(corners)
             assert np.all(z > 0)
