@@ -45,10 +45,6 @@ log = logging.getLogger("depthview.service")
 #: Longest error message (a loader's or a library's message may quote its input).
 DETAIL_CHARS = 500
 
-#: FastAPI's 400 for a body whose decoding raised something other than a JSON decode
-#: error (a RecursionError on deep nesting); answered like any body that is not JSON.
-FASTAPI_BODY_ERROR = "There was an error parsing the body"
-
 #: Most invalid fields a 422 lists (a body of 100,000 unknown keys is answered with
 #: these and their count, not 100,000 issues).
 MAX_ISSUES = 20
@@ -154,8 +150,6 @@ async def http_error(request: Request, exc: Exception) -> JSONResponse:
     if exc.status_code == 405:
         headers["Allow"] = ", ".join(allowed_methods(request.app, request.scope))
     detail = short(exc.detail) if isinstance(exc.detail, str) else exc.detail
-    if exc.status_code == 400 and detail == FASTAPI_BODY_ERROR:  # a body json.loads raised on, not with a decode error
-        detail = "request body is not valid JSON: it could not be decoded (nested too deeply?)"
     return JSONResponse({"detail": detail}, status_code=exc.status_code, headers=headers or None)
 
 

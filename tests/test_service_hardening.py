@@ -275,10 +275,19 @@ def test_ply_declaring_more_vertices_than_it_holds_is_422_saying_so(client):
 # --- uniform statuses, Allow, OpenAPI ----------------------------------------------------------------
 @pytest.mark.parametrize("url", ["/scenes", f"/scenes/{CORNELL}/frames", f"/scenes/{CORNELL}/depth-images",
                                  f"/scenes/{CORNELL}/reconstruction"])
-def test_malformed_json_is_400_on_every_endpoint(client, url):
-    for body in ('{"camera": ', '{"camera": ' + "[" * 5000 + "]" * 5000 + "}"):  # cut short; nested too deeply
-        r = post_text(client, url, body)
-        assert r.status_code == 400 and r.json()["detail"].startswith("request body is not valid JSON"), r.text
+@pytest.mark.parametrize("body, says", [
+    (b'{"camera": ', ("line 1 column 11", "line 1 column 12")),  # cut short
+    (b'{"camera": ' + b"[" * 5000 + b"]" * 5000 + b"}", ("recursion limit", "nested too deeply")),
+    (b'{"camera": "\xff\xfe"}', ("line 1 column 13", "byte offset 12")),  # not UTF-8
+])
+def test_malformed_json_is_400_on_every_endpoint_saying_what_and_where(client, url, body, says):
+    """The render routes' JSONBodyRoute names the problem like /scenes's pydantic
+    parser does (FastAPI alone answers a bare 'There was an error parsing the body' on
+    deep nesting and invalid UTF-8)."""
+    r = post_text(client, url, body)
+    detail = r.json()["detail"]
+    assert r.status_code == 400 and detail.startswith("request body is not valid JSON: "), r.text
+    assert any(s in detail for s in says), detail
 
 
 @pytest.mark.parametrize("url", [f"/scenes/{CORNELL}/frames", f"/scenes/{CORNELL}/depth-images",

@@ -21,6 +21,7 @@ from service.effects import server_timing
 from service.errors import json_safe, responses
 from service.frames import render
 from service.jobs import ReconstructionJob, SetJob
+from service.routes.json_body import JSONBodyRoute
 from service.schemas import DepthImagesRequest, FrameRequest, ReconstructionRequest
 from service.soft_shadows import resolve_light
 
@@ -33,10 +34,12 @@ RENDER_ERRORS = {400: "the body is not JSON", 401: "missing or wrong bearer toke
                  503: "render queue full or no GL context (Retry-After)", 504: "the job timed out",
                  500: "the job failed unexpectedly"}
 
-frames = APIRouter(prefix="/scenes/{scene_id}", tags=["frames"], dependencies=[Depends(require_token)])
+frames = APIRouter(prefix="/scenes/{scene_id}", tags=["frames"], dependencies=[Depends(require_token)],
+                  route_class=JSONBodyRoute)
 reconstructions = APIRouter(prefix="/scenes/{scene_id}", tags=["reconstruction"],
-                            dependencies=[Depends(require_token)])
-depth_images = APIRouter(prefix="/scenes/{scene_id}", tags=["depth images"], dependencies=[Depends(require_token)])
+                            dependencies=[Depends(require_token)], route_class=JSONBodyRoute)
+depth_images = APIRouter(prefix="/scenes/{scene_id}", tags=["depth images"], dependencies=[Depends(require_token)],
+                         route_class=JSONBodyRoute)
 
 
 # --- frames ----------------------------------------------------------------------------
