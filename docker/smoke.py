@@ -1,8 +1,9 @@
 """Smoke test of a running depthview service (``make docker-test`` runs it inside the CPU
 image, against the image's own ``depthview serve``): readiness, a built-in scene, a PNG
 frame, a reflective streamed frame, the thin-client page and a three.js module, the
-metrics. Standard library and the service's own dependencies only (Pillow, websockets),
-so it runs with the image's venv python. Exit status 0 when every check passes.
+API docs with their Swagger UI script, the metrics. Standard library and the service's
+own dependencies only (Pillow, websockets), so it runs with the image's venv python.
+Exit status 0 when every check passes.
 
     python docker/smoke.py [--url http://127.0.0.1:8000] [--ready-timeout 180]
 """
@@ -123,6 +124,13 @@ def main(argv: list[str] | None = None) -> int:
         status, ctype, js = http(base + "/client/three/" + module)
         check(status == 200 and ctype.startswith("text/javascript") and len(js) > 1000,
               f"GET /client/three/{module} → {status}, {len(js)} bytes (three.js from npm ci)")
+
+    status, ctype, page = http(base + "/docs")
+    check(status == 200 and ctype.startswith("text/html") and b"/docs/static/swagger-ui-bundle.js" in page,
+          "GET /docs serves Swagger UI's page from this host")
+    status, ctype, js = http(base + "/docs/static/swagger-ui-bundle.js")
+    check(status == 200 and ctype.startswith("text/javascript") and len(js) > 100_000,
+          f"GET /docs/static/swagger-ui-bundle.js → {status}, {len(js)} bytes (swagger-ui-dist from npm ci)")
 
     status, _, text = http(base + "/metrics")
     streamed = [float(line.split()[1]) for line in text.decode().splitlines()
