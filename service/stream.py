@@ -83,7 +83,8 @@ CLOSE_NO_SCENE = 4404
 
 @dataclass(frozen=True)
 class SourceFrame:
-    """A rendered frame of a stream: linear colour (H,W,3) and how it was made."""
+    """A rendered frame of a stream: linear colour (H,W,3) and how it was made
+    (render_s: scene load, jobs and shading, not the queue_wait_s before its jobs ran)."""
 
     color: np.ndarray
     render_s: float
@@ -126,6 +127,11 @@ class _TimedRender(Render):
         finally:
             self.queue_wait_s += (started if started is not None else time.monotonic()) - submitted
 
+    def render_s(self, t0: float) -> float:
+        """Seconds since ``time.perf_counter()`` was `t0`, less the queue waits (the
+        frame's ``render_ms``; its ``queue_wait_ms`` counts those)."""
+        return max(0.0, time.perf_counter() - t0 - self.queue_wait_s)
+
 
 class JobFrameSource:
     """Every frame rendered from scratch as ``POST /frames`` renders it (no reuse yet:
@@ -138,7 +144,7 @@ class JobFrameSource:
         timed = _TimedRender(self.r.settings, self.r.store, self.r.worker, self.r.metrics)
         t0 = time.perf_counter()
         rendered = await render(timed, self.scene_id, req)
-        return SourceFrame(np.asarray(rendered.color, np.float32), time.perf_counter() - t0, timed.queue_wait_s)
+        return SourceFrame(np.asarray(rendered.color, np.float32), timed.render_s(t0), timed.queue_wait_s)
 
     def close(self) -> None:
         pass
@@ -250,7 +256,7 @@ class ReuseFrameSource(JobFrameSource):
         frame = await timed.job(job, f"stream frame {self.scene_id[:12]}", pin=self._key)
         st = frame.stats
         ratio = 0.0 if st.keyframe or not st.reflective else 1.0 - st.recomputed_fraction
-        return SourceFrame(np.asarray(frame.color, np.float32), time.perf_counter() - t0, timed.queue_wait_s,
+        return SourceFrame(np.asarray(frame.color, np.float32), timed.render_s(t0), timed.queue_wait_s,
                            float(ratio), bool(st.keyframe))
 
     def close(self) -> None:
