@@ -17,6 +17,7 @@ import asyncio
 import hmac
 import logging
 from collections.abc import Callable, Mapping
+from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Annotated, Any, TypeVar
 
@@ -116,6 +117,9 @@ class Render:
     store: SceneStore
     worker: Worker
     metrics: Metrics
+    #: The HTTP request rendered for: a job still queued when its client disconnects is
+    #: dropped (None: the stream, which drops its own).
+    request: Request | None = None
 
     async def scene(self, scene_id: str) -> Scene:
         """The stored scene, parsed off the event loop (store errors reach their handler)."""
@@ -136,10 +140,14 @@ class Render:
             raise unavailable(str(exc), settings) from None
         try:
             with self.metrics.step("job"):
-                return await asyncio.wait_for(asyncio.wrap_future(fut), timeout=settings.job_timeout_s)
+                return await self._result(fut, settings.job_timeout_s)
         except (asyncio.TimeoutError, JobExpired):
             fut.cancel()
             raise HTTPException(504, f"{label} did not finish within {settings.job_timeout_s:g} s") from None
+        except ClientGone:
+            fut.cancel()  # still queued: never runs (a running job ends on its own)
+            raise HTTPException(CLIENT_CLOSED, f"the client closed the connection before {label} was done"
+                                ) from None
         except WorkerUnavailable as exc:
             raise unavailable(str(exc), settings) from None
         except HTTPException:
@@ -151,6 +159,22 @@ class Render:
         except Exception as exc:  # noqa: BLE001
             log.exception("render job failed", exc_info=exc)
             raise HTTPException(500, f"{label} failed: {type(exc).__name__}: {str(exc)[:300]}") from None
+
+    async def _result(self, fut: Future[T], timeout: float) -> T:
+        """The job's result; asyncio.TimeoutError past `timeout`, ClientGone when the
+        request's client disconnects first."""
+        result = asyncio.ensure_future(asyncio.wrap_future(fut))
+        if self.request is None:
+            return await asyncio.wait_for(result, timeout)
+        gone = asyncio.ensure_future(_disconnect(self.request))
+        try:
+            done, _ = await asyncio.wait({result, gone}, timeout=timeout, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            gone.cancel()
+        if result in done:
+            return result.result()
+        result.cancel()
+        raise ClientGone if gone in done else asyncio.TimeoutError
 
     async def cpu(self, fn: Callable[..., T], *args: Any) -> T:
         """`fn(*args)` in the thread pool, timed as cpu: CPU work that is no render
@@ -166,7 +190,23 @@ class Render:
 
 def get_render(request: Request) -> Render:
     state = request.app.state
-    return Render(state.settings, state.store, state.worker, state.metrics)
+    return Render(state.settings, state.store, state.worker, state.metrics, request)
+
+
+#: Status logged for a request whose client left before its job was done (nginx's 499:
+#: no one reads the answer).
+CLIENT_CLOSED = 499
+
+
+class ClientGone(Exception):
+    """The HTTP client disconnected while its job waited or ran."""
+
+
+async def _disconnect(request: Request) -> None:
+    """Returns when the client disconnects (the body is read by then: ASGI's receive
+    has nothing else to give)."""
+    while (await request.receive())["type"] != "http.disconnect":
+        pass
 
 
 RenderDep = Annotated[Render, Depends(get_render)]

@@ -15,7 +15,7 @@ from fastapi.testclient import TestClient
 from service.config import Settings
 from service.deps import presented_token, token_ok
 from service.store import builtin_id
-from tests.helpers import frame_camera, live_server, obj_text, service, service_client
+from tests.helpers import frame_camera, live_server, obj_text, service, service_client, wait_until
 
 CORNELL = builtin_id("cornell")
 UNKNOWN = "0" * 64
@@ -550,3 +550,43 @@ def test_request_guard_leaves_uploads_to_their_own_limit(tmp_path):
         assert len(data) > 1024
         r = c.post("/scenes", files={"file": ("strip.obj", data)})
         assert r.status_code == 201, r.text
+
+
+# --- a client that leaves ----------------------------------------------------------------------
+def test_a_job_whose_client_left_is_dropped_from_the_queue(tmp_path):
+    """The worker is busy; a frame's client disconnects while its job waits: the job
+    never runs (the worker does only the busy job) and the request is logged as 499."""
+    import threading
+
+    import anyio
+
+    with service(tmp_path) as c:
+        worker = c.app.state.worker
+        gate = threading.Event()
+        worker.submit(lambda state: gate.wait(10))
+        done = worker.stats()["jobs_done"]
+        body = json.dumps(frame_body()).encode()
+        messages = [{"type": "http.request", "body": body, "more_body": False}]
+        sent: list[dict] = []
+
+        async def receive() -> dict:
+            if messages:
+                return messages.pop(0)
+            await anyio.sleep(0.3)  # the client leaves while its job waits for the worker
+            return {"type": "http.disconnect"}
+
+        async def send(message: dict) -> None:
+            sent.append(message)
+
+        scope = {"type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1", "method": "POST",
+                 "scheme": "http", "path": f"/scenes/{CORNELL}/frames", "raw_path": b"", "query_string": b"",
+                 "root_path": "", "headers": [(b"content-type", b"application/json"),
+                                              (b"content-length", str(len(body)).encode())],
+                 "client": ("127.0.0.1", 1), "server": ("testserver", 80)}
+        c.portal.call(c.app, scope, receive, send)
+        gate.set()
+        assert sent[0]["type"] == "http.response.start" and sent[0]["status"] == 499
+        wait_until(lambda: worker.stats()["jobs_done"] - done >= 1, what="the busy job done")
+        time.sleep(0.3)  # time for a wrongly run frame job to be counted too
+        assert worker.stats()["jobs_done"] - done == 1
+        assert 'status="499"' in c.get("/metrics").text
