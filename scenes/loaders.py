@@ -30,6 +30,7 @@ import io
 import json
 import re
 import struct
+from collections import Counter
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -49,6 +50,15 @@ _UNSUPPORTED_GLTF_EXTENSIONS = ("KHR_draco_mesh_compression", "EXT_meshopt_compr
 _DEFAULT_MATERIAL = Material(albedo=(0.8, 0.8, 0.8), specular=0.0, glossiness=1.0)
 #: Textures are shrunk to at most this many pixels per side before averaging.
 _TEXTURE_AVERAGE_SIZE = 256
+#: Most pixels of one texture (8192²): a larger one is refused, since its pixels, not
+#: its compressed size, set the memory a load takes.
+MAX_TEXTURE_PIXELS = 8192 * 8192
+#: Most parts of an uploaded scene: glTF nodes, OBJ objects (``o`` statements). Parsing
+#: time grows with them, not with the file's size (a 41 MB GLB of 800,000 nodes instancing
+#: one triangle took 139 s to load, longer than a render job may take to reload it).
+MAX_PARTS = 10_000
+#: Where a texture's mean is kept in its PIL image's ``info`` (materials share images).
+_MEAN_KEY = "depthview_mean_linear"
 
 
 class SceneLoadError(ValueError):
@@ -124,6 +134,9 @@ def _load(data: bytes, fmt: str, name: str, max_triangles: int | None, resolver:
     elif fmt == "obj":
         data = _obj_text(data)
         _check_limit(_obj_triangle_count(data), max_triangles, estimate=False)
+        objects = len(_OBJ_OBJECT_LINE.findall(data))
+        if objects > MAX_PARTS:
+            raise SceneLoadError(f"OBJ has {objects:,} objects ('o' lines), limit is {MAX_PARTS:,}")
     else:
         _check_limit(_ply_face_count(data), max_triangles, estimate=True)
         _ply_check_body(data)
@@ -134,7 +147,7 @@ def _load(data: bytes, fmt: str, name: str, max_triangles: int | None, resolver:
     except SceneLoadError:
         raise
     except Exception as exc:  # trimesh visuals/graph on malformed data, numpy errors
-        raise SceneLoadError(f"malformed {label}: {type(exc).__name__}: {exc}") from exc
+        raise SceneLoadError(f"malformed {label}: {_library_text(exc)}") from exc
 
     if not objects:
         raise SceneLoadError(f"{label} has no faces (no non-degenerate triangles)")
@@ -174,8 +187,8 @@ def _trimesh_load(data: bytes, fmt: str, label: str, resolver: object | None):
     except SceneLoadError:
         raise
     except Exception as exc:  # trimesh raises anything from KeyError to struct.error
-        msg = f"{type(exc).__name__}: {exc}"
-        if isinstance(exc, TypeError) and "NoneType" in msg and resolver is None:
+        msg = _library_text(exc)
+        if isinstance(exc, TypeError) and "NoneType" in str(exc) and resolver is None:
             msg = "references an external file (not allowed for in-memory data)"
         elif fmt == "obj":
             msg = _obj_face_problem(data) or msg
@@ -183,6 +196,18 @@ def _trimesh_load(data: bytes, fmt: str, label: str, resolver: object | None):
     if not isinstance(scene, trimesh.Scene):
         raise SceneLoadError(f"malformed {label}: trimesh returned {type(scene).__name__}")
     return scene
+
+
+#: Longest part of a library's exception text an error repeats (it may quote the file).
+LIBRARY_TEXT_CHARS = 80
+
+
+def _library_text(exc: Exception) -> str:
+    """'Type: message' of a library's exception, the message cut to LIBRARY_TEXT_CHARS."""
+    text = str(exc)
+    if len(text) > LIBRARY_TEXT_CHARS:
+        text = f"{text[:LIBRARY_TEXT_CHARS]}… ({len(text):,} characters)"
+    return f"{type(exc).__name__}: {text}"
 
 
 # --------------------------------------------------------------------------------------
@@ -227,6 +252,9 @@ def _check_gltf_header(header: dict, label: str, max_triangles: int | None) -> N
     bad = [e for e in required if e in _UNSUPPORTED_GLTF_EXTENSIONS]
     if bad:
         raise SceneLoadError(f"{label} needs unsupported extension(s) {', '.join(bad)}; decompress it first")
+    nodes = header.get("nodes", [])
+    if isinstance(nodes, list) and len(nodes) > MAX_PARTS:
+        raise SceneLoadError(f"{label} has {len(nodes):,} nodes, limit is {MAX_PARTS:,}")
     if max_triangles is not None:
         try:
             count, complete = _gltf_triangle_count(header, stop_above=max_triangles)
@@ -285,6 +313,7 @@ def _obj_text(data: bytes) -> bytes:
         return data.decode("latin-1").encode("utf-8")
 
 
+_OBJ_OBJECT_LINE = re.compile(rb"^[ \t]*o[ \t]", re.MULTILINE)
 _OBJ_FACE_LINE = re.compile(rb"^[ \t]*f[ \t]+([^\r\n#]*)", re.MULTILINE)
 
 
@@ -375,12 +404,14 @@ def _convert(tm_scene, fmt: str, gltf_header: dict | None, max_triangles: int | 
     header_node_names: set[str] = set()
     if gltf_header is not None:
         mats = [m for m in gltf_header.get("materials", []) if isinstance(m, dict)]
-        names = [m.get("name") for m in mats]
-        header_materials = {m["name"]: m for m in mats if m.get("name") and names.count(m["name"]) == 1}
+        names = Counter(m.get("name") for m in mats)
+        header_materials = {m["name"]: m for m in mats if m.get("name") and names[m["name"]] == 1}
         header_node_names = {n.get("name") for n in gltf_header.get("nodes", []) if isinstance(n, dict)}
 
     geometry = tm_scene.geometry
     instances = tm_scene.graph.nodes_geometry
+    if len(instances) > MAX_PARTS:
+        raise SceneLoadError(f"scene has {len(instances):,} mesh instances, limit is {MAX_PARTS:,}")
     uses: dict[str, int] = {}
     for node in instances:
         uses[tm_scene.graph[node][1]] = uses.get(tm_scene.graph[node][1], 0) + 1
@@ -546,16 +577,32 @@ def _srgb_to_linear(c: np.ndarray) -> np.ndarray:
 
 def _texture_mean_linear(image) -> np.ndarray | None:
     """Mean linear RGB (3,) of an sRGB texture (PIL image): texels are decoded to linear
-    first, then averaged. None if the image cannot be read."""
+    first, then averaged. None if the image cannot be read; SceneLoadError if it has
+    more than MAX_TEXTURE_PIXELS. The image is shrunk in its own mode before any
+    conversion and closed after (trimesh keeps it in its material: 40 decoded 8000²
+    textures held 2 GiB), its mean kept in its ``info`` for other materials using it."""
+    info = getattr(image, "info", None)
+    if isinstance(info, dict) and _MEAN_KEY in info:
+        return info[_MEAN_KEY]
     try:
-        img = image.convert("RGB")
-        img.thumbnail((_TEXTURE_AVERAGE_SIZE, _TEXTURE_AVERAGE_SIZE))
-        texels = np.asarray(img, dtype=np.float64).reshape(-1, 3) / 255.0
+        width, height = image.size
     except Exception:
         return None
-    if texels.size == 0:
-        return None
-    return _srgb_to_linear(texels).mean(axis=0)
+    if width * height > MAX_TEXTURE_PIXELS:
+        raise SceneLoadError(f"a texture is {width}×{height} pixels, over the limit of {MAX_TEXTURE_PIXELS:,} "
+                             "pixels")
+    try:
+        img = image if image.mode in ("RGB", "RGBA", "L", "LA") else image.convert("RGBA")
+        img.thumbnail((_TEXTURE_AVERAGE_SIZE, _TEXTURE_AVERAGE_SIZE))  # JPEG: decoded at a reduced scale
+        texels = np.asarray(img.convert("RGB"), dtype=np.float64).reshape(-1, 3) / 255.0
+        mean = _srgb_to_linear(texels).mean(axis=0) if texels.size else None
+    except Exception:
+        mean = None
+    finally:
+        image.close()
+    if isinstance(info, dict):
+        info[_MEAN_KEY] = mean
+    return mean
 
 
 def _unit(x: object, default: float) -> float:

@@ -235,6 +235,54 @@ def test_glb_base_color_texture_mean():
     assert scene.objects[0].material.specular == 1.0  # metallicFactor absent -> glTF default 1
 
 
+def _textured_boxes_glb(image, n: int = 2) -> bytes:
+    """n boxes whose PBR materials share one base-colour texture `image`."""
+    import trimesh
+    from trimesh.visual.material import PBRMaterial
+
+    material = PBRMaterial(baseColorTexture=image)
+    boxes = []
+    for i in range(n):
+        box = trimesh.creation.box()
+        box.apply_translation((2.0 * i, 0, 0))
+        box.visual = trimesh.visual.TextureVisuals(uv=np.full((len(box.vertices), 2), 0.5), material=material)
+        boxes.append(box)
+    return trimesh.Scene(boxes).export(file_type="glb")
+
+
+def test_a_texture_shared_by_materials_is_averaged_once_and_released():
+    """A palette texture shared by two materials: both get its mean; the loader shrinks
+    and closes each decoded image (trimesh keeps it in its material)."""
+    from PIL import Image
+
+    from scenes.loaders import _texture_mean_linear
+
+    tex = np.zeros((64, 64), dtype=np.uint8)
+    tex[:, 32:] = 1
+    image = Image.fromarray(tex, mode="P")
+    image.putpalette([255, 0, 0, 0, 0, 255] + [0] * 762)  # index 0 red, 1 blue
+    scene = load_scene_bytes(_textured_boxes_glb(image), "glb")
+    expected = srgb_to_linear(np.array([[1.0, 0, 0], [0, 0, 1.0]])).mean(axis=0)
+    assert len(scene.objects) >= 1
+    for obj in scene.objects:
+        np.testing.assert_allclose(obj.material.albedo, expected, atol=1 / 255)
+    big = Image.new("L", (1024, 1024), 128)
+    np.testing.assert_allclose(_texture_mean_linear(big), srgb_to_linear(np.full(3, 128 / 255)), atol=1e-6)
+    with pytest.raises(ValueError):  # closed: its pixels are not held
+        big.getpixel((0, 0))
+    np.testing.assert_allclose(_texture_mean_linear(big), srgb_to_linear(np.full(3, 128 / 255)), atol=1e-6)
+
+
+def test_a_texture_over_the_pixel_limit_is_refused(monkeypatch):
+    from PIL import Image
+
+    import scenes.loaders
+
+    monkeypatch.setattr(scenes.loaders, "MAX_TEXTURE_PIXELS", 63)
+    with pytest.raises(SceneLoadError, match=r"a texture is 8×8 pixels, over the limit of 63 pixels"):
+        load_scene_bytes(_textured_boxes_glb(Image.new("RGB", (8, 8)), n=1), "glb")
+
+
 def test_ply_round_trip_with_vertex_colours():
     import trimesh
 
@@ -305,6 +353,51 @@ def test_structurally_broken_inputs():
     for fmt, needle, data in cases:
         with pytest.raises(SceneLoadError, match=needle):
             load_scene_bytes(data, fmt)
+
+
+def _triangle_gltf(nodes: int, **accessor) -> bytes:
+    """A glTF (embedded buffer) of one triangle placed by `nodes` nodes."""
+    import base64
+
+    data = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32).tobytes()
+    doc = {
+        "asset": {"version": "2.0"},
+        "buffers": [{"uri": "data:application/octet-stream;base64," + base64.b64encode(data).decode(),
+                     "byteLength": 36}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                       "min": [0, 0, 0], "max": [1, 1, 0], **accessor}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "nodes": [{"mesh": 0, "translation": [2.0 * i, 0, 0]} for i in range(nodes)],
+        "scenes": [{"nodes": list(range(nodes))}],
+    }
+    return json.dumps(doc).encode()
+
+
+def test_parts_limit_counts_gltf_nodes_and_obj_objects(monkeypatch):
+    """Load time grows with parts, not bytes: MAX_PARTS is checked before trimesh parses."""
+    import scenes.loaders
+
+    monkeypatch.setattr(scenes.loaders, "MAX_PARTS", 2)
+    assert load_scene_bytes(_triangle_gltf(2), "gltf").n_triangles == 2
+    with pytest.raises(SceneLoadError, match="glTF has 3 nodes, limit is 2"):
+        load_scene_bytes(_triangle_gltf(3), "gltf")
+    obj = "".join(f"o part{i}\nv {i} 0 0\nv {i + 1} 0 0\nv {i} 1 0\nf {3 * i + 1} {3 * i + 2} {3 * i + 3}\n"
+                  for i in range(3)).encode()
+    with pytest.raises(SceneLoadError, match=r"OBJ has 3 objects \('o' lines\), limit is 2"):
+        load_scene_bytes(obj, "obj")
+    assert load_scene_bytes(obj.replace(b"o part2\n", b""), "obj").n_triangles == 3
+
+
+def test_a_library_message_quoting_the_file_is_cut():
+    """trimesh's KeyError quotes the accessor type: at most LIBRARY_TEXT_CHARS of it."""
+    from scenes.loaders import LIBRARY_TEXT_CHARS
+
+    with pytest.raises(SceneLoadError) as err:
+        load_scene_bytes(_triangle_gltf(1, type="Q" * 10_000), "gltf")
+    message = str(err.value)
+    assert message.startswith("malformed glTF: ") and "Q" * 40 in message, message
+    assert message.count("Q") <= LIBRARY_TEXT_CHARS and "characters)" in message, message
 
 
 def test_gltf_external_buffer_not_fetched():
