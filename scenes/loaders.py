@@ -57,6 +57,15 @@ MAX_TEXTURE_PIXELS = 8192 * 8192
 #: time grows with them, not with the file's size (a 41 MB GLB of 800,000 nodes instancing
 #: one triangle took 139 s to load, longer than a render job may take to reload it).
 MAX_PARTS = 10_000
+#: Largest |coordinate| of an uploaded scene (cameras framing it stay within the
+#: service's ±1e12 camera coordinates).
+MAX_COORDINATE = 1e11
+#: Smallest bounding-box diagonal of an uploaded scene: GL depth images of a scene
+#: 1e-8 across came back empty (1e-6 across rendered).
+MIN_EXTENT = 1e-5
+#: Smallest diagonal relative to the largest |coordinate| (float32 vertices resolve
+#: 6e-8 of it: a millionth is about 17 steps across the whole scene).
+MIN_RELATIVE_EXTENT = 1e-6
 #: Where a texture's mean is kept in its PIL image's ``info`` (materials share images).
 _MEAN_KEY = "depthview_mean_linear"
 
@@ -158,9 +167,26 @@ def _load(data: bytes, fmt: str, name: str, max_triangles: int | None, resolver:
     if len(objects) > _MAX_OBJECTS:
         raise SceneLoadError(f"scene has {len(objects):,} distinct materials, limit is {_MAX_OBJECTS:,}")
     try:
-        return Scene(objects=objects, name=name)
+        scene = Scene(objects=objects, name=name)
     except ValueError as exc:
         raise SceneLoadError(f"invalid scene: {exc}") from exc
+    _check_extent(scene)
+    return scene
+
+
+def _check_extent(scene: Scene) -> None:
+    """SceneLoadError unless the scene's coordinates are within ±MAX_COORDINATE and its
+    bounding-box diagonal is at least MIN_EXTENT and MIN_RELATIVE_EXTENT × its largest
+    coordinate (float32 vertices)."""
+    lo, hi = scene.bounds
+    largest = float(max(np.abs(lo).max(), np.abs(hi).max()))
+    diagonal = float(np.linalg.norm(hi - lo))
+    if largest > MAX_COORDINATE:
+        raise SceneLoadError(f"scene coordinates reach {largest:.3g}, beyond ±{MAX_COORDINATE:.0e}")
+    if diagonal < MIN_EXTENT or diagonal < MIN_RELATIVE_EXTENT * largest:
+        raise SceneLoadError(f"scene is {diagonal:.3g} across (its bounding box's diagonal) at coordinates up to "
+                             f"{largest:.3g}: below {MIN_EXTENT:.0e} or a millionth of its distance from the "
+                             "origin, too small to render; scale it up or move it to the origin")
 
 
 def _check_limit(n_triangles: int | None, max_triangles: int | None, estimate: bool) -> None:

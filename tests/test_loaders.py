@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 import struct
 
 import numpy as np
@@ -387,6 +388,19 @@ def test_parts_limit_counts_gltf_nodes_and_obj_objects(monkeypatch):
     with pytest.raises(SceneLoadError, match=r"OBJ has 3 objects \('o' lines\), limit is 2"):
         load_scene_bytes(obj, "obj")
     assert load_scene_bytes(obj.replace(b"o part2\n", b""), "obj").n_triangles == 3
+
+
+@pytest.mark.parametrize("scale, offset, message", [
+    (1e-6, 0.0, "scene is 1.41e-06 across"),  # too small to render (depth images of 1e-8 came back empty)
+    (1.0, 1e7, "a millionth of its distance"),  # 1 across at 1e7: float32 steps of 1
+    (2e11, 0.0, "scene coordinates reach 2e+11, beyond ±1e+11"),
+])
+def test_scene_extent_out_of_range_is_refused(scale, offset, message):
+    obj = f"v {offset} 0 0\nv {offset + scale} 0 0\nv {offset} {scale} 0\nf 1 2 3\n".encode()
+    with pytest.raises(SceneLoadError, match=re.escape(message)):
+        load_scene_bytes(obj, "obj")
+    ok = f"v 0 0 0\nv {scale / 10 if scale > 1 else 1e-4} 0 0\nv 0 1e-4 0\nf 1 2 3\n".encode()
+    assert load_scene_bytes(ok, "obj").n_triangles == 1
 
 
 def test_a_library_message_quoting_the_file_is_cut():
