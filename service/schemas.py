@@ -261,6 +261,16 @@ MAX_SET_IMAGES = 16
 MAX_METRIC_VIEWS = 256
 
 
+def check_peeling_camera(method: str, cameras: list[Camera] | None) -> None:
+    """ValueError (a 422 naming the problem) when `method` is peeling and the
+    peeling viewpoint of `cameras` (``scenes.rig.peeling_camera``) is invalid."""
+    if method == "peeling" and cameras:
+        try:
+            peeling_camera(cameras)
+        except CameraError as exc:
+            raise ValueError(str(exc)) from exc
+
+
 class DepthImagesRequest(BaseModel):
     """``POST /scenes/{id}/depth-images``: a depth-image set (thesis Ch. 2).
 
@@ -289,13 +299,10 @@ class DepthImagesRequest(BaseModel):
     seed: StrictInt = Field(default=0, ge=0, lt=2**63, description="seed of the intermediate views")
 
     @model_validator(mode="after")
-    def _peeling_camera_is_valid(self) -> DepthImagesRequest:
-        cams = self.to_cameras()
-        if self.method == "peeling" and cams:
-            try:
-                peeling_camera(cams)
-            except CameraError as exc:  # a ValueError → 422 naming the problem
-                raise ValueError(str(exc)) from exc
+    def _valid_set(self) -> DepthImagesRequest:
+        if "redundancy" in self.model_fields_set and self.method != "non_redundant":
+            raise ValueError(f"redundancy applies to method non_redundant only, not {self.method}")
+        check_peeling_camera(self.method, self.to_cameras())
         return self
 
     def to_cameras(self) -> list[Camera] | None:
@@ -309,7 +316,8 @@ class DepthImagesRequest(BaseModel):
 class ReconstructionRequest(BaseModel):
     """``POST /scenes/{id}/reconstruction``: the reconstruction (thesis Ch. 3, Alg. 4)
     of a depth-image set as GLB, one node per source image that holds samples.
-    Reference viewpoints: ``cameras`` (square images of ``resolution``²), or the 4
+    Reference viewpoints: ``cameras`` (square images of ``resolution``²; peeling from
+    the single camera or the eyes' centroid, as ``DepthImagesRequest``), or the 4
     corners of ``light`` (peeling: its centre), or, with neither, of the default
     light sized to the scene."""
 
@@ -328,6 +336,7 @@ class ReconstructionRequest(BaseModel):
     def _viewpoints(self) -> ReconstructionRequest:
         if self.cameras is not None and self.light is not None:
             raise ValueError("give cameras or a light, not both")
+        check_peeling_camera(self.method, self.to_cameras())
         return self
 
     def to_cameras(self) -> list[Camera] | None:

@@ -138,6 +138,32 @@ def test_a_peeling_viewpoint_on_the_target_is_422_other_methods_render(client):
         assert r.status_code == 200, r.text
 
 
+def test_reconstruction_peels_from_the_same_viewpoint_as_the_set(client):
+    """Peeling from several cameras: /reconstruction peels from the eyes' centroid as
+    /depth-images does (it used to take the first camera and ignore the rest), and a
+    centroid on the target is 422 on both."""
+    c, sid = client
+    two = [{"eye": [1.5, 1, 3.5], "target": [0, 1, 0]}, {"eye": [-1.5, 1, 3.5], "target": [0, 1, 0]}]
+    centroid = [{"eye": [0, 1, 3.5], "target": [0, 1, 0]}]
+
+    def glb(cameras):
+        r = c.post(f"/scenes/{sid}/reconstruction", json={"method": "peeling", "cameras": cameras,
+                                                          "resolution": 32, "layers": 2})
+        assert r.status_code == 200, r.text
+        return r.content
+
+    assert glb(two) == glb(centroid) != glb(two[:1])
+    r = c.post(f"/scenes/{sid}/reconstruction", json={"method": "peeling", "cameras": FACING, "resolution": 32})
+    assert r.status_code == 422 and "peeling camera" in r.text, r.text
+
+
+@pytest.mark.parametrize("method", ["conventional", "peeling"])
+def test_redundancy_with_a_method_it_does_not_apply_to_is_422(client, method):
+    c, sid = client
+    r = post(c, sid, method=method, redundancy="visibility", format="npz")
+    assert r.status_code == 422 and "non_redundant only" in r.text, r.text
+
+
 def test_unknown_scene_is_404(client):
     c, _ = client
     assert post(c, "0" * 64).status_code == 404

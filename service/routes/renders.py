@@ -14,6 +14,7 @@ from fastapi.responses import JSONResponse
 from gl_passes.reconstruction import glb_bytes
 from scenes.lights import reference_cameras
 from scenes.model import AreaLight
+from scenes.rig import peeling_camera
 from service.budget import check_budget, frame_bytes, reconstruction_bytes, set_bytes
 from service.deps import RenderDep, check_size, require_token
 from service.depth_sets import encode_set, plan_set
@@ -84,12 +85,12 @@ async def reconstruct(scene_id: str, req: ReconstructionRequest, r: RenderDep) -
             spec = req.light
             light = resolve_light(scene, None if spec is None else AreaLight(spec.center, spec.u, spec.v))
             cams = reference_cameras(light, scene.bounds, req.method, req.resolution)
+        elif req.method == "peeling":
+            cams = [peeling_camera(cams).fit_clip(scene.bounds)]
         else:
             cams = [c.fit_clip(scene.bounds) for c in cams]
     except ValueError as exc:
         raise HTTPException(422, f"reconstruction viewpoints: {exc}") from None
-    if req.method == "peeling":
-        cams = cams[:1]
     job = ReconstructionJob(scene_id, scene, cams, req.method, req.reconstruction, req.layers, req.sides)
     parts = await r.job(job, f"reconstruction {scene_id[:12]}")
     names = [f"{req.method}_{k}" for k in range(len(parts))]
@@ -109,7 +110,10 @@ async def render_depth_images(scene_id: str, req: DepthImagesRequest, r: RenderD
     check_size(r.settings, req.width, req.height, "depth image")
     check_budget(r.settings, set_bytes(req))
     scene = await r.scene(scene_id)
-    plan = plan_set(scene, req.method, req.redundancy, req.to_cameras(), req.width, req.height, req.layers)
+    try:
+        plan = plan_set(scene, req.method, req.redundancy, req.to_cameras(), req.width, req.height, req.layers)
+    except ValueError as exc:  # CameraError: e.g. a scene too small for the rig's cameras
+        raise HTTPException(422, f"depth-image viewpoints: {exc}") from None
     job = SetJob(scene_id, scene, plan, req.intermediate_views if req.metrics else None, req.seed)
     images, metrics = await r.job(job, f"depth images {scene_id[:12]}")
     body = await r.encode(encode_set, images, req.format)
