@@ -117,11 +117,18 @@ async def validation_error(request: Request, exc: Exception) -> JSONResponse:
         return JSONResponse({"detail": "request body is not valid JSON" + (f": {where}" if where else "")},
                             status_code=400)
     ctype = request.headers.get("content-type", "")
-    if "json" not in ctype.lower() and any(e.get("type") == "model_attributes_type" and tuple(e.get("loc", ())) ==
+    if not json_media_type(ctype) and any(e.get("type") == "model_attributes_type" and tuple(e.get("loc", ())) ==
                                            ("body",) for e in errors):  # e.g. curl -d without -H
         return JSONResponse({"detail": "the request body is JSON: send Content-Type: application/json (got "
                                        + (repr(cut(ctype)) if ctype else "none") + ")"}, status_code=415)
     return JSONResponse({"detail": validation_details(errors)}, status_code=422)
+
+
+def json_media_type(content_type: str) -> bool:
+    """Whether FastAPI parses a body of this Content-Type as JSON: application/json or
+    application/*+json (``text/json`` is not: such a body reaches validation as a string)."""
+    media = content_type.split(";", 1)[0].strip().lower()
+    return media == "application/json" or (media.startswith("application/") and media.endswith("+json"))
 
 
 def validation_details(errors: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:

@@ -292,7 +292,7 @@ def test_malformed_json_is_400_on_every_endpoint_saying_what_and_where(client, u
 
 @pytest.mark.parametrize("url", [f"/scenes/{CORNELL}/frames", f"/scenes/{CORNELL}/depth-images",
                                  f"/scenes/{CORNELL}/reconstruction"])
-@pytest.mark.parametrize("ctype", ["application/x-www-form-urlencoded", "text/plain", None])
+@pytest.mark.parametrize("ctype", ["application/x-www-form-urlencoded", "text/plain", "text/json", None])
 def test_json_without_a_json_content_type_is_415_saying_so(client, url, ctype):
     """curl -d sends form encoding: the answer names the header to send, not the body."""
     body = json.dumps(frame_body()).encode()
