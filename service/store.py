@@ -290,6 +290,20 @@ class SceneStore:
             raise ValueError(f"meta.json id {meta.id} does not match its directory")
         return meta
 
+    def _put(self, meta: SceneMeta, files: Mapping[str, bytes], tries: int = 3) -> tuple[SceneMeta, bool]:
+        """Store a scene: (meta, True), or (the stored meta, False) when it was there
+        already. A concurrent DELETE of the same id between the write and the read is
+        retried (the answer was a 404 to the POST)."""
+        for attempt in range(tries):
+            try:
+                if self._write_new(meta, files):
+                    return meta, True
+                return self._read_meta(meta.id), False
+            except (SceneNotFound, FileNotFoundError):
+                if attempt == tries - 1:
+                    raise
+        raise AssertionError("unreachable")
+
     def _write_new(self, meta: SceneMeta, files: Mapping[str, bytes]) -> bool:
         """Create the scene directory atomically. Returns False if it already
         existed with readable meta (content-addressed: nothing to do)."""
@@ -394,9 +408,7 @@ class SceneStore:
         meta = SceneMeta(id=sid, kind="upload", name=display, triangles=scene.n_triangles, created_at=time.time(),
                          format=fmt, size_bytes=len(data), objects=len(scene.objects),
                          bounds=[[float(x) for x in lo], [float(x) for x in hi]])
-        created = self._write_new(meta, {f"source.{fmt}": data})
-        if not created:
-            meta = self._read_meta(sid)
+        meta, created = self._put(meta, {f"source.{fmt}": data})
         self._cache_put(sid, scene)
         return meta, created
 
@@ -426,8 +438,7 @@ class SceneStore:
         description = builtin_description(name)
         meta = SceneMeta(id=sid, kind="builtin", name=name, triangles=estimate, created_at=time.time(),
                          builtin=name, params=p, description=description, triangles_estimated=True)
-        created = self._write_new(meta, {})
-        return (meta if created else self._read_meta(sid)), created
+        return self._put(meta, {})
 
     # --- scenes ----------------------------------------------------------------------
     def _cache_put(self, scene_id: str, scene: Scene) -> None:

@@ -110,6 +110,25 @@ def test_concurrent_identical_uploads_agree(store):
     assert len([m for m in store.list() if not m.default]) == 1
 
 
+@pytest.mark.parametrize("kind", ["upload", "builtin"])
+def test_a_scene_deleted_while_an_identical_one_is_stored_is_stored_again(store, kind):
+    """Identical upload A finds B's copy there (not created) and B deletes it before A
+    reads its meta: A stores it again instead of answering 'not found' (a 404 to a POST)."""
+    write_new, raced = store._write_new, []
+
+    def racing_write_new(meta, files):
+        if raced:
+            return write_new(meta, files)
+        raced.append(write_new(meta, files))  # the other request's copy
+        store.delete(meta.id)  # ... which it deletes at once
+        return False  # this request found it there
+
+    store._write_new = racing_write_new
+    meta, created = (store.put_upload(obj_text(3), "obj") if kind == "upload"
+                     else store.put_builtin("cornell", {"detail": 0.3}))
+    assert raced == [True] and created and store.get_meta(meta.id) == meta
+
+
 def test_bad_uploads(store):
     with pytest.raises(UnsupportedFormat):
         store.put_upload(obj_text(), "stl")
