@@ -146,9 +146,9 @@ def kinds() -> list[Kind]:
 
 # --- measuring ----------------------------------------------------------------------------
 
-def status_kib(name: str) -> int:
-    """A `Vm*` field of /proc/self/status in KiB."""
-    for line in Path("/proc/self/status").read_text().splitlines():
+def status_kib(name: str, pid: int | str = "self") -> int:
+    """A `Vm*` field of /proc/<pid>/status in KiB."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith(name + ":"):
             return int(line.split()[1])
     raise KeyError(name)
@@ -188,10 +188,11 @@ def post(client: Any, sid: str, kind: Kind, body: dict[str, Any]) -> Any:
     return r
 
 
-def measure_kind(kind: Kind, reset_peak: bool) -> tuple[dict[str, Any], dict[str, Any]]:
+def measure_kind(kind: Kind, reset_peak: bool, workers: int = 0) -> tuple[dict[str, Any], dict[str, Any]]:
     """The warm-up, then the measured request of `kind` on a fresh in-process service
-    (`reset_peak`: VmHWM reset by clear_refs first): (its row, the service's readiness,
-    which names its GL renderer)."""
+    (`reset_peak`: VmHWM reset by clear_refs first; `workers` > 0: that many worker
+    processes, whose added peaks are added to the service process's): (its row, the
+    service's readiness, which names its GL renderer)."""
     from fastapi.testclient import TestClient
 
     from service.app import create_app
@@ -199,7 +200,7 @@ def measure_kind(kind: Kind, reset_peak: bool) -> tuple[dict[str, Any], dict[str
     from service.testing import wait_ready
 
     with tempfile.TemporaryDirectory() as tmp:
-        app = create_app(Settings(**{"data_dir": Path(tmp), "workers": 0, "job_timeout_s": 900.0,
+        app = create_app(Settings(**{"data_dir": Path(tmp), "workers": workers, "job_timeout_s": 900.0,
                                      **kind.settings}))
         with TestClient(app) as client:
             ready = wait_ready(client, timeout=60.0)
@@ -208,26 +209,31 @@ def measure_kind(kind: Kind, reset_peak: bool) -> tuple[dict[str, Any], dict[str
             sid = r.json()["id"]
             post(client, sid, kind, kind.warm)
             settle()
+            pids: list[int | str] = ["self", *(p for p in getattr(app.state.worker, "pids", []) if p)]
             if reset_peak:
-                CLEAR_REFS.write_text("5")
-            before = status_kib("VmRSS")
+                for pid in pids:
+                    Path(f"/proc/{pid}/clear_refs").write_text("5")
+            before = {pid: status_kib("VmRSS", pid) for pid in pids}
             t0 = time.perf_counter()
             body_bytes = len(post(client, sid, kind, kind.body).content)  # the body is held while VmHWM is read
             seconds = time.perf_counter() - t0
-            peak = status_kib("VmHWM")
+            peak = {pid: status_kib("VmHWM", pid) for pid in pids}
             settle()
             after = status_kib("VmRSS")
     need, terms = estimate(kind)
-    added = (peak - before) * 1024
+    by_process = {("service" if pid == "self" else "worker"): (peak[pid] - before[pid]) * 1024 for pid in pids}
+    added = sum(by_process.values())
     return {"kind": kind.name, "scene": kind.scene, "route": kind.route, "request": kind.body,
             "warm_up": kind.warm, "note": kind.note, "unit": kind.unit, "units": kind.units(kind.body),
-            "rss_before_bytes": before * 1024, "peak_bytes": peak * 1024, "added_bytes": added,
-            "kept_bytes": (after - before) * 1024, "settings": kind.settings,
+            "rss_before_bytes": before["self"] * 1024, "peak_bytes": peak["self"] * 1024, "added_bytes": added,
+            "added_by_process_bytes": by_process, "workers": workers,
+            "kept_bytes": (after - before["self"]) * 1024, "settings": kind.settings,
             "response_bytes": body_bytes, "request_seconds": seconds, "estimate_bytes": need,
             "estimate_terms": terms, "estimate_over_measured": need / added if added > 0 else None}, ready
 
 
-def measure_all(selected: list[Kind], reset_peak: bool, repeat: int) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+def measure_all(selected: list[Kind], reset_peak: bool, repeat: int, workers: int = 0
+                ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """Each kind `repeat` times (in rounds over the kinds) by `measure_kind`, each time
     in a fresh interpreter (no reconstruction, shadow maps or heap left by another
     request): (per kind the row of its largest added peak, with every run's added
@@ -237,7 +243,7 @@ def measure_all(selected: list[Kind], reset_peak: bool, repeat: int) -> tuple[li
     for _ in range(repeat):
         for kind in selected:
             cmd = [sys.executable, "-m", "bench.memory_budget", "--child", kind.key,
-                   *([] if reset_peak else ["--no-reset"])]
+                   "--workers", str(workers), *([] if reset_peak else ["--no-reset"])]
             out = subprocess.run(cmd, capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1])
             if out.returncode != 0:
                 raise RuntimeError(f"{kind.name} failed (exit {out.returncode}):\n{out.stderr[-4000:]}")
@@ -269,10 +275,16 @@ def size_of(row: dict[str, Any]) -> str:
 
 def report(rows: list[dict[str, Any]], info: dict[str, Any], command: str, seconds: float, commit: str,
            method: str) -> str:
+    workers = rows[0].get("workers", 0) if rows else 0
+
+    def split(r: dict[str, Any]) -> str:
+        parts = r.get("added_by_process_bytes") or {}
+        return "" if not workers else " (" + " + ".join(f"{k} {v / MIB:.0f}" for k, v in parts.items()) + ")"
+
     table = md_table(
-        ["request", "scene", "size", "measured added peak", "per unit", "estimate", "estimate ÷ measured",
-         "runs", "kept after", "request s"],
-        [[r["kind"], r["scene"], size_of(r), f"{r['added_bytes'] / MIB:.0f} MiB",
+        ["request", "scene", "size", "measured added peak" + (" (service + worker, MiB)" if workers else ""),
+         "per unit", "estimate", "estimate ÷ measured", "runs", "kept after", "request s"],
+        [[r["kind"], r["scene"], size_of(r), f"{r['added_bytes'] / MIB:.0f} MiB{split(r)}",
           f"{r['added_bytes'] / r['units']:.0f} B / {r['unit']}", f"{r['estimate_bytes'] / MIB:.0f} MiB",
           f"{r['estimate_over_measured']:.2f}" if r["estimate_over_measured"] else "—",
           ", ".join(f"{b / MIB:.0f}" for b in r["added_runs_bytes"]), f"{r['kept_bytes'] / MIB:.0f} MiB",
@@ -288,8 +300,12 @@ def report(rows: list[dict[str, Any]], info: dict[str, Any], command: str, secon
         "## What was run", "",
         f"- Command: `{command}` (module docstring: bench/memory_budget.py)",
         f"- Commit {commit}; wall time {seconds / 60:.1f} min.",
-        "- The real app in-process (TestClient, render worker thread, default settings but `workers=0`), a "
-        "fresh one per kind; each kind first gets a small warm-up request of the same kind (`warm_up` in the "
+        ("- The real app in-process (TestClient, render worker thread, default settings but `workers=0`), a "
+         if not workers else
+         f"- The real app (TestClient) with {workers} render worker process(es) (`workers={workers}`; the "
+         "service's default is worker processes), the added peaks of the service process and of the worker "
+         "process summed, default settings otherwise, a ")
+        + "fresh one per kind; each kind first gets a small warm-up request of the same kind (`warm_up` in the "
         "json), then the measured request.",
         f"- Peak: {method}. On llvmpipe GPU memory is host memory, so it is in the RSS.",
         "- Estimate: the route's own function (`service.budget.frame_bytes`, `set_bytes`, "
@@ -312,6 +328,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--kinds", type=lambda s: s.split(","), default=None,
                     help="comma list of kind keys (`kinds`; default: all)")
     ap.add_argument("--repeat", type=int, default=2, help="runs per kind (the largest peak is reported)")
+    ap.add_argument("--workers", type=int, default=0,
+                    help="worker processes (0: the render worker is a thread of the service process); "
+                         "results go to memory_budget_workers<N>.*")
     ap.add_argument("--out", type=Path, default=RESULTS_DIR)
     ap.add_argument("--report-only", action="store_true", help="rewrite the report from the json")
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)  # one kind, JSON to stdout
@@ -319,33 +338,35 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     by_key = {k.key: k for k in kinds()}
     if args.child:
-        row, ready = measure_kind(by_key[args.child], reset_peak=args.reset)
+        row, ready = measure_kind(by_key[args.child], reset_peak=args.reset, workers=args.workers)
         print(json.dumps({"row": row, "ready": ready}))
         return 0
+    stem = "memory_budget" + (f"_workers{args.workers}" if args.workers else "")
     if args.report_only:
-        data = json.loads((args.out / "memory_budget.json").read_text())
-        write_text(args.out / "memory_budget.md", report(data["rows"], data["machine"], data["command"],
-                                                         data["seconds"], data["commit"], data["method"]))
-        print(f"rewrote {args.out / 'memory_budget.md'}")
+        data = json.loads((args.out / f"{stem}.json").read_text())
+        write_text(args.out / f"{stem}.md", report(data["rows"], data["machine"], data["command"],
+                                                   data["seconds"], data["commit"], data["method"]))
+        print(f"rewrote {args.out / f'{stem}.md'}")
         return 0
     selected = [by_key[n] for n in args.kinds] if args.kinds else list(by_key.values())
     command = ("python -m bench.memory_budget" + (f" --kinds {','.join(args.kinds)}" if args.kinds else "")
-               + (f" --repeat {args.repeat}" if args.repeat != 2 else ""))
+               + (f" --repeat {args.repeat}" if args.repeat != 2 else "")
+               + (f" --workers {args.workers}" if args.workers else ""))
     reset = clear_refs_writable()
     method = ("each kind on its own fresh service in a fresh interpreter; VmHWM after the request − VmRSS before "
               "it, " + ("VmHWM reset by writing 5 to /proc/self/clear_refs after gc.collect() and malloc_trim(0)"
                         if reset else "VmHWM not reset (clear_refs not writable): it starts at the warm-up's peak"))
     t0 = time.perf_counter()
-    rows, ready = measure_all(selected, reset, args.repeat)
+    rows, ready = measure_all(selected, reset, args.repeat, args.workers)
     seconds = time.perf_counter() - t0
     gl = SimpleNamespace(backend=ready.get("backend"), renderer=ready.get("renderer"),
                          version=ready.get("gl_version"), is_software=ready.get("software"))
     info = machine_info(gl)
     commit = git_revision()
-    write_json(args.out / "memory_budget.json", {"command": command, "commit": commit, "seconds": seconds,
-                                                 "method": method, "machine": info, "rows": rows})
-    write_text(args.out / "memory_budget.md", report(rows, info, command, seconds, commit, method))
-    print(f"wrote {args.out / 'memory_budget.md'}")
+    write_json(args.out / f"{stem}.json", {"command": command, "commit": commit, "seconds": seconds,
+                                           "method": method, "machine": info, "rows": rows})
+    write_text(args.out / f"{stem}.md", report(rows, info, command, seconds, commit, method))
+    print(f"wrote {args.out / f'{stem}.md'}")
     return 0
 
 

@@ -37,7 +37,7 @@ workers                ``auto``: one per NVIDIA     render worker processes, eac
                                                     a timed-out job still runs to its end there)
 max_json_bytes         1 MiB (1048576)              largest request body of every endpoint but a
                                                     scene upload (Content-Length or counted) → 413
-max_job_bytes          6 GiB (6442450944)           memory budget of one render request, estimated
+max_job_bytes          7 GiB (7516192768)           memory budget of one render request, estimated
                                                     up front by ``service.budget`` → 422 naming the
                                                     estimate and the budget (formulas below)
 header_timeout_s       10                           seconds a connection may take to send a request's
@@ -74,17 +74,17 @@ request alone, before the scene is loaded or a job queued (``service.budget``;
 W×H the image size, n the number of images, r the reconstruction resolution, k the
 light samples per side, S the shadow-map resolution 1024):
 
-* frame: W·H·``FRAME_BYTES_PER_PIXEL`` (256 B: G-buffer readback, float copies, encoding);
+* frame: W·H·``FRAME_BYTES_PER_PIXEL`` (400 B: G-buffer readback, float copies, encoding);
   with reflections ×4 (2×2 supersampling; glossy lobes are traced in fixed-size chunks);
 * soft shadows: the frame + W·H·2·(k²/8 + 8) B of visibility bits + n·r²·
   ``RECONSTRUCTION_BYTES_PER_SAMPLE`` (n = 4 images, none for ``geometry`` and ``raytrace``;
   336 B per sample: the sample and its offset image, its quad on CPU and GPU)
   + S²·min(k², 16)·4 B of shadow-map atlas (not for ``raytrace``);
 * reconstruction: n·r²·``RECONSTRUCTION_BYTES_PER_SAMPLE`` (the GLB included);
-* depth-image set: n·W·H·``SET_BYTES_PER_PIXEL`` (144 B), doubled with ``metrics``
+* depth-image set: n·W·H·``SET_BYTES_PER_PIXEL`` (272 B), doubled with ``metrics``
   (the conventional images beside the set).
 
-The costs were measured (see the constants); 6 GiB admits every single-image limit
+The costs were measured (see the constants); 7 GiB admits every single-image limit
 (a 4096² frame, 4 reconstructed images at 2048²) and refuses 16 images at 2048².
 What a worker keeps between requests (reconstructions, a light's k² shadow maps,
 drawn in place of the one atlas above when they fit) is bounded by
@@ -109,13 +109,15 @@ MIB = 1024 * 1024
 # Per-unit costs of the memory-budget estimate (``max_job_bytes``; formulas in the
 # module docstring, applied by ``service.budget``). Calibrated by the peak resident
 # memory one request adds to a warm service on llvmpipe (GPU memory is host memory
-# there), per request kind against this estimate: bench/memory_budget.py, results in
-# bench/results/memory_budget.md.
+# there), per request kind against this estimate, the larger of: the render worker a
+# thread of the service (bench/results/memory_budget.md) and the default, a worker
+# process, whose result the service process holds again to shade and encode it (the
+# two processes' peaks summed: bench/results/memory_budget_workers1.md).
 #: Bytes per frame pixel: G-buffer readback (RGB, depth, normal, position, ids, mask),
 #: the float copies made while shading and the encoded image.
-FRAME_BYTES_PER_PIXEL = 256
+FRAME_BYTES_PER_PIXEL = 400
 #: Bytes per pixel of one image of a depth-image set.
-SET_BYTES_PER_PIXEL = 144
+SET_BYTES_PER_PIXEL = 272
 #: Bytes per reference-image sample of a reconstruction: the sample and its offset
 #: image, its quad (vertices, colours, indices) on the CPU and the GPU, the readback.
 RECONSTRUCTION_BYTES_PER_SAMPLE = 336
@@ -182,7 +184,7 @@ class Settings:
     #: Largest request body of every endpoint except scene uploads (413 above it).
     max_json_bytes: int = MIB
     #: Memory budget of one render request in bytes, estimated up front (422 above it).
-    max_job_bytes: int = 6 * 1024 * MIB
+    max_job_bytes: int = 7 * 1024 * MIB
     #: Seconds a connection may take to deliver a request's headers before it is closed.
     header_timeout_s: float = 10.0
     #: Seconds to wait for the next chunk of a request body (408 and close after it).

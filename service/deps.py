@@ -166,6 +166,7 @@ class Render:
         result = asyncio.ensure_future(asyncio.wrap_future(fut))
         if self.request is None:
             return await asyncio.wait_for(result, timeout)
+        deadline = asyncio.get_running_loop().time() + timeout
         gone = asyncio.ensure_future(_disconnect(self.request))
         try:
             done, _ = await asyncio.wait({result, gone}, timeout=timeout, return_when=asyncio.FIRST_COMPLETED)
@@ -173,6 +174,8 @@ class Render:
             gone.cancel()
         if result in done:
             return result.result()
+        if gone in done and gone.exception() is not None:  # no way to watch the client: wait for the job alone
+            return await asyncio.wait_for(result, max(0.0, deadline - asyncio.get_running_loop().time()))
         result.cancel()
         raise ClientGone if gone in done else asyncio.TimeoutError
 

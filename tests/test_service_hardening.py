@@ -71,7 +71,7 @@ def test_settings_from_env_new_settings_and_none_overrides():
     assert s.token == "t0k" and s.cors_origins == ("https://a.example", "https://b.example")
     assert (s.max_json_bytes, s.max_job_bytes, s.body_timeout_s) == (4096, 1_000_000, 2.5)
     d = Settings.from_env({})
-    assert (d.token, d.cors_origins, d.max_json_bytes, d.max_job_bytes) == (None, (), 1 << 20, 6 << 30)
+    assert (d.token, d.cors_origins, d.max_json_bytes, d.max_job_bytes) == (None, (), 1 << 20, 7 << 30)
     assert (d.header_timeout_s, d.body_timeout_s) == (10.0, 30.0)
     with pytest.raises(ValueError, match="DEPTHVIEW_MAX_JOB_BYTES"):
         Settings.from_env({"DEPTHVIEW_MAX_JOB_BYTES": "lots"})
@@ -162,13 +162,14 @@ def test_error_messages_quote_only_an_excerpt_of_the_input(client, path, body):
 
 # --- the memory budget -----------------------------------------------------------------------------
 def test_memory_budget_refuses_large_requests_up_front(client):
-    """16 layers at 2048² (6.8 GB measured) is over the default 6 GiB; the scene is not
-    even looked up (an unknown id still gets 422, not 404)."""
+    """16 layers at 2048² (17 GiB estimated) is over the default 7 GiB; the scene is not
+    even looked up (an unknown id still gets 422, not 404). A 4096² frame, the largest,
+    is within it."""
     r = client.post(f"/scenes/{UNKNOWN}/depth-images",
                     json={"method": "peeling", "layers": 16, "width": 2048, "height": 2048})
     assert r.status_code == 422, r.text
     detail = r.json()["detail"]
-    assert "memory budget of 6.00 GiB" in detail and "16 images of 2048×2048" in detail
+    assert "memory budget of 7.00 GiB" in detail and "16 images of 2048×2048" in detail
     assert "DEPTHVIEW_MAX_JOB_BYTES" in detail
     r = client.post(f"/scenes/{UNKNOWN}/reconstruction",
                     json={"cameras": [CAMERA] * 16, "resolution": 2048})
@@ -177,6 +178,8 @@ def test_memory_budget_refuses_large_requests_up_front(client):
                                                                   effects={"reflections": "cluster"}))
     assert r.status_code == 422 and "reflections" in r.json()["detail"]
     # Within the budget the same endpoints go on (404: the unknown scene is looked up).
+    r = client.post(f"/scenes/{UNKNOWN}/frames", json=frame_body(width=4096, height=4096))
+    assert r.status_code == 404
     r = client.post(f"/scenes/{UNKNOWN}/depth-images", json={"method": "peeling", "layers": 4, "width": 512,
                                                               "height": 512})
     assert r.status_code == 404
