@@ -175,7 +175,8 @@ def any_redundant(caster: RayCaster, images: Sequence[DepthImage], pts: np.ndarr
 
 def depth_image_from_hits(caster: RayCaster, camera: Camera, hits: Hits, directions: np.ndarray) -> DepthImage:
     """DepthImage (row 0 = top) from per-pixel hits of `camera`'s pixel rays,
-    shaded exactly like RayCaster.gbuffer; misses hold no sample (colour = sky)."""
+    shaded exactly like RayCaster.gbuffer; misses hold no sample (colour 0, as the GL
+    depth images' background)."""
     h, w = camera.height, camera.width
     d = np.asarray(directions, np.float64).reshape(-1, 3)
     col, n = caster.shade_hits(hits, d)
@@ -187,7 +188,7 @@ def depth_image_from_hits(caster: RayCaster, camera: Camera, hits: Hits, directi
     pos = np.where(hit[:, None], eye + d * t[:, None], 0.0)
     return DepthImage(
         camera=camera,
-        color=col.reshape(h, w, 3).astype(np.float32),
+        color=np.where(hit[:, None], col, 0.0).reshape(h, w, 3).astype(np.float32),
         depth=depth.reshape(h, w).astype(np.float32),
         normal=n.reshape(h, w, 3).astype(np.float32),
         position=pos.reshape(h, w, 3).astype(np.float32),

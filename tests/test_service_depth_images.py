@@ -99,6 +99,8 @@ def test_visibility_redundancy_is_served_by_embree(client):
     for k, ((_, ch), im) in enumerate(zip(parts, expected, strict=True)):
         assert_images_equal(ch["Z"], im.depth, f"depth_{k}")  # first: writes the depth images on failure
         np.testing.assert_array_equal(ch["id"], im.tri_id, err_msg=f"image_{k} id")
+        empty = ch["id"] == 0  # no sample: colour 0 as in the GL sets (it was the sky colour)
+        assert empty.any() and not ch["RGB"][empty].any() and ch["RGB"][~empty].any(), f"image_{k} colour"
     assert (parts[1][1]["id"] > 0).any()  # later images hold samples (what the earlier views cannot see)
 
 
