@@ -128,6 +128,8 @@ class Metrics:
         metric("depthview_ready", "gauge", "1 when the render worker's GL context is alive.", [("", int(w["ready"]))])
         metric("depthview_workers_alive", "gauge", "Render workers alive (the thread, or processes "
                "with DEPTHVIEW_WORKERS).", [("", int(w["alive"]))])
+        metric("depthview_workers_replaced_total", "counter", "Worker processes replaced (died, lost their GL "
+               "context or ran a job past its time limit).", [("", int(w.get("workers_replaced", 0)))])
         metric("depthview_jobs_total", "counter", "Render jobs by outcome.", [
             ('{outcome="done"}', w["jobs_done"]), ('{outcome="failed"}', w["jobs_failed"]),
             ('{outcome="expired"}', w["jobs_expired"]), ('{outcome="rejected"}', w["jobs_rejected"])])
@@ -146,6 +148,8 @@ class Metrics:
                [(f'{{status="{k}"}}', v) for k, v in errors])
         metric("depthview_frames_streamed_total", "counter", "Frames sent over the stream.", [("", streamed)])
         metric("depthview_uploads_total", "counter", "Scene upload requests accepted.", [("", uploads)])
-        metric("depthview_gpu_scenes_cached", "gauge", "Scenes uploaded to the GPU.", [("", w["gpu_scenes_cached"])])
+        if w.get("gpu_scenes_cached") is not None:  # the worker thread's; each worker process keeps its own
+            metric("depthview_gpu_scenes_cached", "gauge", "Scenes uploaded to the GPU (worker thread only).",
+                   [("", w["gpu_scenes_cached"])])
         metric("depthview_scenes_cached", "gauge", "Parsed scenes in memory.", [("", scenes_cached)])
         return "\n".join(out) + "\n"

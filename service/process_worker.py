@@ -41,6 +41,8 @@ log = logging.getLogger("depthview.worker")
 
 #: Seconds a new worker process may take to import, create its GL context and report.
 STARTUP_TIMEOUT_S = 120.0
+#: How long to wait for a worker process whose pipe broke to be reaped (its exit code).
+DEATH_REAP_S = 2.0
 #: How often an idle dispatcher checks that its worker process is still alive.
 IDLE_CHECK_S = 0.5
 
@@ -170,7 +172,8 @@ class ProcessWorkerPool:
 
     @property
     def ready(self) -> bool:
-        return not self._stopping and any(s.ready for s in self._slots)
+        return not self._stopping and any(s.ready and s.process is not None and s.process.is_alive()
+                                          for s in self._slots)
 
     @property
     def alive(self) -> int:
@@ -267,7 +270,8 @@ class ProcessWorkerPool:
                 "jobs_rejected": self.jobs_rejected, "job_seconds_sum": self.job_seconds_sum,
                 "job_seconds_count": self.job_seconds_count, "queue_wait_seconds_sum": self.queue_wait_seconds_sum,
                 "last_job_seconds": self.last_job_seconds, "queue_depth": self._queued(),
-                "queue_capacity": self.queue_size, "busy": self.busy, "gpu_scenes_cached": 0,
+                "queue_capacity": self.queue_size, "busy": self.busy,
+                "gpu_scenes_cached": None,  # each process keeps its own upload cache
             }
 
     # --- the worker processes ---------------------------------------------------------------
@@ -415,6 +419,7 @@ class ProcessWorkerPool:
                                          f"render worker process {pid} was killed and is being replaced"))
             self._replace(slot, f"job {job.label!r} ran past its time limit")
         else:
+            slot.process.join(DEATH_REAP_S)  # the pipe broke first: reap it for its exit code (-9: SIGKILL)
             code = slot.process.exitcode
             fut.set_exception(WorkerDied(f"render worker process {pid} died (exit code {code}) while running "
                                          f"{job.label or 'a render job'}; it is being replaced"))

@@ -87,8 +87,17 @@ def test_a_killed_worker_fails_its_job_naming_it_and_is_replaced(client):
     assert pool.pids[0] not in (None, pid) and pool.workers_replaced == replaced + 1
     idle = pool.pids[0]
     os.kill(idle, signal.SIGKILL)  # killed while idle: replaced without waiting for a request
+    ready_while_dead = []  # /readyz must not say ready while no worker process is alive
+    deadline = time.monotonic() + 30
+    while pool.workers_replaced < replaced + 2 and time.monotonic() < deadline:
+        if pool.alive == 0:
+            ready_while_dead.append(pool.ready)
+    assert ready_while_dead and not any(ready_while_dead)
     wait_until(lambda: pool.workers_replaced == replaced + 2 and pool.ready, 30)
-    assert pool.pids[0] != idle and "depthview_workers_alive 1" in client.get("/metrics").text
+    text = client.get("/metrics").text
+    assert pool.pids[0] != idle and "depthview_workers_alive 1" in text
+    assert f"depthview_workers_replaced_total {replaced + 2}" in text
+    assert "depthview_gpu_scenes_cached" not in text  # in the processes: not reported as 0
     assert frame(client).status_code == 200
 
 
@@ -207,7 +216,7 @@ def test_the_handler_answers_503_naming_the_dead_worker(client):
     with pytest.raises(HTTPException) as info:
         asyncio.run(run())
     assert info.value.status_code == 503 and info.value.headers["Retry-After"]
-    assert f"process {pid} died" in info.value.detail and "sleepy frame" in info.value.detail
+    assert f"process {pid} died (exit code -9)" in info.value.detail and "sleepy frame" in info.value.detail
     assert frame(client).status_code == 200
 
 
