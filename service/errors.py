@@ -194,7 +194,8 @@ def install(app: FastAPI) -> None:
 def responses(statuses: dict[int, str]) -> dict[int | str, dict[str, Any]]:
     """OpenAPI ``responses`` for the statuses a route documents: each with its
     description and schema — ErrorResponse, or for 422 ValidationErrorResponse or
-    ErrorResponse (a limit, the budget or a job refusing its parameters)."""
+    ErrorResponse (a limit, the budget or a job refusing its parameters); a 503 with
+    its Retry-After header."""
     out: dict[int | str, dict[str, Any]] = {}
     for code, description in statuses.items():
         if code == 422:
@@ -204,4 +205,8 @@ def responses(statuses: dict[int, str]) -> dict[int | str, dict[str, Any]]:
         else:
             out[code] = {"description": description, "content": {"application/json": {"schema": {
                 "$ref": "#/components/schemas/ErrorResponse"}}}}
+        if code == 503:
+            out[code]["headers"] = {"Retry-After": {
+                "description": "seconds to wait before retrying (DEPTHVIEW_RETRY_AFTER_S)",
+                "schema": {"type": "integer"}}}
     return out

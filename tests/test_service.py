@@ -112,6 +112,8 @@ def test_openapi_docs(client):
         assert path in spec["paths"]
     assert "BuiltinSceneRequest" in spec["components"]["schemas"]
     assert "FrameRequest" in spec["components"]["schemas"]
+    busy = spec["paths"]["/scenes/{scene_id}/frames"]["post"]["responses"]["503"]
+    assert busy["headers"]["Retry-After"]["schema"] == {"type": "integer"}
     page = client.get("/docs")
     assert page.status_code == 200 and "/openapi.json" in page.text
     # Swagger UI comes from this host (npm's swagger-ui-dist), not a CDN: the page works offline
