@@ -14,7 +14,8 @@ optional integer ``id``). The server sends, as JSON text:
   replaced by later ones since the previous frame; ``rest``: the PNG re-send);
 * ``{"type": "error", "status", "detail", "id"}`` for a bad message (not JSON, invalid
   fields, over a limit) or a frame that failed (503 queue full, 504, ...): the socket
-  stays open.
+  stays open (after a 503 a client may send its camera again after the hello's
+  ``limits.retry_after_s``, as the thin client does).
 
 Latest wins: a reader task validates messages as they arrive and keeps only the newest
 one; the render loop takes it when the previous frame is sent, so messages that arrive
@@ -353,7 +354,8 @@ def hello(scene_id: str, bounds: Any, settings: Settings) -> dict[str, Any]:
             "view": {"eye": list(cam.eye), "target": list(cam.target), "up": [0.0, 1.0, 0.0], "fov": HELLO_FOV},
             "limits": {"max_pixels": settings.stream_max_pixels, "max_width": settings.max_width,
                        "max_height": settings.max_height, "max_message_bytes": settings.stream_max_message_bytes,
-                       "jpeg_quality": settings.stream_jpeg_quality, "rest_s": settings.stream_rest_s}}
+                       "jpeg_quality": settings.stream_jpeg_quality, "rest_s": settings.stream_rest_s,
+                       "retry_after_s": settings.retry_after_s}}
 
 
 class StreamSession:

@@ -64,7 +64,8 @@ def test_frames_are_jpeg_while_moving_then_png_at_rest(client):
     with client.websocket_connect(f"/scenes/{CORNELL}/stream") as ws:
         hello = ws.receive_json()
         assert hello["type"] == "hello" and hello["scene"] == CORNELL and len(hello["bounds"]) == 2
-        assert hello["limits"]["rest_s"] == 0.2 and set(hello["view"]) == {"eye", "target", "up", "fov"}
+        assert hello["limits"]["rest_s"] == 0.2 and hello["limits"]["retry_after_s"] == 1
+        assert set(hello["view"]) == {"eye", "target", "up", "fov"}
         assert_frames_box(hello["view"], hello["bounds"])
         ws.send_json(camera_msg(1))
         stats, jpeg = receive_frame(ws)

@@ -144,6 +144,11 @@ function onText(msg) {
     const detail = typeof msg.detail === 'string' ? msg.detail : JSON.stringify(msg.detail);
     state.errors.push(msg);
     status(`server: ${msg.status} ${detail}`, true);
+    // The service was busy (503) for the newest camera: ask again once it says to, unless the view moved on
+    if (msg.status === 503 && msg.id !== null && msg.id === lastSentId) {
+      const failed = msg.id;
+      setTimeout(() => { if (lastSentId === failed) sendCamera(); }, 1000 * (state.hello?.limits?.retry_after_s ?? 1));
+    }
   }
 }
 
