@@ -66,6 +66,8 @@ MIN_EXTENT = 1e-5
 #: Smallest diagonal relative to the largest |coordinate| (float32 vertices resolve
 #: 6e-8 of it: a millionth is about 17 steps across the whole scene).
 MIN_RELATIVE_EXTENT = 1e-6
+#: Longest PLY header read (its 'end_header' must come within it).
+PLY_HEADER_BYTES = 1 << 16
 #: Where a texture's mean is kept in its PIL image's ``info`` (materials share images).
 _MEAN_KEY = "depthview_mean_linear"
 
@@ -159,7 +161,9 @@ def _load(data: bytes, fmt: str, name: str, max_triangles: int | None, resolver:
         raise SceneLoadError(f"malformed {label}: {_library_text(exc)}") from exc
 
     if not objects:
-        raise SceneLoadError(f"{label} has no faces (no non-degenerate triangles)")
+        problem = _obj_face_problem(data) if fmt == "obj" else None  # trimesh drops such faces silently
+        raise SceneLoadError(f"{label} has no faces (no non-degenerate triangles)"
+                             + (f": its {problem}" if problem else ""))
     total = sum(o.n_triangles for o in objects)
     _check_limit(total, max_triangles, estimate=False)
     if len(objects) > _MAX_OBJECTS:
@@ -281,6 +285,13 @@ def _check_gltf_header(header: dict, label: str, max_triangles: int | None) -> N
     nodes = header.get("nodes", [])
     if isinstance(nodes, list) and len(nodes) > MAX_PARTS:
         raise SceneLoadError(f"{label} has {len(nodes):,} nodes, limit is {MAX_PARTS:,}")
+    meshes = header.get("meshes", [])
+    n_meshes = len(meshes) if isinstance(meshes, list) else 0
+    for i, node in enumerate(nodes if isinstance(nodes, list) else []):
+        mesh = node.get("mesh") if isinstance(node, dict) else None
+        if mesh is not None and not (isinstance(mesh, int) and 0 <= mesh < n_meshes):
+            raise SceneLoadError(f"{label} node {i} refers to mesh {str(mesh)[:20]}; the file has {n_meshes} "
+                                 f"mesh{'es' if n_meshes != 1 else ''}")
     if max_triangles is not None:
         try:
             count, complete = _gltf_triangle_count(header, stop_above=max_triangles)
@@ -375,9 +386,12 @@ def _obj_face_problem(data: bytes) -> str | None:
 
 def _ply_face_count(data: bytes) -> int | None:
     """'element face N' from a PLY header: a lower bound on the triangle count."""
-    end = data.find(b"end_header", 0, 1 << 16)
-    if not data.startswith(b"ply") or end < 0:
-        raise SceneLoadError("malformed PLY: missing 'ply' magic or 'end_header'")
+    end = data.find(b"end_header", 0, PLY_HEADER_BYTES)
+    if not data.startswith(b"ply"):
+        raise SceneLoadError("malformed PLY: it does not start with the 'ply' magic")
+    if end < 0:
+        raise SceneLoadError(f"malformed PLY: no 'end_header' in its first {PLY_HEADER_BYTES // 1024} KiB "
+                             "(a header is at most that long)")
     match = re.search(rb"^element[ \t]+face[ \t]+(\d+)", data[:end], re.MULTILINE)
     return int(match.group(1)) if match else None
 

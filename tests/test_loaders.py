@@ -403,6 +403,22 @@ def test_scene_extent_out_of_range_is_refused(scale, offset, message):
     assert load_scene_bytes(ok, "obj").n_triangles == 1
 
 
+def test_faces_and_nodes_naming_what_is_not_there_say_so():
+    obj = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n"  # OBJ indices start at 1: trimesh drops the face
+    with pytest.raises(SceneLoadError, match="no faces .*: its face on line 4 refers to vertex 0; the file "
+                                             "defines 3 vertices"):
+        load_scene_bytes(obj, "obj")
+    with pytest.raises(SceneLoadError, match="does not start with the 'ply' magic"):
+        load_scene_bytes(b"PLY\nend_header\n", "ply")
+    long_header = b"ply\nformat ascii 1.0\n" + b"comment " + b"x" * 70_000 + b"\nend_header\n"
+    with pytest.raises(SceneLoadError, match="no 'end_header' in its first 64 KiB"):
+        load_scene_bytes(long_header, "ply")
+    doc = json.loads(_triangle_gltf(1))
+    doc["nodes"][0]["mesh"] = 5
+    with pytest.raises(SceneLoadError, match="glTF node 0 refers to mesh 5; the file has 1 mesh$"):
+        load_scene_bytes(json.dumps(doc).encode(), "gltf")
+
+
 def test_a_library_message_quoting_the_file_is_cut():
     """trimesh's KeyError quotes the accessor type: at most LIBRARY_TEXT_CHARS of it."""
     from scenes.loaders import LIBRARY_TEXT_CHARS
