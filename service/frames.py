@@ -70,10 +70,12 @@ async def _soft_shadows(r: Render, scene_id: str, scene: Scene, camera: Camera, 
     light = resolve_light(scene, None if spec.light is None else
                           AreaLight(spec.light.center, spec.light.u, spec.light.v))
     ss = SoftShadowRequest(light, spec.samples, spec.method, spec.reconstruction, spec.resolution, spec.sides)
-    try:  # the light must see the whole scene from its corners (422 otherwise)
-        reference_cameras(light, scene.bounds, "conventional", 16)
-    except ValueError as exc:
-        raise HTTPException(422, f"soft_shadows light: {exc}") from None
+    if spec.method != "raytrace":  # shadow maps and depth images: the light sees the whole scene box (422)
+        try:
+            reference_cameras(light, scene.bounds, "conventional", 16)
+        except ValueError as exc:
+            raise HTTPException(422, f"soft_shadows light: {exc}; its shadow maps and depth images need the "
+                                     "scene in front of it (method raytrace does not)") from None
     gbuf, counts = await r.job(SoftShadowJob(scene_id, scene, camera, ss), label)
     color = await r.cpu(shade, scene, gbuf, counts, ss)
     return Rendered(color, lambda fmt: encode_shadowed(color, gbuf, counts, fmt))

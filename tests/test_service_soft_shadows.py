@@ -247,6 +247,20 @@ def test_bad_soft_shadow_requests_are_422(client, spec, needle):
     assert needle in r.text
 
 
+def test_a_light_inside_the_scene_box_is_for_raytrace_only(client):
+    """A downward light inside the city's box (under its tallest roofs): shadow maps and
+    depth images need the whole box in front of the light (422 saying so); the Embree
+    truth does not, and lights the streets below it."""
+    c, sid = client
+    lo, hi = make_builtin(SCENE).bounds
+    centre = (lo + hi) / 2
+    light = {"center": [centre[0], lo[1] + 0.6 * (hi[1] - lo[1]), centre[2]], "u": [0.2, 0, 0], "v": [0, 0, -0.2]}
+    r = shadow_frame(c, sid, view=close_camera(), light=light, method="geometry")
+    assert r.status_code == 422 and "method raytrace does not" in r.text, r.text
+    counts = visible(shadow_frame(c, sid, view=close_camera(), light=light, method="raytrace"))
+    assert (counts > 0).mean() > 0.05 and (counts < SAMPLES).any()
+
+
 def test_soft_shadows_and_reflections_together_are_422(client):
     c, sid = client
     r = c.post(f"/scenes/{sid}/frames", json={"camera": camera(), "width": RES, "height": RES, "effects": {
