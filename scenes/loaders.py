@@ -406,7 +406,7 @@ def _ply_check_body(data: bytes) -> None:
     (before trimesh allocates arrays for the declared counts). Binary: the body must
     hold at least count × row size per element (a list property counts its length
     field only); ASCII: at least one line per declared element."""
-    end = data.find(b"end_header", 0, 1 << 16)
+    end = data.find(b"end_header", 0, PLY_HEADER_BYTES)
     header = data[:end].decode("latin-1")
     body_start = data.find(b"\n", end) + 1 if data.find(b"\n", end) >= 0 else len(data)
     body = data[body_start:]

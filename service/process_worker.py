@@ -132,6 +132,11 @@ class _Slot:
     busy: bool = False
     restarts: int = 0
 
+    @property
+    def alive(self) -> bool:
+        """Its process exists and runs."""
+        return self.process is not None and self.process.is_alive()
+
 
 class ProcessWorkerPool:
     """N render worker processes behind one bounded queue (see the module docstring)."""
@@ -172,13 +177,12 @@ class ProcessWorkerPool:
 
     @property
     def ready(self) -> bool:
-        return not self._stopping and any(s.ready and s.process is not None and s.process.is_alive()
-                                          for s in self._slots)
+        return not self._stopping and any(s.ready and s.alive for s in self._slots)
 
     @property
     def alive(self) -> int:
         """Worker processes alive."""
-        return sum(1 for s in self._slots if s.process is not None and s.process.is_alive())
+        return sum(1 for s in self._slots if s.alive)
 
     @property
     def busy(self) -> bool:
@@ -312,7 +316,7 @@ class ProcessWorkerPool:
 
     def _kill(self, slot: _Slot) -> None:
         slot.ready = False
-        if slot.process is not None and slot.process.is_alive():
+        if slot.alive:
             slot.process.kill()
             slot.process.join(5)
         if slot.conn is not None:
@@ -357,7 +361,7 @@ class ProcessWorkerPool:
                     if job is not None and not job.future.done():
                         job.future.set_exception(exc)
         finally:
-            if slot.conn is not None and slot.process is not None and slot.process.is_alive():
+            if slot.conn is not None and slot.alive:
                 self._send(slot, ("stop", None))
                 slot.process.join(10)
             self._kill(slot)
