@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from scenes import ply
 from scenes.model import Material, Scene, SceneObject
 
 __all__ = ["SUPPORTED_FORMATS", "SceneLoadError", "TriangleLimitError", "load_scene", "load_scene_bytes"]
@@ -66,8 +67,6 @@ MIN_EXTENT = 1e-5
 #: Smallest diagonal relative to the largest |coordinate| (float32 vertices resolve
 #: 6e-8 of it: a millionth is about 17 steps across the whole scene).
 MIN_RELATIVE_EXTENT = 1e-6
-#: Longest PLY header read (its 'end_header' must come within it).
-PLY_HEADER_BYTES = 1 << 16
 #: Where a texture's mean is kept in its PIL image's ``info`` (materials share images).
 _MEAN_KEY = "depthview_mean_linear"
 
@@ -149,8 +148,7 @@ def _load(data: bytes, fmt: str, name: str, max_triangles: int | None, resolver:
         if objects > MAX_PARTS:
             raise SceneLoadError(f"OBJ has {objects:,} objects ('o' lines), limit is {MAX_PARTS:,}")
     else:
-        _check_limit(_ply_face_count(data), max_triangles, estimate=True)
-        _ply_check_body(data)
+        data = _ply_readable(data, max_triangles)
 
     tm_scene = _trimesh_load(data, fmt, label, resolver)
     try:
@@ -384,54 +382,17 @@ def _obj_face_problem(data: bytes) -> str | None:
     return None
 
 
-def _ply_face_count(data: bytes) -> int | None:
-    """'element face N' from a PLY header: a lower bound on the triangle count."""
-    end = data.find(b"end_header", 0, PLY_HEADER_BYTES)
-    if not data.startswith(b"ply"):
-        raise SceneLoadError("malformed PLY: it does not start with the 'ply' magic")
-    if end < 0:
-        raise SceneLoadError(f"malformed PLY: no 'end_header' in its first {PLY_HEADER_BYTES // 1024} KiB "
-                             "(a header is at most that long)")
-    match = re.search(rb"^element[ \t]+face[ \t]+(\d+)", data[:end], re.MULTILINE)
-    return int(match.group(1)) if match else None
-
-
-#: Bytes of the PLY scalar types.
-_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
-              "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
-
-
-def _ply_check_body(data: bytes) -> None:
-    """Refuse a PLY whose header declares more elements than its body can hold
-    (before trimesh allocates arrays for the declared counts). Binary: the body must
-    hold at least count × row size per element (a list property counts its length
-    field only); ASCII: at least one line per declared element."""
-    end = data.find(b"end_header", 0, PLY_HEADER_BYTES)
-    header = data[:end].decode("latin-1")
-    body_start = data.find(b"\n", end) + 1 if data.find(b"\n", end) >= 0 else len(data)
-    body = data[body_start:]
-    fmt, elements = "", []  # [(name, count, min row bytes)]
-    for line in header.splitlines():
-        words = line.split()
-        if len(words) >= 2 and words[0] == "format":
-            fmt = words[1]
-        elif len(words) >= 3 and words[0] == "element" and words[2].isdigit():
-            elements.append([words[1], int(words[2]), 0])
-        elif len(words) >= 3 and words[0] == "property" and elements:
-            size_type = words[2] if words[1] == "list" else words[1]
-            elements[-1][2] += _PLY_SIZES.get(size_type, 1)
-    declared = " and ".join(f"{count:,} {name!r}" for name, count, _ in elements) + " elements"
-    if fmt == "ascii":
-        rows = sum(count for _, count, _ in elements)
-        lines = sum(1 for ln in body.splitlines() if ln.strip())
-        if lines < rows:
-            raise SceneLoadError(f"malformed PLY: the header declares {declared} ({rows:,} rows) but the body "
-                                 f"has {lines:,} lines")
-    elif fmt.startswith("binary"):
-        need = sum(count * row for _, count, row in elements)
-        if len(body) < need:
-            raise SceneLoadError(f"malformed PLY: the header declares {declared}, at least {need:,} bytes, "
-                                 f"but the body has {len(body):,} bytes")
+def _ply_readable(data: bytes, max_triangles: int | None) -> bytes:
+    """The PLY header's face count against the limit (a lower bound on its triangles),
+    then its body row by row against its header (:mod:`scenes.ply`); the bytes trimesh
+    is to read."""
+    try:
+        header = ply.read_header(data)
+        faces = header.element("face")
+        _check_limit(faces.count if faces else None, max_triangles, estimate=True)
+        return ply.readable(data, header)
+    except ply.PlyError as exc:
+        raise SceneLoadError(f"malformed PLY: {exc}") from None
 
 
 # --------------------------------------------------------------------------------------
