@@ -279,6 +279,19 @@ def test_upload_without_file_field_or_with_bad_content_type(client):
     assert r.status_code == 415 and "format" in r.json()["detail"]
 
 
+def test_multipart_errors_say_what_python_multipart_found(client):
+    """Starlette reports every parser error as "Invalid multipart data."; the 400 names the cause."""
+    r = client.post("/scenes", files={"file": ("a" * 5000 + ".obj", obj_text())})
+    assert r.status_code == 400
+    assert "header size exceeded (a part's header line, its file name included, may be at most 4,224 bytes)" \
+        in r.json()["detail"]
+    r = client.post("/scenes", files={"file": ("b" * 4000 + ".obj", obj_text())})
+    assert r.status_code in (200, 201) and r.json()["name"] == "b" * 200  # a long name is fine, cut to 200
+    r = client.post("/scenes", content=b"--x\r\nno header end",
+                    headers={"content-type": "multipart/form-data; boundary=x"})
+    assert r.status_code == 400 and r.json()["detail"] != "malformed multipart body: Invalid multipart data."
+
+
 # --- bad frame requests ------------------------------------------------------------------------
 def test_unknown_and_malformed_scene_ids(client):
     unknown = "0" * 64

@@ -11,6 +11,7 @@ from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import ValidationError
+from python_multipart.multipart import DEFAULT_MAX_HEADER_SIZE as MULTIPART_HEADER_BYTES
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 from starlette.formparsers import MultiPartException, MultiPartParser
@@ -89,6 +90,15 @@ def _format_from(fmt: str | None, filename: str | None) -> str:
     return suffix
 
 
+def _multipart_problem(exc: MultiPartException) -> str:
+    """What python-multipart found wrong (Starlette says only "Invalid multipart data.")."""
+    why = str(exc.__cause__ or "") or exc.message
+    if "header size" in why:
+        why += (f" (a part's header line, its file name included, may be at most "
+                f"{MULTIPART_HEADER_BYTES:,} bytes)")
+    return why[:240]
+
+
 async def _read_multipart(request: Request, settings: Settings, fmt: str | None,
                           name: str | None) -> tuple[bytes, str, str]:
     """Parse a multipart upload while counting bytes (413 past the limit); returns
@@ -103,7 +113,7 @@ async def _read_multipart(request: Request, settings: Settings, fmt: str | None,
         raise HTTPException(413, f"upload exceeds the limit of {limit} bytes (body passed {exc.limit} "
                                  "bytes including multipart overhead)") from None
     except MultiPartException as exc:
-        raise HTTPException(400, f"malformed multipart body: {exc.message[:200]}") from None
+        raise HTTPException(400, f"malformed multipart body: {_multipart_problem(exc)}") from None
     try:
         upload = form.get("file")
         if not isinstance(upload, UploadFile):
