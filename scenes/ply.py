@@ -268,6 +268,8 @@ def _binary_rows(element: Element, body: memoryview, start: int, order: str) -> 
         return _Rows(start, end)
     if end <= len(body) and _uniform(element, body[start:end], size, first_lengths, order):
         return _Rows(start, end)
+    if sum(p.is_list for p in element.properties) == 1:
+        return _walk_one_list(element, body, start, order)
     offsets, lengths = [], []
     at = start
     for r in range(element.count):
@@ -275,6 +277,32 @@ def _binary_rows(element: Element, body: memoryview, start: int, order: str) -> 
         at, row_lengths = _walk_row(element, body, at, order, r)
         lengths.append(row_lengths)
     return _Rows(start, at, np.array(offsets, np.int64), np.array(lengths, np.int64))
+
+
+def _walk_one_list(element: Element, body: memoryview, start: int, order: str) -> _Rows:
+    """The rows of an element with one list property, walked in a tight loop (faces);
+    a row that does not fit is handed to :func:`_walk_row` for its message."""
+    k = next(i for i, p in enumerate(element.properties) if p.is_list)
+    prefix = sum(np.dtype(p.kind).itemsize for p in element.properties[:k])
+    count = struct.Struct(order + _STRUCT[element.properties[k].count_kind])
+    entry = np.dtype(element.properties[k].kind).itemsize
+    fixed = prefix + count.size + sum(np.dtype(p.kind).itemsize for p in element.properties[k + 1:])
+    unpack, end = count.unpack_from, len(body)
+    offsets: list[int] = []
+    lengths: list[int] = []
+    at = start
+    for r in range(element.count):
+        try:
+            (n,) = unpack(body, at + prefix)
+        except struct.error:
+            n = -1
+        offsets.append(at)
+        lengths.append(n)
+        at += fixed + n * entry
+        if n < 0 or at > end:
+            _walk_row(element, body, offsets[-1], order, r)  # raises, naming the row and its list
+            raise PlyError(f"{element.name} {r:,} runs past the end of the body")
+    return _Rows(start, at, np.array(offsets, np.int64), np.array(lengths, np.int64)[:, None])
 
 
 def _uniform(element: Element, rows: memoryview, size: int, lengths: list[int], order: str) -> bool:
