@@ -189,7 +189,8 @@ def _check_ascii_row(element: Element, r: int, tokens: list[bytes], line: int) -
             at += 1
             continue
         if at >= len(tokens):
-            break
+            raise PlyError(f"line {line:,} ({element.name} {r:,}) has {len(tokens)} values, too few for its "
+                           f"header (list {p.name!r} has no length)")
         try:
             n = int(tokens[at])
         except ValueError:

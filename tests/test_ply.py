@@ -113,6 +113,8 @@ def test_ascii_vertex_rows_and_extra_lines():
     with pytest.raises(SceneLoadError, match=r"the body has 1 lines after the 15 rows the header declares"):
         load_scene_bytes(_ascii(tail="3 0 1 2\n"), "ply")
     assert load_scene_bytes(_ascii(tail="\n\n"), "ply").n_triangles == 6  # trailing blank lines are fine
+    with pytest.raises(SceneLoadError, match=r"line 24 \(face 1\) has 0 values, too few for its header"):
+        load_scene_bytes(text.replace("\n5 4 5", "\n\n5 4 5").encode(), "ply")  # a blank line among the faces
 
 
 def test_binary_rows_cut_short_or_with_bytes_to_spare():
