@@ -15,6 +15,9 @@ Rules shared with the GL pass:
 
 * tangent plane: a light sample s with n·(s − P) ≤ 0 (on or behind the tangent
   plane of the surface point P with normal n) is not visible; no ray is cast;
+* light side: the light emits along −(u × v) only; a point P on or behind the light's
+  plane sees none of its samples (the GL pass needs the whole scene box in front of
+  the light, so its receivers are never there);
 * occlusion: any triangle on the segment blocks it, whichever side faces the ray
   (no back-face culling);
 * pixels outside the mask get all-zero words.
@@ -35,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from reference.raycast import RayCaster
+from scenes.lights import light_normal
 from scenes.model import AreaLight
 
 #: Ray origins are lifted off the surface along the unit normal by this fraction of
@@ -115,7 +119,8 @@ def light_visibility(caster: RayCaster, points: np.ndarray, normals: np.ndarray,
     surface (e.g. a G-buffer; read only where mask (H,W) bool is True). Returns
     (H,W,n_words(k)) uint32, sample s at bit s % 32 of word s // 32 (module docstring).
 
-    Per pixel and light sample in front of the tangent plane, one occlusion ray from
+    Per pixel in front of the light's plane and light sample in front of the pixel's
+    tangent plane, one occlusion ray from
     P + n̂·`surface_offset(caster)` (n̂ the unit normal; the offset is
     SURFACE_OFFSET_REL of the scene scale, so a float32 position slightly below its
     own surface does not shadow itself) to the sample, shortened by END_REL_EPS of
@@ -129,9 +134,13 @@ def light_visibility(caster: RayCaster, points: np.ndarray, normals: np.ndarray,
     samples = light.samples(k)
     words = np.zeros((len(p), out.shape[2]), np.uint32)
     offset = surface_offset(caster)
+    lit_side = (p - np.asarray(light.center, np.float64)) @ -light_normal(light) > 0
+    p, n, rows = p[lit_side], n[lit_side], np.nonzero(lit_side)[0]
+    lit = np.zeros((len(p), out.shape[2]), np.uint32)
     for lo in range(0, len(p), RAY_CHUNK):
         _visibility_rows(caster, p[lo:lo + RAY_CHUNK], n[lo:lo + RAY_CHUNK], samples,
-                         words[lo:lo + RAY_CHUNK], offset)
+                         lit[lo:lo + RAY_CHUNK], offset)
+    words[rows] = lit
     out[m] = words
     return out
 

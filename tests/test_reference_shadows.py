@@ -28,7 +28,7 @@ from tests.helpers import unpack_bits
 # through a box edge by a rational coincidence.
 BOX_LO = (-0.437, 0.413, -0.371)
 BOX_HI = (0.529, 0.907, 0.383)
-LIGHT = AreaLight(center=(0.213, 2.71, 0.157), u=(1.37, 0.0, 0.0), v=(0.0, 0.0, 1.19))
+LIGHT = AreaLight(center=(0.213, 2.71, 0.157), u=(1.37, 0.0, 0.0), v=(0.0, 0.0, -1.19))  # emits −Y
 
 
 def _ground(half: float = 3.0, y: float = 0.0) -> SceneObject:
@@ -98,7 +98,7 @@ def test_error_picture_by_hand():
 
 
 def test_area_light_shade_by_hand():
-    light = AreaLight(center=(0.0, 2.0, 0.0), u=(1.0, 0.0, 0.0), v=(0.0, 0.0, 1.0))
+    light = AreaLight(center=(0.0, 2.0, 0.0), u=(1.0, 0.0, 0.0), v=(0.0, 0.0, -1.0))
     albedo = np.array([[1.0, 0.5, 0.0], [1.0, 1.0, 1.0], [1.0, 1.0, 1.0]])
     normal = np.array([[0.0, 1.0, 0.0], [0.0, 1.0, 0.0], [0.0, -1.0, 0.0]])
     position = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 0.0, 0.0]])  # 2nd: light at 45°
@@ -200,7 +200,7 @@ def _far_scene(light: AreaLight) -> RayCaster:
 
 def test_tangent_plane_rule_exact_bits():
     # A vertical light whose middle sample row lies exactly in the plane y = 0 of the point.
-    light = AreaLight(center=(2.0, 0.0, 0.0), u=(0.0, 0.0, 1.0), v=(0.0, 1.2, 0.0))
+    light = AreaLight(center=(2.0, 0.0, 0.0), u=(0.0, 0.0, -1.0), v=(0.0, 1.2, 0.0))  # emits −X
     assert np.all(light.samples(3)[3:6, 1] == 0.0)
     caster = _far_scene(light)
     bits = light_visibility(caster, np.zeros((1, 1, 3)), np.array([[[0.0, 1.0, 0.0]]]), np.ones((1, 1), bool),
@@ -210,7 +210,7 @@ def test_tangent_plane_rule_exact_bits():
 
 
 def test_tangent_plane_rule_tilted_normals_and_mask():
-    light = AreaLight(center=(0.1, 2.0, -0.2), u=(3.0, 0.0, 0.0), v=(0.0, 0.0, 3.0))
+    light = AreaLight(center=(0.1, 2.0, -0.2), u=(3.0, 0.0, 0.0), v=(0.0, 0.0, -3.0))
     caster = _far_scene(light)
     k = 16
     rng = np.random.default_rng(3)
@@ -234,7 +234,7 @@ def test_tangent_plane_rule_tilted_normals_and_mask():
     (16, 200, [0xFFFFFFFF] * 6 + [0xFFFFFFFF ^ (1 << 8), 0xFFFFFFFF]),
 ])
 def test_bit_layout_one_blocked_sample(k, blocked, expected):
-    light = AreaLight(center=(0.0, 2.0, 0.0), u=(1.0, 0.0, 0.0), v=(0.0, 0.0, 1.0))
+    light = AreaLight(center=(0.0, 2.0, 0.0), u=(1.0, 0.0, 0.0), v=(0.0, 0.0, -1.0))
     # A cube on the midpoint of the segment to sample `blocked`, far narrower than the
     # spacing of the neighbouring rays there (1 / 2k), so it blocks that sample only.
     mid = light.samples(k)[blocked] / 2
@@ -266,3 +266,16 @@ def test_batching_changes_nothing(monkeypatch):
     monkeypatch.setattr(shadows, "RAY_CHUNK", 1000)  # whole pixel set, 6 light samples per batch
     np.testing.assert_array_equal(light_visibility(caster, points, normals, mask, LIGHT, 8), whole)
     assert 0 < visible_counts(whole)[mask].mean() < 64
+
+
+def test_light_side_rule_points_behind_the_light_see_nothing():
+    """The light emits along −(u × v) only: the same rectangle facing away lights
+    nothing, and a light hung inside a room lights the floor, not the ceiling."""
+    down = AreaLight(center=(0.0, 1.0, 0.0), u=(0.5, 0.0, 0.0), v=(0.0, 0.0, -0.5))  # u × v = +Y: emits −Y
+    up = AreaLight(center=down.center, u=down.v, v=down.u)
+    caster = _far_scene(down)
+    points = np.array([[[0.0, 0.0, 0.0], [0.3, 2.0, 0.1]]])   # a floor point below, a ceiling point above
+    normals = np.array([[[0.0, 1.0, 0.0], [0.0, -1.0, 0.0]]])
+    mask = np.ones((1, 2), bool)
+    np.testing.assert_array_equal(visible_counts(light_visibility(caster, points, normals, mask, down, 4)), [[16, 0]])
+    np.testing.assert_array_equal(visible_counts(light_visibility(caster, points, normals, mask, up, 4)), [[0, 16]])
