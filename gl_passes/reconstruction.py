@@ -573,14 +573,17 @@ def export_glb(meshes: Sequence[MeshGPU], names: Sequence[str] | None = None) ->
     return glb_bytes([m.read() for m in meshes], names)
 
 
-def glb_bytes(parts: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], names: Sequence[str] | None = None) -> bytes:
+def glb_bytes(parts: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], names: Sequence[str] | None = None,
+              extras: Sequence[dict] | None = None) -> bytes:
     """A binary glTF with one node (and mesh) per source image with triangles, from (positions
     (N,3), RGBA8 colours (N,4), triangles (M,3)) as `MeshGPU.read` returns them:
     COLOR_0 vertex colours (linear), triangles counter-clockwise from the capturing
-    camera; vertices no triangle uses are dropped. No GL (call off the GL thread)."""
+    camera; vertices no triangle uses are dropped. Every primitive has `SAMPLE_MATERIAL`;
+    node k carries ``extras[k]`` (e.g. its camera) where given. No GL (call off the GL thread)."""
     import trimesh
 
     scene = trimesh.Scene()
+    node_extras = {}
     for k, (pos, rgba, tri) in enumerate(parts):
         if len(tri) == 0:
             continue
@@ -588,9 +591,41 @@ def glb_bytes(parts: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], names:
         tm = trimesh.Trimesh(pos[used], remap.reshape(-1, 3), vertex_colors=rgba[used], process=False)
         name = names[k] if names else f"image_{k}"
         scene.add_geometry(tm, node_name=name, geom_name=name)
+        if extras is not None:
+            node_extras[name] = extras[k]
     if scene.is_empty:  # the images saw nothing: a valid glTF with one empty scene (trimesh exports none)
         return _empty_glb()
-    return scene.export(file_type="glb")
+    return _with_material(scene.export(file_type="glb"), node_extras)
+
+
+#: The material of every reconstruction primitive. Its vertex colours are the captured
+#: samples' colours, already shaded, and a depth image's surface is seen from either
+#: side: unlit (KHR_materials_unlit) and two-sided; a viewer without the extension
+#: falls back to a rough dielectric (glTF's default material, used when a primitive
+#: names none, is a one-sided metal, which renders the colours nearly black).
+SAMPLE_MATERIAL = {"name": "depth_image_samples", "doubleSided": True,
+                   "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0,
+                                            "roughnessFactor": 1.0},
+                   "extensions": {"KHR_materials_unlit": {}}}
+
+
+def _with_material(glb: bytes, node_extras: dict[str, dict]) -> bytes:
+    """The GLB with `SAMPLE_MATERIAL` on every primitive and ``extras`` on the nodes named."""
+    (json_len,) = struct.unpack_from("<I", glb, 12)
+    doc = json.loads(glb[20:20 + json_len])
+    doc["materials"] = [SAMPLE_MATERIAL]
+    for mesh in doc.get("meshes", []):
+        for primitive in mesh.get("primitives", []):
+            primitive["material"] = 0
+    doc["extensionsUsed"] = sorted({*doc.get("extensionsUsed", []), "KHR_materials_unlit"})
+    for node in doc.get("nodes", []):
+        if node.get("name") in node_extras:
+            node["extras"] = node_extras[node["name"]]
+    text = json.dumps(doc, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)  # chunks are 4-byte aligned, JSON padded with spaces
+    rest = glb[20 + json_len:]  # the BIN chunk, unchanged
+    return struct.pack("<4sII", b"glTF", 2, 20 + len(text) + len(rest)) + struct.pack("<I4s", len(text), b"JSON") \
+        + text + rest
 
 
 def _empty_glb() -> bytes:

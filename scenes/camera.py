@@ -83,6 +83,17 @@ class Camera:
         """World size of one pixel per unit of eye depth (pixels are square)."""
         return float(2 * np.tan(np.radians(self.fov) / 2) / self.height)
 
+    def describe(self) -> dict:
+        """The camera as plain JSON values: eye, target, up, fov (degrees), width, height,
+        near, far, and its view and projection matrices (row-major 4×4 lists; OpenGL
+        conventions, world → eye → clip) where near and far are set."""
+        out: dict = {"eye": list(self.eye), "target": list(self.target), "up": list(self.up), "fov": self.fov,
+                     "width": self.width, "height": self.height, "near": self.near, "far": self.far}
+        if self.near is not None and self.far is not None:
+            out["view"] = self.view_matrix().tolist()
+            out["projection"] = self.projection_matrix().tolist()
+        return out
+
     def view_matrix(self) -> np.ndarray:
         """(4,4) world → eye (gluLookAt)."""
         r, u, f = self.basis()

@@ -664,6 +664,11 @@ def _material(mesh, fmt: str, header_materials: dict[str, dict]) -> Material:
             tex = _texture_mean_linear(mat.baseColorTexture)
             if tex is not None:
                 base = base * tex
+        colors = getattr(visual, "vertex_attributes", {}).get("color")  # COLOR_0 beside a material
+        if colors is not None and len(colors):
+            c = np.asarray(colors)
+            rgb = c[:, :3] / 255.0 if np.issubdtype(c.dtype, np.integer) else c[:, :3].astype(np.float64)
+            base = base * np.clip(rgb, 0.0, 1.0).mean(axis=0)  # glTF: base colour = factor × texture × COLOR_0
         return _make_material(base, metallic, roughness)
 
     if isinstance(mat, SimpleMaterial):

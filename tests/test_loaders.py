@@ -531,3 +531,17 @@ def test_obj_face_naming_a_missing_vertex_says_which(face, message):
         load_scene_bytes(text.encode(), "obj")
     assert str(info.value) == f"malformed OBJ: {message}"
     assert load_scene_bytes(text.replace(face, "f 1 2 -1").encode(), "obj").n_triangles == 1
+
+
+def test_gltf_vertex_colours_beside_a_material_tint_it():
+    """glTF's base colour is factor × texture × COLOR_0: a reconstruction GLB (white,
+    non-metal sample material with vertex colours) loads with the colours' mean."""
+    from gl_passes.reconstruction import glb_bytes
+
+    pos = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], np.float32)
+    rgba = np.array([[255, 0, 0, 255], [255, 0, 0, 255], [0, 0, 255, 255], [0, 0, 255, 255]], np.uint8)
+    tri = np.array([[0, 1, 2], [1, 3, 2]], np.uint32)
+    scene = load_scene_bytes(glb_bytes([(pos, rgba, tri)]), "glb")
+    m = scene.objects[0].material
+    np.testing.assert_allclose(m.albedo, (0.5, 0.0, 0.5), atol=1e-6)  # COLOR_0 is linear: no sRGB decoding
+    assert m.specular == 0.0

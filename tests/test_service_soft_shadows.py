@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import io
+import json
+import struct
 
 import numpy as np
 import pytest
@@ -296,6 +298,38 @@ def test_reconstruction_glb_from_cameras(client):
     s = glb(c.post(f"/scenes/{sid}/reconstruction",
                    json={"cameras": cams, "method": "conventional", "reconstruction": "grid", "resolution": 48}))
     assert len(s.graph.nodes_geometry) == 2
+
+
+def _glb_json(data: bytes) -> dict:
+    (length,) = struct.unpack_from("<I", data, 12)
+    return json.loads(data[20:20 + length])
+
+
+def test_reconstruction_glb_names_its_material_and_cameras(client):
+    """Every primitive has the unlit, two-sided, non-metal sample material (glTF's default
+    one is a one-sided metal: near black in viewers), and each node carries the camera
+    that captured it: its view-projection puts the node's vertices inside the image."""
+    c, sid = client
+    cams = [camera(), {**camera(), "eye": [e * 1.1 for e in camera()["eye"]]}]
+    r = c.post(f"/scenes/{sid}/reconstruction", json={"cameras": cams, "method": "conventional", "resolution": 48})
+    doc = _glb_json(r.content)
+    material = doc["materials"][0]
+    assert material["pbrMetallicRoughness"]["metallicFactor"] == 0 and material["doubleSided"] is True
+    assert "KHR_materials_unlit" in material["extensions"] and "KHR_materials_unlit" in doc["extensionsUsed"]
+    assert all(p["material"] == 0 for m in doc["meshes"] for p in m["primitives"])
+    s = glb(r)
+    for node in doc["nodes"]:
+        if "mesh" not in node:
+            continue
+        k = int(node["name"].rsplit("_", 1)[1])
+        described = node["extras"]["camera"]
+        assert node["extras"]["method"] == "conventional"
+        np.testing.assert_allclose(described["eye"], cams[k]["eye"])
+        v = s.geometry[node["name"]].vertices
+        clip = np.c_[v, np.ones(len(v))] @ (np.array(described["projection"]) @ np.array(described["view"])).T
+        ndc = clip[:, :3] / clip[:, 3:]
+        assert (clip[:, 3] > 0).all() and (np.abs(ndc[:, :2]) <= 1.2).all()  # within the image (quads reach a bit out)
+        assert np.abs(ndc[:, :2]).max() > 0.5
 
 
 def test_a_reconstruction_that_sees_nothing_is_an_empty_glb(client):

@@ -74,7 +74,9 @@ async def render_frame(scene_id: str, req: FrameRequest, r: RenderDep) -> Respon
 @reconstructions.post(
     "/reconstruction", summary="Reconstruct a depth-image set (GLB)", response_class=Response,
     responses={200: {"content": {"model/gltf-binary": {}},
-                     "description": "binary glTF, one node per source image that holds samples, vertex colours"},
+                     "description": "binary glTF, one node per source image that holds samples: vertex colours "
+                                    "under an unlit, two-sided, non-metal material; node extras: method, layer "
+                                    "(peeling), camera"},
                **responses({**RENDER_ERRORS, 422: "invalid cameras, light or size, or over the memory budget"})})
 async def reconstruct(scene_id: str, req: ReconstructionRequest, r: RenderDep) -> Response:
     check_budget(r.settings, reconstruction_bytes(req))
@@ -94,7 +96,9 @@ async def reconstruct(scene_id: str, req: ReconstructionRequest, r: RenderDep) -
     job = ReconstructionJob(scene_id, scene, cams, req.method, req.reconstruction, req.layers, req.sides)
     parts = await r.job(job, f"reconstruction {scene_id[:12]}")
     names = [f"{req.method}_{k}" for k in range(len(parts))]
-    body = await r.encode(glb_bytes, parts, names)
+    extras = [{"method": req.method, **({"layer": k} if req.method == "peeling" else {}),
+               "camera": cams[min(k, len(cams) - 1)].describe()} for k in range(len(parts))]
+    body = await r.encode(glb_bytes, parts, names, extras)
     return Response(body, media_type="model/gltf-binary",
                     headers={"Content-Disposition": 'attachment; filename="reconstruction.glb"'})
 
