@@ -7,7 +7,7 @@
 
 ``render`` renders in-process on its own GL context (no server needed). Without
 ``--eye`` the camera orbits the scene bounds (``--azimuth``, ``--elevation``,
-``--distance``); without ``--target`` it looks at the bounds' centre.
+``--distance``) around ``--target``, by default the bounds' centre.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ def _parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("serve", help="run the HTTP service (uvicorn)")
     s.add_argument("--host", default=None, help="bind address (default 127.0.0.1 or DEPTHVIEW_HOST)")
-    s.add_argument("--port", type=int, default=None, help="port (default 8000 or DEPTHVIEW_PORT)")
+    s.add_argument("--port", type=_port, default=None, help="port (default 8000 or DEPTHVIEW_PORT)")
     s.add_argument("--data-dir", type=Path, default=None,
                    help="scene store directory (default ./data or DEPTHVIEW_DATA_DIR)")
     s.add_argument("--gl-backend", choices=("egl", "osmesa"), default=None,
@@ -43,7 +43,8 @@ def _parser() -> argparse.ArgumentParser:
     r = sub.add_parser("render", help="render one frame to a PNG or EXR file (in-process)")
     r.add_argument("--scene", required=True, help="built-in scene name or a .glb/.gltf/.obj/.ply file")
     r.add_argument("--eye", type=float, nargs=3, metavar=("X", "Y", "Z"), help="camera position")
-    r.add_argument("--target", type=float, nargs=3, metavar=("X", "Y", "Z"), help="look-at point (default: centre)")
+    r.add_argument("--target", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="look-at point, also the orbit's centre without --eye (default: the scene's centre)")
     r.add_argument("--up", type=float, nargs=3, metavar=("X", "Y", "Z"), default=(0.0, 1.0, 0.0))
     r.add_argument("--fov", type=float, default=45.0, help="vertical field of view in degrees")
     r.add_argument("--width", type=int, default=512)
@@ -60,6 +61,17 @@ def _parser() -> argparse.ArgumentParser:
     c = sub.add_parser("scenes", help="list the built-in scenes with their triangle counts")
     c.add_argument("--detail", type=float, default=None, help="show the triangle estimate at this detail")
     return p
+
+
+def _port(text: str) -> int:
+    """An argparse type: a TCP port number 0–65535."""
+    try:
+        port = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid port {text[:20]!r}: not a whole number") from None
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"port {port} is not in 0-65535")
+    return port
 
 
 def _load_scene(spec: str, detail: float, seed: int):  # -> Scene
@@ -79,20 +91,31 @@ def cmd_render(args: argparse.Namespace) -> int:
     from gl_passes.context import create_gl_context
     from gl_passes.gbuffer import GBufferPass
     from gl_passes.upload import SceneGPU
-    from scenes.camera import Camera, look_at_scene
+    from scenes.camera import Camera, CameraError, orbit_direction
     from service.worker import encode_frame
 
     fmt = args.output.suffix.lower().lstrip(".")
     if fmt not in ("png", "exr"):
         raise ValueError(f"output must end in .png or .exr, got {args.output.name!r}")
+    problem = Settings.from_env().size_problem(args.width, args.height)
+    if problem is not None:  # the service's limits (the GL framebuffer fails past them)
+        raise ValueError(f"{problem} (DEPTHVIEW_MAX_WIDTH, _HEIGHT, _PIXELS)")
     scene = _load_scene(args.scene, args.detail, args.seed)
-    if args.eye is None:
-        camera = look_at_scene(scene.bounds, args.azimuth, args.elevation, args.distance, args.fov,
-                               args.width, args.height)
+    target = np.asarray(args.target if args.target is not None else scene.center, np.float64)
+    if args.eye is None:  # orbit the target
+        lo, hi = (np.asarray(b, np.float64) for b in scene.bounds)
+        eye = target + args.distance * (float(np.linalg.norm(hi - lo)) or 1.0) \
+            * orbit_direction(args.azimuth, args.elevation)
     else:
-        target = tuple(args.target) if args.target is not None else tuple(float(x) for x in scene.center)
-        camera = Camera(tuple(args.eye), target, tuple(args.up), args.fov, args.width, args.height)
-        camera = camera.fit_clip(scene.bounds)
+        eye = np.asarray(args.eye, np.float64)
+    try:
+        camera = Camera(tuple(eye), tuple(target), tuple(args.up), args.fov, args.width, args.height)
+    except CameraError as exc:
+        if args.eye is None and "parallel" in str(exc):
+            raise CameraError(f"{exc}: at --elevation {args.elevation:g} the orbit looks along --up; "
+                              "give another --up") from None
+        raise
+    camera = camera.fit_clip(scene.bounds)
     gl = create_gl_context(args.gl_backend)
     gpu = gp = None
     try:

@@ -240,6 +240,15 @@ class Settings:
         if self.gl_backend is not None and self.gl_backend not in ("egl", "osmesa"):
             raise ValueError(f"setting gl_backend must be 'egl' or 'osmesa', got {self.gl_backend!r}")
 
+    def size_problem(self, width: int, height: int, what: str = "frame") -> str | None:
+        """What is over the limits in a width × height image, or None."""
+        for name, value, limit in ((f"{what} width", width, self.max_width),
+                                   (f"{what} height", height, self.max_height),
+                                   (f"{what} width × height", width * height, self.max_pixels)):
+            if value > limit:
+                return f"{name} {value} exceeds the limit {limit}"
+        return None
+
     @classmethod
     def from_env(cls, environ: Mapping[str, str] | None = None, **overrides: Any) -> Settings:
         """Settings from ``DEPTHVIEW_<FIELD>`` variables; keyword overrides that are

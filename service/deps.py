@@ -101,11 +101,9 @@ def unavailable(detail: str, settings: Settings) -> HTTPException:
 
 def check_size(settings: Settings, width: int, height: int, what: str = "frame") -> None:
     """422 when width, height or their product exceed the service limits."""
-    for name, value, limit in ((f"{what} width", width, settings.max_width),
-                               (f"{what} height", height, settings.max_height),
-                               (f"{what} width × height", width * height, settings.max_pixels)):
-        if value > limit:
-            raise HTTPException(422, f"{name} {value} exceeds the limit {limit}")
+    problem = settings.size_problem(width, height, what)
+    if problem is not None:
+        raise HTTPException(422, problem)
 
 
 @dataclass

@@ -748,6 +748,29 @@ def test_cli_render_writes_png_and_rejects_bad_camera(tmp_path):
     assert p.returncode == 2 and "coincide" in p.stderr
 
 
+def test_cli_render_orbits_the_target_and_names_its_limits(tmp_path, capsys):
+    """Without --eye the orbit centres on --target (it was ignored); sizes over the
+    service's limits and an orbit that looks along --up are errors (exit 2) naming them."""
+    from service.cli import main
+
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    cmd = [sys.executable, "-m", "service", "render", "--scene", FRAME_SCENE, "--width", "40", "--height", "24"]
+    images = []
+    for extra in ([], ["--target", "5", "0", "0"]):
+        out = tmp_path / f"orbit{len(images)}.png"
+        p = subprocess.run([*cmd, *extra, str(out)], cwd=ROOT, env=env, capture_output=True, text=True, timeout=60)
+        assert p.returncode == 0, p.stderr
+        images.append(image_io.decode_png(out.read_bytes()).astype(int))
+    assert np.abs(images[0] - images[1]).mean() > 5
+    assert main(["render", "--scene", FRAME_SCENE, "--width", "20000", "--height", "2", str(tmp_path / "w.png")]) == 2
+    assert "frame width 20000 exceeds the limit 4096" in capsys.readouterr().err
+    assert main(["render", "--scene", FRAME_SCENE, "--elevation", "90", str(tmp_path / "p.png")]) == 2
+    assert "at --elevation 90 the orbit looks along --up" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_info:
+        main(["serve", "--port", "99999"])
+    assert exit_info.value.code == 2 and "port 99999 is not in 0-65535" in capsys.readouterr().err
+
+
 def test_upload_a_real_model(client):
     path = shared_scene("teapot/teapot.obj")
     data = path.read_bytes()
