@@ -41,6 +41,8 @@ class ImageCheckRun:
         self.item: pytest.Item | None = None
         self.written: list[Path] = []
         self._names: dict[Path, set[str]] = {}
+        self._claims: dict[Path, str] = {}      # reference image -> the test that checks it
+        self._this_test: set[Path] = set()      # references the current test has checked
 
     @property
     def update_refs(self) -> bool:
@@ -74,8 +76,28 @@ class ImageCheckRun:
         used.add(name)
         return name
 
+    def start(self, item: pytest.Item) -> None:
+        self.item = item
+        self._this_test = set()
+
+    def claim(self, path: Path) -> None:
+        """Note that the current test checks reference `path`; a ValueError when this
+        test checked it already (two unnamed checks) or another test did (two test ids
+        that make the same file name): each check needs a reference of its own."""
+        key = path.with_suffix("").resolve()  # a PNG and an EXR of one name are one reference
+        node = self.item.nodeid if self.item is not None else "outside-a-test"
+        if key in self._this_test:
+            raise ValueError(f"reference image {path} is checked twice by {node}: give each "
+                             "assert_matches_reference of a test its own name=")
+        owner = self._claims.setdefault(key, node)
+        if owner != node:
+            raise ValueError(f"reference image {path} is already the reference of {owner}; {node} makes the "
+                             "same file name from its id: pass name= to tell them apart")
+        self._this_test.add(key)
+
     def wrote(self, path: Path) -> Path:
-        self.written.append(path)
+        if path not in self.written:
+            self.written.append(path)
         return path
 
 
@@ -113,7 +135,7 @@ def pytest_unconfigure(config: pytest.Config) -> None:
 def pytest_runtest_setup(item: pytest.Item) -> None:
     run = _run_of(item.config)
     if run is not None:
-        run.item = item
+        run.start(item)
 
 
 def pytest_terminal_summary(terminalreporter: Any, config: pytest.Config) -> None:

@@ -107,6 +107,36 @@ def test_update_refs_creates_then_rewrites_only_on_request(pytester):
     pytester.runpytest("-k", "reference").assert_outcomes(passed=1)
 
 
+def test_each_reference_belongs_to_one_check(pytester):
+    """Two unnamed checks of one test, or two test ids that make one file name, would share
+    (and overwrite) one reference: each is an error naming the file and what to do."""
+    pytester.makepyfile(test_twice='''
+import numpy as np
+import pytest
+from service.image_check import assert_matches_reference
+
+def test_two_unnamed():
+    assert_matches_reference(np.zeros((4, 4, 3), np.uint8))
+    assert_matches_reference(np.zeros((4, 4), np.float32))
+
+@pytest.mark.parametrize("room", ["room a", "room/a"])
+def test_rooms(room):
+    assert_matches_reference(np.zeros((4, 4, 3), np.uint8))
+
+def test_named():
+    assert_matches_reference(np.zeros((4, 4, 3), np.uint8), "colour")
+    assert_matches_reference(np.zeros((4, 4), np.float32), "depth")
+''')
+    result = pytester.runpytest("--depthview-update-refs")
+    result.assert_outcomes(passed=2, failed=2)
+    text = result.stdout.str()
+    assert "test_two_unnamed.exr is checked twice by test_twice.py::test_two_unnamed" in text.replace("\n", "")
+    assert "is already the reference of test_twice.py::test_rooms[room a]; test_twice.py::test_rooms[room/a] " \
+           "makes the same file name" in text.replace("\n", "")
+    written = [ln for ln in text.splitlines() if ln.endswith((".png", ".exr")) and "refs" in ln]
+    assert len(written) == len(set(written)) == 4  # two_unnamed's first, room a, colour, depth
+
+
 def readme_user_test() -> str:
     """The README's complete user test file (the first python block of its plugin section)."""
     text = (ROOT / "README.md").read_text()
