@@ -76,6 +76,6 @@ async def _soft_shadows(r: Render, scene_id: str, scene: Scene, camera: Camera, 
         except ValueError as exc:
             raise HTTPException(422, f"soft_shadows light: {exc}; its shadow maps and depth images need the "
                                      "scene in front of it (method raytrace does not)") from None
-    gbuf, counts = await r.job(SoftShadowJob(scene_id, scene, camera, ss), label)
+    gbuf, counts = await r.job(SoftShadowJob(scene_id, scene, camera, ss, req.cull_back_faces), label)
     color = await r.cpu(shade, scene, gbuf, counts, ss)
     return Rendered(color, lambda fmt: encode_shadowed(color, gbuf, counts, fmt))

@@ -172,11 +172,12 @@ class SoftShadowJob(SceneJob):
     scene: Scene | None
     camera: Camera
     req: SoftShadowRequest
+    cull_back_faces: bool = True
 
     def __call__(self, state: GLState) -> tuple[GBuffer, np.ndarray]:
         scene, req = self.load(state), self.req
         gpu = state.scene_gpu(self.scene_key, scene)
-        gbuf = state.gbuffer.render(gpu, self.camera)
+        gbuf = state.gbuffer.render(gpu, self.camera, cull_back_faces=self.cull_back_faces)
         if req.method == "raytrace":
             return gbuf, raytrace_counts(self.scene_key, scene, gbuf, req)
         shadows = _shadow_pass(state, req.samples)

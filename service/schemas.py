@@ -127,7 +127,12 @@ class SoftShadowSpec(BaseModel):
     light: LightSpec | None = Field(default=None, description="omitted: a light sized to the scene "
                                                                 "(diagonal = scene diagonal, from the sun's side)")
     samples: StrictInt = Field(default=16, ge=1, le=MAX_SHADOW_SAMPLES, description="k: k×k light samples")
-    method: Literal["geometry", "non_redundant", "conventional", "peeling", "raytrace"] = "non_redundant"
+    method: Literal["geometry", "non_redundant", "conventional", "peeling", "raytrace"] = Field(
+        default="non_redundant", description="the occluders of the shadow maps: geometry (the scene), the "
+        "reconstruction of non_redundant or conventional images from the light's corners or of peeling layers "
+        "from its centre; or raytrace (Embree, exact). All but raytrace need the whole scene box in front of "
+        "the light (422). The first frame under a light builds its reconstruction and k² maps (seconds to tens "
+        "of seconds at the defaults on a CPU rasteriser); later frames under it reuse them")
     reconstruction: Literal["hybrid", "grid", "compact"] = Field(
         default="hybrid", description="hybrid (Alg. 4), grid (baseline) or compact (simplified hybrid)")
     resolution: StrictInt = Field(default=1024, ge=16, le=MAX_RECONSTRUCTION_RES,
@@ -137,7 +142,8 @@ class SoftShadowSpec(BaseModel):
 
 class Effects(BaseModel):
     """Effects applied to a frame: reflections by method (2×2 supersampled), with
-    `glossy_rays` lobe rays per sample on glossy surfaces; soft shadows of an area light."""
+    `glossy_rays` lobe rays per sample on glossy surfaces; or soft shadows of an area
+    light (one of the two per frame: both together are 422)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -172,13 +178,20 @@ class FrameRequest(BaseModel):
     width: StrictInt = Field(default=512, ge=1, description="pixels; at most the service's max_width")
     height: StrictInt = Field(default=512, ge=1, description="pixels; at most the service's max_height")
     format: Literal["png", "exr"] = Field(
-        default="png", description="png: sRGB colour; exr: linear float channels RGB, Z, N, id, object")
+        default="png", description="png: sRGB colour; exr: linear float channels RGB, Z, N.xyz, id, object "
+                                   "(with reflections: RGB, reflected, diffuse, specular, ray_length; with soft "
+                                   "shadows: RGB, Z, N.xyz, id, object, visible)")
     effects: Effects = Field(default_factory=Effects)
-    cull_back_faces: StrictBool = Field(default=True, description="back-face culling (on, as the thesis)")
+    cull_back_faces: StrictBool = Field(default=True, description="back-face culling of the camera's view (on, "
+                                        "as the thesis); off is 422 with reflections, whose passes and truth "
+                                        "cull back faces throughout")
 
     @model_validator(mode="after")
     def _camera_is_valid(self) -> FrameRequest:
         self.to_camera()  # CameraError is a ValueError → 422 naming the problem
+        if not self.cull_back_faces and self.effects.reflections != "none":
+            raise ValueError("cull_back_faces false cannot be combined with reflections: their passes and "
+                             "their Embree truth cull back faces throughout (as the thesis)")
         return self
 
     def to_camera(self) -> Camera:

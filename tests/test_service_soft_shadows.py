@@ -173,6 +173,26 @@ def test_both_sides_keep_single_sided_occluders_seen_from_behind(client, cornell
     assert not any(cmp.ok for cmp in counts_compared(front, exact, scene, **NR_HYBRID_BOUNDS))
 
 
+def test_cull_back_faces_reaches_soft_shadow_frames_and_is_refused_with_reflections(client, cornell):
+    """From behind the room's back wall (single-sided, facing in) a culled view looks
+    through it into the room; without culling the wall's back fills the view. With
+    reflections, which cull throughout, turning it off is a 422 saying so (it was ignored)."""
+    c, _ = client
+    behind = {"eye": [0.0, 1.0, -3.5], "target": [0.0, 1.0, 0.0]}
+    ids = {}
+    for cull in (True, False):
+        r = c.post(f"/scenes/{cornell}/frames", json={
+            "camera": behind, "width": 24, "height": 24, "format": "exr", "cull_back_faces": cull,
+            "effects": {"soft_shadows": {"samples": 2, "method": "raytrace"}}})
+        assert r.status_code == 200, r.text
+        ids[cull] = image_io.decode_exr(r.content)["object"]
+    assert len(np.unique(ids[False][6:18, 6:18])) == 1  # the back wall alone
+    assert len(np.unique(ids[True][6:18, 6:18])) > 1    # the room's inside: floor, walls, boxes
+    r = c.post(f"/scenes/{cornell}/frames", json={"camera": behind, "width": 24, "height": 24,
+                                                   "cull_back_faces": False, "effects": {"reflections": "cluster"}})
+    assert r.status_code == 422 and "cull_back_faces false cannot be combined with reflections" in r.text
+
+
 def test_a_both_sides_reconstruction_keeps_the_back_of_the_ceiling(client, cornell):
     """From the default light (above the room) culled images see through the ceiling,
     whose top is its back; both sides keep it: most of the top view is then the ceiling."""

@@ -47,7 +47,9 @@ depth_images = APIRouter(prefix="/scenes/{scene_id}", tags=["depth images"], dep
 @frames.post(
     "/frames", summary="Render a frame", response_class=Response,
     responses={200: {"content": {"image/png": {}, "image/x-exr": {}},
-                     "description": "PNG (sRGB colour) or EXR (linear RGB, Z, N, id, object)"},
+                     "description": "PNG (sRGB colour) or EXR (linear RGB, Z, N.xyz, id, object; with "
+                                    "reflections RGB, reflected, diffuse, specular, ray_length; with soft "
+                                    "shadows also visible)"},
                **responses({**RENDER_ERRORS, 422: "invalid camera, effects or size, or over the memory budget"})})
 async def render_frame(scene_id: str, req: FrameRequest, r: RenderDep) -> Response:
     t0 = time.perf_counter()
