@@ -9,6 +9,7 @@ caller checks the size limits and the memory budget first.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -35,7 +36,7 @@ from service.worker import encode_frame
 class Rendered:
     """A rendered frame: linear colour (H,W,3) float32 and the encoder of its buffers
     (``encode("png" | "exr") -> bytes``; CPU only, call it off the event loop);
-    reflective frames add their per-step milliseconds and cache hits (Server-Timing)."""
+    reflective and soft-shadow frames add their per-step milliseconds and cache hits (Server-Timing)."""
 
     color: np.ndarray
     encode: Callable[[str], bytes]
@@ -76,6 +77,8 @@ async def _soft_shadows(r: Render, scene_id: str, scene: Scene, camera: Camera, 
         except ValueError as exc:
             raise HTTPException(422, f"soft_shadows light: {exc}; its shadow maps and depth images need the "
                                      "scene in front of it (method raytrace does not)") from None
-    gbuf, counts = await r.job(SoftShadowJob(scene_id, scene, camera, ss, req.cull_back_faces), label)
+    gbuf, counts, steps, hits = await r.job(SoftShadowJob(scene_id, scene, camera, ss, req.cull_back_faces), label)
+    t0 = time.perf_counter()
     color = await r.cpu(shade, scene, gbuf, counts, ss)
-    return Rendered(color, lambda fmt: encode_shadowed(color, gbuf, counts, fmt))
+    return Rendered(color, lambda fmt: encode_shadowed(color, gbuf, counts, fmt),
+                    {**steps, "shade": (time.perf_counter() - t0) * 1e3}, hits)

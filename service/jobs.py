@@ -20,7 +20,7 @@ job                    result
 ``FrameJob``           ``GBuffer`` of one camera
 ``ReflectionJob``      ``ReflectionResult`` (cluster depth images or env map, Ch. 4)
 ``RaytraceJob``        (``ReflectionResult`` of the Embree reference, step ms, cache hits; off-GL)
-``SoftShadowJob``      (``GBuffer``, visible light samples per pixel; Embree for raytrace)
+``SoftShadowJob``      (``GBuffer``, visible light samples per pixel, step ms, cache hits; Embree for raytrace)
 ``ReconstructionJob`` per source image (positions, RGBA8 colours, triangles), Ch. 3
 ``SetJob``             (depth-image set by GL or Embree, §2.3.2 metrics or None), Ch. 2
 =====================  ==============================================================
@@ -159,6 +159,21 @@ def _reconstruction(state: GLState, scene_key: str, scene: Scene, cameras: Seque
     return state.kept(scene_key, what, build)
 
 
+class _StepClock:
+    """Milliseconds of a job's steps, each from the end of the one before (`finish`:
+    wait for the GL work queued so far first, where nothing reads it back)."""
+
+    def __init__(self, state: GLState) -> None:
+        self.state, self.ms, self._t = state, {}, time.perf_counter()
+
+    def step(self, name: str, finish: bool = False) -> None:
+        if finish:
+            self.state.gl.ctx.finish()
+        now = time.perf_counter()
+        self.ms[name] = (now - self._t) * 1e3
+        self._t = now
+
+
 @dataclass(frozen=True)
 class SoftShadowJob(SceneJob):
     """(G-buffer of `camera`, per-pixel visible light samples (H,W) uint16): by shadow
@@ -174,27 +189,45 @@ class SoftShadowJob(SceneJob):
     req: SoftShadowRequest
     cull_back_faces: bool = True
 
-    def __call__(self, state: GLState) -> tuple[GBuffer, np.ndarray]:
+    def __call__(self, state: GLState) -> tuple[GBuffer, np.ndarray, dict[str, float], dict[str, bool]]:
+        """(G-buffer, visible counts, milliseconds per step, cache hits) (Server-Timing):
+        gbuffer, then trace (raytrace), or occluders + shadow_maps (made, or kept from an
+        earlier frame: a cache hit) and lookup; occluders_maps_lookup where the maps are
+        drawn batch by batch."""
         scene, req = self.load(state), self.req
+        clock = _StepClock(state)
         gpu = state.scene_gpu(self.scene_key, scene)
         gbuf = state.gbuffer.render(gpu, self.camera, cull_back_faces=self.cull_back_faces)
+        clock.step("gbuffer")
         if req.method == "raytrace":
-            return gbuf, raytrace_counts(self.scene_key, scene, gbuf, req)
+            counts = raytrace_counts(self.scene_key, scene, gbuf, req)
+            clock.step("trace")
+            return gbuf, counts, clock.ms, {}
         shadows = _shadow_pass(state, req.samples)
         if shadows.maps_nbytes > state.reconstruction_cache_bytes:
             with self._occluders(state, scene, gpu) as occ:
                 res = shadows.visibility(occ, scene.bounds, gbuf.position, gbuf.normal, gbuf.mask, req.light)
-            return gbuf, res.counts
+            clock.step("occluders_maps_lookup")
+            return gbuf, res.counts, clock.ms, {}
+
+        made = []
 
         def maps() -> list[ShadowMaps]:
+            made.append(True)
             with self._occluders(state, scene, gpu) as occ:
-                return [shadows.render_maps(occ, scene.bounds, req.light)]
+                clock.step("occluders", finish=True)
+                out = [shadows.render_maps(occ, scene.bounds, req.light)]
+                clock.step("shadow_maps", finish=True)
+                return out
 
         images = (req.reconstruction, req.resolution, req.sides) if req.method != "geometry" else ()
         what = ("shadow maps", req.method, *images, req.samples, req.light)
         with state.kept(self.scene_key, what, maps, shadows.maps_nbytes) as kept:
+            if not made:
+                clock.step("shadow_maps")
             res = shadows.lookup(kept[0], gbuf.position, gbuf.normal, gbuf.mask)
-        return gbuf, res.counts
+            clock.step("lookup")
+        return gbuf, res.counts, clock.ms, {"shadow_maps": not made}
 
     def _occluders(self, state: GLState, scene: Scene, gpu: SceneGPU) -> AbstractContextManager[Sequence[Any]]:
         """The scene itself (`geometry`) or the reconstruction of the light's images."""

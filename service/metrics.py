@@ -144,7 +144,8 @@ class Metrics:
                [("", float(w["last_job_seconds"]))])
         metric("depthview_frames_total", "counter", "Frames served by format.",
                [(f'{{format="{k}"}}', v) for k, v in frames] or [('{format="png"}', 0)])
-        metric("depthview_frame_errors_total", "counter", "Failed frame requests by status.",
+        metric("depthview_frame_errors_total", "counter",
+               "Frame requests that passed validation and then failed, by status (all: depthview_responses_total).",
                [(f'{{status="{k}"}}', v) for k, v in errors])
         metric("depthview_frames_streamed_total", "counter", "Frames sent over the stream.", [("", streamed)])
         metric("depthview_uploads_total", "counter", "Scene upload requests accepted.", [("", uploads)])

@@ -242,6 +242,27 @@ def test_frames_under_one_light_reuse_its_reconstruction_and_maps(client, monkey
     assert made == [4, 4] and len(drawn) - before <= 1
 
 
+def test_soft_shadow_frames_name_their_steps_and_the_maps_cache(client):
+    """Server-Timing: the first frame under a light makes its occluders and maps (a cache
+    miss), the next one from elsewhere only looks them up (a hit); raytrace traces."""
+    c, sid = client
+
+    def steps(view: dict, method: str = "non_redundant") -> dict[str, str]:
+        r = c.post(f"/scenes/{sid}/frames", json={"camera": view, "width": RES, "height": RES, "effects": {
+            "soft_shadows": {"samples": 3, "method": method, "resolution": 80}}})
+        assert r.status_code == 200, r.text
+        return {part.split(";")[0]: part for part in r.headers["server-timing"].split(", ")}
+
+    cam = camera()
+    first = steps(cam)
+    assert list(first) == ["gbuffer", "occluders", "shadow_maps", "lookup", "shade", "encode"]
+    assert 'desc="cache miss"' in first["shadow_maps"]
+    second = steps({**cam, "eye": [x * 1.1 for x in cam["eye"]]})
+    assert list(second) == ["gbuffer", "shadow_maps", "lookup", "shade", "encode"]
+    assert 'desc="cache hit"' in second["shadow_maps"]
+    assert list(steps(cam, "raytrace")) == ["gbuffer", "trace", "shade", "encode"]
+
+
 @pytest.mark.parametrize("spec, needle", [
     ({"samples": 0}, "samples"),
     ({"samples": 33}, "samples"),

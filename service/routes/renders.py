@@ -60,7 +60,7 @@ async def render_frame(scene_id: str, req: FrameRequest, r: RenderDep) -> Respon
         rendered = await render(r, scene_id, req)
         t1 = time.perf_counter()
         body = await r.encode(rendered.encode, req.format)
-        if rendered.steps_ms:  # reflective frames name each step (and their cache hits)
+        if rendered.steps_ms:  # reflective and soft-shadow frames name each step (and their cache hits)
             steps = {**rendered.steps_ms, "encode": (time.perf_counter() - t1) * 1e3}
             timing["Server-Timing"] = server_timing(steps, rendered.cache_hits)
     except HTTPException as exc:
@@ -81,6 +81,7 @@ async def render_frame(scene_id: str, req: FrameRequest, r: RenderDep) -> Respon
                                     "(peeling), camera"},
                **responses({**RENDER_ERRORS, 422: "invalid cameras, light or size, or over the memory budget"})})
 async def reconstruct(scene_id: str, req: ReconstructionRequest, r: RenderDep) -> Response:
+    t0 = time.perf_counter()
     check_budget(r.settings, reconstruction_bytes(req))
     scene = await r.scene(scene_id)
     cams = req.to_cameras()
@@ -102,7 +103,8 @@ async def reconstruct(scene_id: str, req: ReconstructionRequest, r: RenderDep) -
                "camera": cams[min(k, len(cams) - 1)].describe()} for k in range(len(parts))]
     body = await r.encode(glb_bytes, parts, names, extras)
     return Response(body, media_type="model/gltf-binary",
-                    headers={"Content-Disposition": 'attachment; filename="reconstruction.glb"'})
+                    headers={"Content-Disposition": 'attachment; filename="reconstruction.glb"',
+                             "X-Render-Seconds": f"{time.perf_counter() - t0:.4f}"})
 
 
 # --- depth-image sets (thesis Ch. 2) ---------------------------------------------------------
@@ -113,6 +115,7 @@ async def reconstruct(scene_id: str, req: ReconstructionRequest, r: RenderDep) -
                                     "{metrics, media_type, images_b64}"},
                **responses({**RENDER_ERRORS, 422: "invalid cameras or size, or over the memory budget"})})
 async def render_depth_images(scene_id: str, req: DepthImagesRequest, r: RenderDep) -> Response:
+    t0 = time.perf_counter()
     check_size(r.settings, req.width, req.height, "depth image")
     check_budget(r.settings, set_bytes(req))
     scene = await r.scene(scene_id)
@@ -124,7 +127,9 @@ async def render_depth_images(scene_id: str, req: DepthImagesRequest, r: RenderD
     images, metrics = await r.job(job, f"depth images {scene_id[:12]}")
     body = await r.encode(encode_set, images, req.format)
     media = SET_MEDIA_TYPES[req.format]
+    seconds = {"X-Render-Seconds": f"{time.perf_counter() - t0:.4f}"}
     if metrics is None:
-        return Response(body, media_type=media)
+        return Response(body, media_type=media, headers={
+            **seconds, "Content-Disposition": f'attachment; filename="depth_images.{req.format}"'})
     return JSONResponse({"metrics": json_safe(metrics), "media_type": media,
-                         "images_b64": base64.b64encode(body).decode("ascii")})
+                         "images_b64": base64.b64encode(body).decode("ascii")}, headers=seconds)
