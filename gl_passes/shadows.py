@@ -6,7 +6,7 @@ of a rectangular area light's k×k grid (`AreaLight.samples(k)`, row s = sample 
 whether s sees P:
 
 1. one shadow map per light sample (k² maps), rendered from the light camera
-   `scenes.lights.light_camera(light, s, bounds, res)` — the same cameras for every
+   `scenes.lights.shadow_map_camera(light, s, bounds, res)` — the same cameras for every
    occluder kind, so the original geometry (ground truth of Alg. 5) and its
    reconstruction (several meshes) are judged through identical maps. Every
    occluder (a `SceneGPU`, a `MeshGPU`, anything whose `draw(prog)` draws
@@ -59,7 +59,7 @@ from gl_passes.context import GLContext
 from gl_passes.readback import read_buffer
 from gl_passes.releasable import Releasable, ReleasedOnError, Scratch, grown_buffer
 from gl_passes.shaders import compute_program, program
-from scenes.lights import light_camera
+from scenes.lights import shadow_map_camera
 from scenes.model import AreaLight
 
 GL_CLIP_DISTANCE0 = 0x3000
@@ -167,7 +167,8 @@ class ShadowCameras:
     view_proj: (S,4,4) float32 world → clip, column-major (GL layout).
     light: (S,4) float32 sample position (world units) and texel size per unit
     depth, 2·tan(fov/2)/res. clip: (S,2) float32 near, far (world units).
-    forward: (3,) float32 the common unit view axis (−light normal)."""
+    forward: (S,4) float32 each camera's unit view axis (xyz; w unused): the light's
+    −normal, or toward the scene box for a sample far off the light's axis."""
 
     view_proj: np.ndarray
     light: np.ndarray
@@ -177,13 +178,14 @@ class ShadowCameras:
 
 def shadow_cameras(light: AreaLight, bounds: tuple[np.ndarray, np.ndarray], samples: int,
                    resolution: int) -> ShadowCameras:
-    """The light cameras of the k×k light samples (`scenes.lights.light_camera`)."""
-    cams = [light_camera(light, s, bounds, resolution) for s in light.samples(samples)]
+    """The light cameras of the k×k light samples (`scenes.lights.shadow_map_camera`)."""
+    cams = [shadow_map_camera(light, s, bounds, resolution) for s in light.samples(samples)]
     view_proj = np.stack([c.view_projection().T for c in cams]).astype(np.float32)
     texel = np.array([2 * np.tan(np.radians(c.fov) / 2) / resolution for c in cams])
     light_rows = np.column_stack([[c.eye for c in cams], texel]).astype(np.float32)
     clip = np.array([(c.near, c.far) for c in cams], np.float32)
-    return ShadowCameras(np.ascontiguousarray(view_proj), light_rows, clip, cams[0].basis()[2].astype(np.float32))
+    forward = np.array([np.append(c.basis()[2], 0.0) for c in cams], np.float32)
+    return ShadowCameras(np.ascontiguousarray(view_proj), light_rows, clip, forward)
 
 
 def atlas_tiles(n: int) -> tuple[int, np.ndarray]:
@@ -369,9 +371,9 @@ class SoftShadowPass(Releasable):
         LOOKUP_UNITS.bind_texture("depth", atlas)
         for name in LOOKUP_UNITS.storage:
             LOOKUP_UNITS.bind_storage(name, self._buffers[name])
-        for name, rows in (("u_light_vp", cams.view_proj), ("u_light", cams.light), ("u_clip", cams.clip)):
+        for name, rows in (("u_light_vp", cams.view_proj), ("u_light", cams.light), ("u_clip", cams.clip),
+                           ("u_forward", cams.forward)):
             prog[name].write(_padded(rows, first, count, self.batch))
-        prog["u_forward"].value = tuple(float(x) for x in cams.forward)
         s = self.settings
         for name, value in (("u_first", first), ("u_count", count), ("u_tiles", self.tiles),
                             ("u_res", s.shadow_map_resolution), ("u_n_points", n_points),

@@ -92,9 +92,11 @@ def light_camera(light: AreaLight, eye: np.ndarray, bounds: tuple[np.ndarray, np
         raise ValueError("the scene box is not entirely in front of the light")
     up = np.asarray(light.v, np.float64)
     if aim == "scene":
-        fwd = (lo + hi) / 2 - e
-        fwd = fwd / np.linalg.norm(fwd)
-        up = up - fwd * (up @ fwd)  # v made orthogonal to the view axis (it is for "light")
+        centre = (lo + hi) / 2 - e
+        centre = centre / np.linalg.norm(centre)
+        if np.all(d @ centre > 0):  # else (a light grazing the box) the box is not in front of that axis
+            fwd = centre
+            up = up - fwd * (up @ fwd)  # v made orthogonal to the view axis (it is for "light")
     up = up / np.linalg.norm(up)
     right = np.cross(fwd, up)
     z = d @ fwd
@@ -102,6 +104,34 @@ def light_camera(light: AreaLight, eye: np.ndarray, bounds: tuple[np.ndarray, np
     fov = float(np.degrees(2 * np.arctan(t)))
     cam = Camera(tuple(e), tuple(e + fwd), tuple(up), fov, resolution, resolution)
     return cam.fit_clip((lo, hi))
+
+
+#: A shadow map looks along the light's axis (Alg. 5) unless that needs a wider fov than
+#: this (degrees): a light much larger than the scene, or near it, whose off-axis samples
+#: see the box far off the axis; such a sample's map looks at the box instead.
+AXIS_FOV_MAX = 160.0
+
+#: Widest shadow map (degrees): past it a map's texels at the scene grow so large (its
+#: texel per unit depth is 2·tan(fov/2)/resolution) that shadows come out wrong; such a
+#: light (e.g. grazing the top of the scene box) is refused for the shadow-map methods.
+#: Where the errors jump is measured in bench/results/shadow_light_reach.md.
+SHADOW_MAP_FOV_MAX = 179.0
+
+
+def shadow_map_camera(light: AreaLight, sample: np.ndarray, bounds: tuple[np.ndarray, np.ndarray],
+                      resolution: int) -> Camera:
+    """The camera of light sample `sample`'s shadow map (Alg. 5): `light_camera` along
+    the light's axis, or aimed at the box where that is narrower and the axis needs more
+    than AXIS_FOV_MAX. ValueError when the box is not in front of the light or the map
+    would need more than SHADOW_MAP_FOV_MAX."""
+    cam = light_camera(light, sample, bounds, resolution)
+    if cam.fov > AXIS_FOV_MAX:
+        aimed = light_camera(light, sample, bounds, resolution, aim="scene")
+        cam = aimed if aimed.fov < cam.fov else cam
+    if cam.fov > SHADOW_MAP_FOV_MAX:
+        raise ValueError(f"a light sample sees the scene box across {cam.fov:.1f}° (a shadow map covers at most "
+                         f"{SHADOW_MAP_FOV_MAX:g}°): the light grazes the box")
+    return cam
 
 
 #: Depth-peeling layers rendered from the light's centre (§3.4.2).

@@ -17,7 +17,7 @@ import numpy as np
 from fastapi import HTTPException
 
 from scenes.camera import Camera
-from scenes.lights import reference_cameras
+from scenes.lights import reference_cameras, shadow_map_camera
 from scenes.model import AreaLight, Scene
 from service.deps import Render
 from service.effects import encode_reflections
@@ -74,9 +74,12 @@ async def _soft_shadows(r: Render, scene_id: str, scene: Scene, camera: Camera, 
     if spec.method != "raytrace":  # shadow maps and depth images: the light sees the whole scene box (422)
         try:
             reference_cameras(light, scene.bounds, "conventional", 16)
+            for sample in light.samples(spec.samples):
+                shadow_map_camera(light, sample, scene.bounds, 16)
         except ValueError as exc:
             raise HTTPException(422, f"soft_shadows light: {exc}; its shadow maps and depth images need the "
-                                     "scene in front of it (method raytrace does not)") from None
+                                     "scene in front of it, within a pinhole's view (method raytrace does "
+                                     "not)") from None
     gbuf, counts, steps, hits = await r.job(SoftShadowJob(scene_id, scene, camera, ss, req.cull_back_faces), label)
     t0 = time.perf_counter()
     color = await r.cpu(shade, scene, gbuf, counts, ss)

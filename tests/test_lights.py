@@ -7,7 +7,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from scenes.lights import default_area_light, light_camera, light_normal, reference_cameras
+from scenes.lights import (
+    AXIS_FOV_MAX,
+    SHADOW_MAP_FOV_MAX,
+    default_area_light,
+    light_camera,
+    light_normal,
+    reference_cameras,
+    shadow_map_camera,
+)
 from scenes.model import AreaLight
 
 LO, HI = np.array([-1.0, 0.0, -1.0]), np.array([1.0, 0.5, 1.0])
@@ -78,3 +86,21 @@ def test_a_light_facing_away_is_refused(aim):
         light_camera(away, np.asarray(away.center), BOUNDS, 64, aim=aim)
     with pytest.raises(ValueError, match="aim"):
         light_camera(LIGHT, np.asarray(LIGHT.center), BOUNDS, 64, aim="sideways")
+
+
+def test_shadow_maps_look_along_the_axis_unless_that_is_too_wide():
+    """Alg. 5's maps look along the light's axis (every sample of the default light);
+    a sample whose axis map needs more than AXIS_FOV_MAX looks at the box, and a light
+    grazing the box (every map wider than SHADOW_MAP_FOV_MAX) is refused."""
+    for s in LIGHT.samples(8):
+        assert shadow_map_camera(LIGHT, s, BOUNDS, 64) == light_camera(LIGHT, s, BOUNDS, 64)
+    huge = AreaLight((0.0, 3.0, 0.0), (0.0, 0.0, 200.0), (200.0, 0.0, 0.0))  # u × v = +Y: emits −Y
+    corner = huge.samples(4)[0]
+    axis = light_camera(huge, corner, BOUNDS, 64)
+    cam = shadow_map_camera(huge, corner, BOUNDS, 64)
+    assert axis.fov > AXIS_FOV_MAX and cam.fov < 10
+    np.testing.assert_allclose(cam.basis()[2], ((LO + HI) / 2 - corner) / np.linalg.norm((LO + HI) / 2 - corner))
+    grazing = AreaLight((0.5, HI[1] + 1e-3, 0.5), (0.0, 0.0, 0.4), (0.4, 0.0, 0.0))
+    with pytest.raises(ValueError, match=rf"sees the scene box across 1\d\d\.\d° \(a shadow map covers at most "
+                                         rf"{SHADOW_MAP_FOV_MAX:g}°\)"):
+        shadow_map_camera(grazing, grazing.samples(2)[0], BOUNDS, 64)

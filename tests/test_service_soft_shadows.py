@@ -304,6 +304,18 @@ def test_a_light_inside_the_scene_box_is_for_raytrace_only(client):
     assert (counts > 0).mean() > 0.05 and (counts < SAMPLES).any()
 
 
+def test_a_light_grazing_the_scene_box_is_for_raytrace_only(client):
+    """Just above the box's top every shadow map would need nearly 180° (texels too
+    large for any shadow: bench/results/shadow_light_reach.md): 422 naming raytrace."""
+    c, sid = client
+    lo, hi = make_builtin(SCENE).bounds
+    light = {"center": [float(lo[0]) + 0.1, float(hi[1]) + 1e-4, float(lo[2]) + 0.1], "u": [0.2, 0, 0],
+             "v": [0, 0, -0.2]}
+    r = shadow_frame(c, sid, light=light, method="geometry")
+    assert r.status_code == 422 and "sees the scene box across" in r.text and "method raytrace does not" in r.text
+    assert visible(shadow_frame(c, sid, light=light, method="raytrace")).shape == (RES, RES)
+
+
 def test_soft_shadows_and_reflections_together_are_422(client):
     c, sid = client
     r = c.post(f"/scenes/{sid}/frames", json={"camera": camera(), "width": RES, "height": RES, "effects": {

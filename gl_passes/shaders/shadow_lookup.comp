@@ -9,7 +9,7 @@
 //     t the angle between n and the direction to s (tan t clamped at MAX_TAN_T): a
 //     surface tilted by t from s changes depth by tan t texels across one texel. One
 //     texel is the world size of a shadow-map texel at P's depth along the light's
-//     axis (u_light[i].w * depth); depths are linear (eye-space z of the light camera);
+//     axis (u_light[i].w * depth along u_forward[i]); depths are linear (eye-space z of the light camera);
 //   * P outside the map, or in front of an empty texel: lit (nothing occludes it).
 // Each invocation owns one point's words, so no atomics are needed.
 layout(local_size_x = 64) in;
@@ -22,7 +22,7 @@ layout(binding = UNIT_depth) uniform sampler2D u_depth;               // depth a
 uniform mat4 u_light_vp[MAPS_PER_DRAW];    // world → clip of each map of the batch
 uniform vec4 u_light[MAPS_PER_DRAW];       // light sample position (world), texel size per unit depth
 uniform vec2 u_clip[MAPS_PER_DRAW];        // near, far of each light camera
-uniform vec3 u_forward;                    // the light cameras' common view axis (unit)
+uniform vec4 u_forward[MAPS_PER_DRAW];     // each light camera's view axis (unit xyz)
 uniform int u_first;                       // global sample index of the batch's map 0
 uniform int u_count;                       // maps in this batch
 uniform int u_tiles;                       // tiles per atlas row
@@ -43,7 +43,7 @@ float linear_depth(float d, vec2 nf) {
 bool lit(vec3 p, vec3 n, int i) {
     vec3 s = u_light[i].xyz;
     if (dot(n, s - p) <= 0.0) return false;
-    float texel = u_light[i].w * dot(p - s, u_forward);
+    float texel = u_light[i].w * dot(p - s, u_forward[i].xyz);
     float cos_t = dot(n, normalize(s - p));
     float tan_t = min(sqrt(max(1.0 - cos_t * cos_t, 0.0)) / cos_t, MAX_TAN_T);
     vec3 q = p + n * (u_normal_offset * texel);
