@@ -19,10 +19,13 @@ key            array                 EXR channels
 ``"object"``   (H,W) unsigned int    object (UINT)
 other          (H,W) float           <name> (FLOAT)
 other          (H,W) unsigned int    <name> (UINT)
+``"diffuse"``,  (H,W,3) float         <name>.R, .G, .B (FLOAT): colour layers, as EXR
+``"reflected"``                      tools (exrheader, Blender, Nuke) group them
 other          (H,W,C) float, C 2-4  <name>.x, .y, .z, .w (FLOAT)
 =============  ====================  =============================================
 
-decode_exr inverts this: R, G, B -> "RGB"; <name>.x/.y[/.z[/.w]] -> <name> (H,W,C); UINT
+decode_exr inverts this: R, G, B -> "RGB"; <name>.R/.G/.B and <name>.x/.y[/.z[/.w]] ->
+<name> (H,W,C); UINT
 channels come back as uint32, FLOAT (and HALF) as float32. Invalid input raises ValueError.
 """
 
@@ -49,6 +52,8 @@ __all__ = [
 
 _EXR_MAGIC = b"\x76\x2f\x31\x01"
 _VECTOR_SUFFIXES = ("x", "y", "z", "w")
+#: (H,W,3) float keys written as colour layers <name>.R/.G/.B (not vectors).
+_COLOUR_KEYS = frozenset({"diffuse", "reflected"})
 _FLOAT_KEYS = {"RGB": 3, "Z": None, "N": 3, "P": 3}  # name -> required C (None: (H,W))
 _UINT_KEYS = ("id", "object")
 _MAX_UINT32 = np.iinfo(np.uint32).max
@@ -212,8 +217,9 @@ def _exr_channels(channels: dict[str, np.ndarray], where: str) -> tuple[dict[str
             if (want_c != "any" and (arr.ndim != 3 or n != want_c)) or not 2 <= n <= 4:
                 need = f"(H,W,{want_c})" if want_c != "any" else "(H,W) or (H,W,C) with C in 2..4"
                 raise ValueError(f"{where}: {key!r} must be {need}, got shape {arr.shape}")
+            suffixes = "RGB" if key in _COLOUR_KEYS and n == 3 else _VECTOR_SUFFIXES
             for i in range(n):
-                put(f"{key}.{_VECTOR_SUFFIXES[i]}", arr[:, :, i])
+                put(f"{key}.{suffixes[i]}", arr[:, :, i])
     assert size is not None
     return flat, size
 
@@ -230,10 +236,10 @@ def _group_channels(flat: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     if all(c in flat for c in "RGB") and same_float(list("RGB")):
         out["RGB"] = np.stack([flat["R"], flat["G"], flat["B"]], axis=-1)
         used.update("RGB")
-    bases = sorted({n.rsplit(".", 1)[0] for n in flat if n.endswith(".x")})
-    for base in bases:
+    bases = sorted({(n.rsplit(".", 1)[0], n[-1]) for n in flat if n.endswith((".x", ".R"))})
+    for base, first in bases:
         names = []
-        for s in _VECTOR_SUFFIXES:
+        for s in ("RGB" if first == "R" else _VECTOR_SUFFIXES):
             if f"{base}.{s}" not in flat:
                 break
             names.append(f"{base}.{s}")

@@ -162,6 +162,22 @@ def test_exr_channel_names_and_row_order():
     np.testing.assert_array_equal(chans["Z"].pixels[0], [0, 1, 2, 3, 4])  # row 0 = top scanline
 
 
+def test_exr_colour_layers_are_named_rgb():
+    """diffuse and reflected are colours: EXR tools group <layer>.R/.G/.B, not .x/.y/.z."""
+    import OpenEXR
+
+    rng = np.random.default_rng(1)
+    arrays = {"RGB": rng.random((3, 4, 3), np.float32), "diffuse": rng.random((3, 4, 3), np.float32),
+              "reflected": rng.random((3, 4, 3), np.float32), "N": rng.random((3, 4, 3), np.float32)}
+    data = encode_exr(arrays)
+    chans = set(OpenEXR.File(io.BytesIO(data), separate_channels=True).channels())
+    assert {"diffuse.R", "diffuse.G", "diffuse.B", "reflected.B", "N.x"} <= chans and "diffuse.x" not in chans
+    back = decode_exr(data)
+    assert set(back) == set(arrays)
+    for key, value in arrays.items():
+        np.testing.assert_array_equal(back[key], value)
+
+
 def test_exr_non_contiguous_input():
     base = RNG.random((6, 8, 3)).astype(np.float32)
     view = base[::-1, ::2]  # strided, negative stride
