@@ -5,6 +5,7 @@ share its bounded queue and timeout; encoding runs in the thread pool."""
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 
 import numpy as np
@@ -62,12 +63,15 @@ def set_metrics(scene: Scene, plan: SetPlan, images: list[DepthImage], conv: lis
 
 
 def encode_set(images: list[DepthImage], fmt: str) -> bytes:
-    """EXR: one part per image ("image_<k>": RGB, Z, N, P, id); npz: stacked arrays
-    color (n,H,W,3), depth (n,H,W), normal, position (n,H,W,3), tri_id (n,H,W) and
-    per-image camera view/projection matrices (n,4,4)."""
+    """EXR: one part per image ("image_<k>": RGB, Z, N, P, id; its camera in OpenEXR's
+    standard worldToCamera and worldToNDC attributes, row-vector M44f as Imath uses
+    them, i.e. the transposed GL view and projection·view, and all of it as JSON in the
+    string attribute "depthviewCamera"); npz: stacked arrays color (n,H,W,3), depth
+    (n,H,W), normal, position (n,H,W,3), tri_id (n,H,W) and per-image camera
+    view/projection matrices (n,4,4)."""
     if fmt == "exr":
-        parts = [(f"image_{k}", {"RGB": im.color, "Z": im.depth, "N": im.normal, "P": im.position, "id": im.tri_id})
-                 for k, im in enumerate(images)]
+        parts = [(f"image_{k}", {"RGB": im.color, "Z": im.depth, "N": im.normal, "P": im.position, "id": im.tri_id},
+                  _camera_attributes(im.camera)) for k, im in enumerate(images)]
         return image_io.encode_exr_multipart(parts)
     if fmt == "npz":
         stack = {name: np.stack([np.ascontiguousarray(getattr(im, name)) for im in images])
@@ -76,3 +80,11 @@ def encode_set(images: list[DepthImage], fmt: str) -> bytes:
         stack["projection"] = np.stack([im.camera.projection_matrix() for im in images])
         return image_io.encode_npz(stack)
     raise ValueError(f"unknown depth-image set format {quoted(fmt)}")
+
+
+def _camera_attributes(camera: Camera) -> dict:
+    """A depth image's camera as EXR header attributes (see encode_set)."""
+    view = camera.view_matrix()
+    return {"worldToCamera": np.ascontiguousarray(view.T, np.float32),
+            "worldToNDC": np.ascontiguousarray((camera.projection_matrix() @ view).T, np.float32),
+            "depthviewCamera": json.dumps(camera.describe())}

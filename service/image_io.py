@@ -284,10 +284,13 @@ def encode_exr(channels: dict[str, np.ndarray]) -> bytes:
         raise ValueError(f"encode_exr: {exc}") from exc
 
 
-def encode_exr_multipart(parts: list[tuple[str, dict[str, np.ndarray]]]) -> bytes:
+def encode_exr_multipart(parts: list[tuple[str, dict[str, np.ndarray]]]
+                         | list[tuple[str, dict[str, np.ndarray], dict]]) -> bytes:
     """Multi-part EXR: one part per (name, channels) pair, e.g. one part per depth image
     of a set. Parts may differ in size and channels; names must be unique, non-empty
-    strings. Each part follows encode_exr's naming convention. Raises ValueError."""
+    strings. Each part follows encode_exr's naming convention. A third item holds header
+    attributes of the part (str, float, or a (4,4) float32 array as an M44f, e.g.
+    OpenEXR's standard worldToCamera / worldToNDC). Raises ValueError."""
     import OpenEXR
 
     if not isinstance(parts, (list, tuple)) or not parts:
@@ -295,17 +298,18 @@ def encode_exr_multipart(parts: list[tuple[str, dict[str, np.ndarray]]]) -> byte
     prepared = []
     seen: set[str] = set()
     for i, item in enumerate(parts):
-        if not isinstance(item, (list, tuple)) or len(item) != 2:
-            raise ValueError(f"encode_exr_multipart: part {i} is not a (name, channels) pair")
-        name, channels = item
+        if not isinstance(item, (list, tuple)) or len(item) not in (2, 3):
+            raise ValueError(f"encode_exr_multipart: part {i} is not a (name, channels[, attributes]) tuple")
+        name, channels, attributes = (*item, {}) if len(item) == 2 else item
         if not isinstance(name, str) or not name or name in seen:
             raise ValueError(f"encode_exr_multipart: part {i} name {name!r} is empty, not a string or repeated")
         seen.add(name)
         flat, size = _exr_channels(channels, f"encode_exr_multipart part {name!r}")
-        prepared.append((name, flat, size))
+        prepared.append((name, flat, size, dict(attributes)))
     display = (max(p[2][0] for p in prepared), max(p[2][1] for p in prepared))
     try:
-        exr_parts = [OpenEXR.Part(_exr_header(size, display), flat, name) for name, flat, size in prepared]
+        exr_parts = [OpenEXR.Part({**attributes, **_exr_header(size, display)}, flat, name)
+                     for name, flat, size, attributes in prepared]
         return _write(OpenEXR.File(exr_parts))
     except (RuntimeError, TypeError) as exc:  # pragma: no cover - validated above
         raise ValueError(f"encode_exr_multipart: {exc}") from exc

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import base64
+import io
 
 import numpy as np
 import pytest
@@ -41,6 +42,32 @@ def test_rig_nr_set_as_exr_matches_direct_render(client, gl):
         assert_images_equal(ch["Z"], im.depth, f"depth_{k}")
         assert_images_equal(ch["RGB"], im.color, f"color_{k}")
     assert (parts[1][1]["id"] > 0).sum() < (direct[0].tri_id > 0).sum()  # later NR images hold fewer samples
+
+
+def test_exr_parts_carry_their_cameras(client):
+    """Each part's worldToNDC (OpenEXR's row-vector M44f) takes its samples' positions P
+    to their own pixel centres; worldToCamera gives depth Z along −z; the JSON names the eye."""
+    import json
+
+    import OpenEXR
+
+    c, sid = client
+    r = post(c, sid, method="conventional")
+    assert r.headers["content-disposition"] == 'attachment; filename="depth_images.exr"'
+    f = OpenEXR.File(io.BytesIO(r.content))
+    scene = make_builtin("cornell")
+    cams, _ = fig8_rig(scene.bounds, RES, RES)
+    for part, (_, ch), cam in zip(f.parts, image_io.decode_exr_multipart(r.content), cams, strict=True):
+        header = part.header
+        assert json.loads(header["depthviewCamera"])["eye"] == list(cam.eye)
+        rows, cols = np.nonzero(ch["id"] > 0)
+        p = np.c_[ch["P"][rows, cols], np.ones(len(rows))]
+        clip = p @ header["worldToNDC"].astype(np.float64)
+        ndc = clip[:, :2] / clip[:, 3:]
+        np.testing.assert_allclose(ndc[:, 0], (cols + 0.5) / RES * 2 - 1, atol=1e-3)
+        np.testing.assert_allclose(ndc[:, 1], 1 - (rows + 0.5) / RES * 2, atol=1e-3)
+        eye_space = p @ header["worldToCamera"].astype(np.float64)
+        np.testing.assert_allclose(-eye_space[:, 2], ch["Z"][rows, cols], rtol=1e-4)
 
 
 def test_conventional_npz_with_given_cameras(client, gl):
