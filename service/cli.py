@@ -29,6 +29,7 @@ KEEP_ALIVE_S = 5
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="depthview", description="Headless depth-image rendering service.")
+    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("serve", help="run the HTTP service (uvicorn)")
@@ -61,6 +62,15 @@ def _parser() -> argparse.ArgumentParser:
     c = sub.add_parser("scenes", help="list the built-in scenes with their triangle counts")
     c.add_argument("--detail", type=float, default=None, help="show the triangle estimate at this detail")
     return p
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("depthview")
+    except PackageNotFoundError:  # run from a checkout without installing
+        return "(not installed)"
 
 
 def _port(text: str) -> int:
@@ -133,6 +143,9 @@ def cmd_render(args: argparse.Namespace) -> int:
     covered = int(np.count_nonzero(gbuf.tri_id))
     print(f"{args.output}: {camera.width}x{camera.height} {fmt}, {scene.n_triangles} triangles, "
           f"{covered} pixels covered ({gl.renderer}, {gl.backend})")
+    if covered == 0:
+        print("depthview render: warning: no pixel shows the scene; the camera looks away from it, or sees only "
+              "back faces of one-sided surfaces" + ("" if args.no_cull else " (try --no-cull)"), file=sys.stderr)
     return 0
 
 
@@ -176,7 +189,10 @@ def server_config(settings: Settings, log_level: str = "info") -> Any:
 def cmd_serve(args: argparse.Namespace) -> int:
     import uvicorn
 
-    uvicorn.Server(server_config(serve_settings(args), args.log_level)).run()
+    settings = serve_settings(args)
+    if settings.data_dir.exists() and not settings.data_dir.is_dir():
+        raise ValueError(f"data directory {settings.data_dir} is a file, not a directory")
+    uvicorn.Server(server_config(settings, args.log_level)).run()
     return 0
 
 

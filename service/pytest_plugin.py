@@ -25,6 +25,7 @@ The assertions are `service.image_check.assert_images_close` and
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -77,8 +78,16 @@ class ImageCheckRun:
         return name
 
     def start(self, item: pytest.Item) -> None:
+        """A test begins. With --depthview-output, the files an earlier run's failures
+        left in its folder go, so the folder shows this run's failures only."""
         self.item = item
         self._this_test = set()
+        if self.config.getoption("depthview_output", None):
+            folder = self.test_output_dir()
+            if folder.is_dir():
+                for old in folder.iterdir():
+                    if _ARTIFACT.fullmatch(old.name):
+                        old.unlink()
 
     def claim(self, path: Path) -> None:
         """Note that the current test checks reference `path`; a ValueError when this
@@ -100,6 +109,9 @@ class ImageCheckRun:
             self.written.append(path)
         return path
 
+
+#: Files a failing check writes (service.image_check: <name>_actual / _expected / _error / _bad).
+_ARTIFACT = re.compile(r".+_(actual|expected|error|bad)\.(png|exr)")
 
 _RUNS: list[ImageCheckRun] = []
 

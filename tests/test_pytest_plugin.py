@@ -137,6 +137,21 @@ def test_named():
     assert len(written) == len(set(written)) == 4  # two_unnamed's first, room a, colour, depth
 
 
+def test_an_output_folder_shows_this_runs_failures_only(pytester):
+    """A test that failed (its four files written) and then passes leaves no files of the
+    earlier failure in --depthview-output; files of other names stay."""
+    checks_file(pytester, None)
+    out = pytester.path / "out"
+    pytester.runpytest("-k", "spot_srgb", f"--depthview-output={out}").assert_outcomes(failed=1)
+    folder = out / "test_checks.py_test_spot_srgb"
+    assert len(list(folder.iterdir())) == 4
+    (folder / "notes.txt").write_text("mine")
+    pytester.makepyfile(test_checks=CHECKS.replace("SPOT", "None").replace("image(spot=250), image()",
+                                                                        "image(), image()"))
+    pytester.runpytest("-k", "spot_srgb", f"--depthview-output={out}").assert_outcomes(passed=1)
+    assert [p.name for p in folder.iterdir()] == ["notes.txt"]
+
+
 def readme_user_test() -> str:
     """The README's complete user test file (the first python block of its plugin section)."""
     text = (ROOT / "README.md").read_text()

@@ -762,6 +762,9 @@ def test_cli_render_orbits_the_target_and_names_its_limits(tmp_path, capsys):
         assert p.returncode == 0, p.stderr
         images.append(image_io.decode_png(out.read_bytes()).astype(int))
     assert np.abs(images[0] - images[1]).mean() > 5
+    away = subprocess.run([*cmd, "--eye", "0", "1", "30", "--target", "0", "1", "60", str(tmp_path / "a.png")],
+                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=60)
+    assert away.returncode == 0 and "warning: no pixel shows the scene" in away.stderr and "--no-cull" in away.stderr
     assert main(["render", "--scene", FRAME_SCENE, "--width", "20000", "--height", "2", str(tmp_path / "w.png")]) == 2
     assert "frame width 20000 exceeds the limit 4096" in capsys.readouterr().err
     assert main(["render", "--scene", FRAME_SCENE, "--elevation", "90", str(tmp_path / "p.png")]) == 2
@@ -769,6 +772,12 @@ def test_cli_render_orbits_the_target_and_names_its_limits(tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_info:
         main(["serve", "--port", "99999"])
     assert exit_info.value.code == 2 and "port 99999 is not in 0-65535" in capsys.readouterr().err
+    (tmp_path / "afile").write_text("x")
+    assert main(["serve", "--data-dir", str(tmp_path / "afile")]) == 2
+    assert "is a file, not a directory" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--version"])
+    assert exit_info.value.code == 0 and capsys.readouterr().out.startswith("depthview ")
 
 
 def test_upload_a_real_model(client):
