@@ -390,7 +390,7 @@ def _ply_readable(data: bytes, max_triangles: int | None) -> bytes:
         header = ply.read_header(data)
         faces = header.element("face")
         _check_limit(faces.count if faces else None, max_triangles, estimate=True)
-        return ply.readable(data, header)
+        return ply.readable(data, header, lambda n: _check_limit(n, max_triangles, estimate=False))
     except ply.PlyError as exc:
         raise SceneLoadError(f"malformed PLY: {exc}") from None
 
@@ -667,7 +667,8 @@ def _material(mesh, fmt: str, header_materials: dict[str, dict]) -> Material:
         colors = getattr(visual, "vertex_attributes", {}).get("color")  # COLOR_0 beside a material
         if colors is not None and len(colors):
             c = np.asarray(colors)
-            rgb = c[:, :3] / 255.0 if np.issubdtype(c.dtype, np.integer) else c[:, :3].astype(np.float64)
+            rgb = (c[:, :3] / float(np.iinfo(c.dtype).max) if np.issubdtype(c.dtype, np.integer)  # normalized
+                   else c[:, :3].astype(np.float64))
             base = base * np.clip(rgb, 0.0, 1.0).mean(axis=0)  # glTF: base colour = factor × texture × COLOR_0
         return _make_material(base, metallic, roughness)
 

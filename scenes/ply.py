@@ -15,6 +15,7 @@ properties copied to its triangles), another element of mixed-length lists dropp
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -80,6 +81,8 @@ class Header:
         return next((e for e in self.elements if e.name == name), None)
 
     def declared(self) -> str:
+        if not self.elements:
+            return "no elements"
         return " and ".join(f"{e.count:,} {e.name!r}" for e in self.elements) + " elements"
 
 
@@ -92,7 +95,9 @@ def read_header(data: bytes) -> Header:
         raise PlyError(f"no 'end_header' in its first {HEADER_BYTES // 1024} KiB (a header is at most that long)")
     newline = data.find(b"\n", end)
     body_start = newline + 1 if newline >= 0 else len(data)
-    lines = tuple(data[:end].decode("latin-1").splitlines())
+    lines = tuple(line.removesuffix("\r") for line in data[:end].decode("latin-1").split("\n"))
+    if lines and not lines[-1]:
+        lines = lines[:-1]  # the newline before end_header
     fmt = ""
     elements: list[Element] = []
     properties: list[Property] = []
@@ -129,7 +134,11 @@ def read_header(data: bytes) -> Header:
 def _property(words: list[str], i: int, line: str) -> Property:
     try:
         if words[1] == "list" and len(words) == 5:
-            return Property(words[4], _TYPES[words[3]], _TYPES[words[2]])
+            count_kind = _TYPES[words[2]]
+            if count_kind[0] == "f":
+                raise PlyError(f"header line {i + 1}: list {words[4][:30]!r} has its length as {words[2]!r}; "
+                               "a length is an integer type")
+            return Property(words[4], _TYPES[words[3]], count_kind)
         if words[1] != "list" and len(words) == 3:
             return Property(words[2], _TYPES[words[1]])
     except KeyError as exc:
@@ -139,14 +148,15 @@ def _property(words: list[str], i: int, line: str) -> Property:
                    "or 'property list <count type> <type> <name>'")
 
 
-def readable(data: bytes, header: Header) -> bytes:
+def readable(data: bytes, header: Header, check_triangles: Callable[[int], None] | None = None) -> bytes:
     """``data`` checked row by row against ``header``; returned as is, or (binary with
-    lists of mixed lengths) rewritten as described in the module docstring."""
+    lists of mixed lengths) rewritten as described in the module docstring, after
+    ``check_triangles(n)`` (e.g. a limit; it raises) has seen the n fan triangles."""
     body = memoryview(data)[header.body_start:]
     if header.format == "ascii":
         _check_ascii(header, bytes(body))
         return data
-    return _binary(data, header, body)
+    return _binary(data, header, body, check_triangles)
 
 
 # --------------------------------------------------------------------------------------
@@ -218,7 +228,7 @@ class _Rows:
     lengths: np.ndarray | None = None
 
 
-def _binary(data: bytes, header: Header, body: memoryview) -> bytes:
+def _binary(data: bytes, header: Header, body: memoryview, check_triangles: Callable[[int], None] | None) -> bytes:
     order = header.order
     minimum = sum(e.count * sum(np.dtype(p.count_kind or p.kind).itemsize for p in e.properties)
                   for e in header.elements)
@@ -243,6 +253,8 @@ def _binary(data: bytes, header: Header, body: memoryview) -> bytes:
         if rows.offsets is None:
             parts.append(bytes(body[rows.start:rows.end]))
         elif element.name == "face":
+            if check_triangles is not None:
+                check_triangles(int(np.maximum(rows.lengths[:, 0] - 2, 0).sum()))
             fan, triangles = _fan(element, rows, body, order)
             parts.append(fan)
             lines[element.lines[0]] = f"element face {triangles}"

@@ -9,6 +9,7 @@ caller checks the size limits and the memory budget first.
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -72,16 +73,30 @@ async def _soft_shadows(r: Render, scene_id: str, scene: Scene, camera: Camera, 
                           AreaLight(spec.light.center, spec.light.u, spec.light.v))
     ss = SoftShadowRequest(light, spec.samples, spec.method, spec.reconstruction, spec.resolution, spec.sides)
     if spec.method != "raytrace":  # shadow maps and depth images: the light sees the whole scene box (422)
-        try:
-            reference_cameras(light, scene.bounds, "conventional", 16)
-            for sample in light.samples(spec.samples):
-                shadow_map_camera(light, sample, scene.bounds, 16)
-        except ValueError as exc:
-            raise HTTPException(422, f"soft_shadows light: {exc}; its shadow maps and depth images need the "
-                                     "scene in front of it, within a pinhole's view (method raytrace does "
-                                     "not)") from None
+        lo, hi = (tuple(float(x) for x in b) for b in scene.bounds)
+        key = tuple(tuple(float(x) for x in getattr(light, f)) for f in ("center", "u", "v"))
+        problem = await r.cpu(_shadow_light_problem, key, spec.samples, lo, hi)
+        if problem is not None:
+            raise HTTPException(422, f"soft_shadows light: {problem}; its shadow maps and depth images need the "
+                                     "scene in front of it, within a pinhole's view (method raytrace does not)")
     gbuf, counts, steps, hits = await r.job(SoftShadowJob(scene_id, scene, camera, ss, req.cull_back_faces), label)
     t0 = time.perf_counter()
     color = await r.cpu(shade, scene, gbuf, counts, ss)
     return Rendered(color, lambda fmt: encode_shadowed(color, gbuf, counts, fmt),
                     {**steps, "shade": (time.perf_counter() - t0) * 1e3}, hits)
+
+
+@functools.lru_cache(maxsize=256)
+def _shadow_light_problem(light: tuple, samples: int, lo: tuple, hi: tuple) -> str | None:
+    """Why the light (centre, u, v) cannot be rendered by shadow maps and depth images
+    of the box (lo, hi) with samples² light samples, or None (cached: a stream or a
+    series of frames asks the same again; up to 1024 cameras to build)."""
+    area = AreaLight(*light)
+    bounds = (np.asarray(lo), np.asarray(hi))
+    try:
+        reference_cameras(area, bounds, "conventional", 16)
+        for sample in area.samples(samples):
+            shadow_map_camera(area, sample, bounds, 16)
+    except ValueError as exc:
+        return str(exc)
+    return None

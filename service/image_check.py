@@ -330,7 +330,7 @@ def assert_matches_reference(actual: np.ndarray, name: str | None = None, *, met
     space = resolve_space(actual, actual, space)
     folder, stem = _reference_place(run, name, ref_dir)
     path = (folder / stem).with_suffix(".png" if space == "srgb" else ".exr")
-    if run is not None:
+    if run is not None and name is None:
         run.claim(path)
     update = run is not None and run.update_refs
     if not path.exists():

@@ -225,7 +225,7 @@ def _exr_channels(channels: dict[str, np.ndarray], where: str) -> tuple[dict[str
 
 
 def _group_channels(flat: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Inverse of _exr_channels: R,G,B -> "RGB"; name.x/.y[/.z[/.w]] -> name (H,W,C)."""
+    """Inverse of _exr_channels: R,G,B -> "RGB"; name.R/.G/.B and name.x/.y[/.z[/.w]] -> name (H,W,C)."""
     out: dict[str, np.ndarray] = {}
     used: set[str] = set()
 

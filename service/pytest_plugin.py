@@ -44,6 +44,7 @@ class ImageCheckRun:
         self._names: dict[Path, set[str]] = {}
         self._claims: dict[Path, str] = {}      # reference image -> the test that checks it
         self._this_test: set[Path] = set()      # references the current test has checked
+        self._cleared: set[Path] = set()        # output folders cleared of an earlier run's files
 
     @property
     def update_refs(self) -> bool:
@@ -84,15 +85,17 @@ class ImageCheckRun:
         self._this_test = set()
         if self.config.getoption("depthview_output", None):
             folder = self.test_output_dir()
-            if folder.is_dir():
+            if folder not in self._cleared and folder.is_dir():  # two ids may share a folder: clear it once
                 for old in folder.iterdir():
                     if _ARTIFACT.fullmatch(old.name):
                         old.unlink()
+            self._cleared.add(folder)
 
     def claim(self, path: Path) -> None:
-        """Note that the current test checks reference `path`; a ValueError when this
-        test checked it already (two unnamed checks) or another test did (two test ids
-        that make the same file name): each check needs a reference of its own."""
+        """Note that the current test checks reference `path`, named after the test (no
+        name= given); a ValueError when this test checked it already (two unnamed checks)
+        or another test did (two test ids that make the same file name): each check needs
+        a reference of its own. (References named explicitly may be shared on purpose.)"""
         key = path.with_suffix("").resolve()  # a PNG and an EXR of one name are one reference
         node = self.item.nodeid if self.item is not None else "outside-a-test"
         if key in self._this_test:

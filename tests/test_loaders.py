@@ -545,3 +545,30 @@ def test_gltf_vertex_colours_beside_a_material_tint_it():
     m = scene.objects[0].material
     np.testing.assert_allclose(m.albedo, (0.5, 0.0, 0.5), atol=1e-6)  # COLOR_0 is linear: no sRGB decoding
     assert m.specular == 0.0
+
+
+def test_gltf_vertex_colours_of_every_normalized_type():
+    """COLOR_0 may be float, normalized uint8 or normalized uint16: 0.5 grey is 0.5 in each."""
+    pos = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
+    for dtype, component, grey in ((np.float32, 5126, 0.5), (np.uint8, 5121, 128), (np.uint16, 5123, 32768)):
+        colours = np.full((3, 4), grey, dtype)
+        colours[:, 3] = 1 if dtype == np.float32 else np.iinfo(dtype).max
+        blob = pos.tobytes() + colours.tobytes()
+        doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+               "materials": [{"pbrMetallicRoughness": {"metallicFactor": 0.0}}],
+               "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "COLOR_0": 1}, "material": 0}]}],
+               "buffers": [{"byteLength": len(blob)}],
+               "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": pos.nbytes},
+                               {"buffer": 0, "byteOffset": pos.nbytes, "byteLength": colours.nbytes}],
+               "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                              "min": [0, 0, 0], "max": [1, 1, 0]},
+                             {"bufferView": 1, "componentType": component, "count": 3, "type": "VEC4",
+                              "normalized": dtype != np.float32}]}
+        text = json.dumps(doc).encode()
+        text += b" " * (-len(text) % 4)
+        blob += b"\0" * (-len(blob) % 4)
+        glb = (struct.pack("<4sII", b"glTF", 2, 28 + len(text) + len(blob)) + struct.pack("<I4s", len(text), b"JSON")
+               + text + struct.pack("<I4s", len(blob), b"BIN\0") + blob)
+        albedo = load_scene_bytes(glb, "glb").objects[0].material.albedo
+        np.testing.assert_allclose(albedo, [grey / (1 if dtype == np.float32 else np.iinfo(dtype).max)] * 3,
+                                   rtol=1e-6, err_msg=str(dtype))

@@ -8,7 +8,7 @@ import struct
 import numpy as np
 import pytest
 
-from scenes.loaders import SceneLoadError, load_scene_bytes
+from scenes.loaders import SceneLoadError, TriangleLimitError, load_scene_bytes
 
 #: A unit square's corners and a pentagon's, z = 0 (x, y).
 SQUARE = [(0, 0), (1, 0), (1, 1), (0, 1)]
@@ -137,3 +137,25 @@ def test_other_elements_with_mixed_lists_are_dropped_and_bad_headers_named():
         load_scene_bytes(_binary().replace(b"property float x", b"property real x"), "ply")
     with pytest.raises(SceneLoadError, match=r"format 'binary' is not ascii"):
         load_scene_bytes(_binary().replace(b"binary_little_endian", b"binary"), "ply")
+
+
+def test_header_oddities_are_named():
+    """A list whose length is a float type (it crashed the walk: 500), a comment holding
+    bytes that str.splitlines() would split on (trimesh splits the header on newlines
+    only), and a header cut short by 'end_header' inside a comment."""
+    data = _binary().replace(b"property list uchar int", b"property list float int")
+    with pytest.raises(SceneLoadError, match=r"list 'vertex_indices' has its length as 'float'; a length is an "
+                                             r"integer type"):
+        load_scene_bytes(data, "ply")
+    odd = _binary().replace(b"comment made by hand", b"comment caf\xc3\xa9 \xc2\x85 property int bad\x0c element x 5")
+    assert _triangles(load_scene_bytes(odd, "ply")) == _fans()
+    cut = _binary().replace(b"comment made by hand", b"comment before end_header x")
+    with pytest.raises(SceneLoadError, match=r"\(no elements, 0 bytes\)"):
+        load_scene_bytes(cut, "ply")
+
+
+def test_the_triangle_limit_sees_the_fans_before_they_are_built():
+    """A 255-gon is 253 fan triangles: over a limit of 100 it is refused by count, before the rewrite."""
+    data = _binary(faces=[tuple(range(12)) * 21 + (0, 1, 2)])  # 255 indices into the 12 vertices
+    with pytest.raises(TriangleLimitError, match=r"scene has 253 triangles, limit is 100"):
+        load_scene_bytes(data, "ply", max_triangles=100)

@@ -126,9 +126,12 @@ def test_rooms(room):
 def test_named():
     assert_matches_reference(np.zeros((4, 4, 3), np.uint8), "colour")
     assert_matches_reference(np.zeros((4, 4), np.float32), "depth")
+
+def test_shares_a_named_reference():  # a name given on purpose may be shared
+    assert_matches_reference(np.zeros((4, 4, 3), np.uint8), "colour")
 ''')
     result = pytester.runpytest("--depthview-update-refs")
-    result.assert_outcomes(passed=2, failed=2)
+    result.assert_outcomes(passed=3, failed=2)
     text = result.stdout.str()
     assert "test_two_unnamed.exr is checked twice by test_twice.py::test_two_unnamed" in text.replace("\n", "")
     assert "is already the reference of test_twice.py::test_rooms[room a]; test_twice.py::test_rooms[room/a] " \
@@ -150,6 +153,23 @@ def test_an_output_folder_shows_this_runs_failures_only(pytester):
                                                                         "image(), image()"))
     pytester.runpytest("-k", "spot_srgb", f"--depthview-output={out}").assert_outcomes(passed=1)
     assert [p.name for p in folder.iterdir()] == ["notes.txt"]
+
+
+def test_ids_sharing_an_output_folder_keep_each_others_files(pytester):
+    """'room a' and 'room/a' make one folder: the second test does not clear the first's files."""
+    pytester.makepyfile(test_rooms='''
+import numpy as np
+import pytest
+from service.image_check import assert_images_close
+
+@pytest.mark.parametrize("room", ["room a", "room/a"])
+def test_rooms(room):
+    assert_images_close(np.ones((4, 4), np.float32), np.zeros((4, 4), np.float32))
+''')
+    out = pytester.path / "out"
+    pytester.runpytest(f"--depthview-output={out}").assert_outcomes(failed=2)
+    names = sorted(p.name for p in (out / "test_rooms.py_test_rooms_room_a").iterdir())
+    assert "image_actual.exr" in names and "image_2_actual.exr" in names
 
 
 def readme_user_test() -> str:
