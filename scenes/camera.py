@@ -8,6 +8,7 @@ Matrices are float64 (4,4) in row-major numpy layout acting on column vectors.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -209,14 +210,15 @@ def framing_distance(bounds: tuple[np.ndarray, np.ndarray], azimuth: float, elev
 
 
 def look_at_scene(bounds: tuple[np.ndarray, np.ndarray], azimuth: float = 35.0, elevation: float = 25.0,
-                  distance: float = 1.6, fov: float = 45.0, width: int = 512, height: int = 512) -> Camera:
-    """A camera looking at the box centre from (azimuth, elevation) degrees at
-    `distance` × the box diagonal; clip planes fitted to the box."""
+                  distance: float = 1.6, fov: float = 45.0, width: int = 512, height: int = 512,
+                  target: Sequence[float] | None = None, up: Sequence[float] = (0.0, 1.0, 0.0)) -> Camera:
+    """A camera looking at `target` (default: the box centre) from (azimuth, elevation)
+    degrees at `distance` × the box diagonal; clip planes fitted to the box."""
     lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
-    c = (lo + hi) / 2
+    c = (lo + hi) / 2 if target is None else np.asarray(target, dtype=np.float64)
     diag = float(np.linalg.norm(hi - lo)) or 1.0
     eye = c + distance * diag * orbit_direction(azimuth, elevation)
-    return Camera(tuple(eye), tuple(c), (0.0, 1.0, 0.0), fov, width, height).fit_clip((lo, hi))
+    return Camera(tuple(eye), tuple(c), tuple(up), fov, width, height).fit_clip((lo, hi))
 
 
 def orbit_path(bounds: tuple[np.ndarray, np.ndarray], frames: int, elevation: float = 25.0,

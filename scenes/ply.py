@@ -254,7 +254,7 @@ def _binary(data: bytes, header: Header, body: memoryview, check_triangles: Call
             parts.append(bytes(body[rows.start:rows.end]))
         elif element.name == "face":
             if check_triangles is not None:
-                check_triangles(int(np.maximum(rows.lengths[:, 0] - 2, 0).sum()))
+                check_triangles(int(_fan_sizes(rows).sum()))
             fan, triangles = _fan(element, rows, body, order)
             parts.append(fan)
             lines[element.lines[0]] = f"element face {triangles}"
@@ -292,14 +292,26 @@ def _binary_rows(element: Element, body: memoryview, start: int, order: str) -> 
     return _Rows(start, at, np.array(offsets, np.int64), np.array(lengths, np.int64))
 
 
+def _one_list(element: Element) -> tuple[Property, int, int]:
+    """An element's only list property and the bytes of the scalars before and after it."""
+    k = next(i for i, p in enumerate(element.properties) if p.is_list)
+    prefix = sum(np.dtype(p.kind).itemsize for p in element.properties[:k])
+    suffix = sum(np.dtype(p.kind).itemsize for p in element.properties[k + 1:])
+    return element.properties[k], prefix, suffix
+
+
+def _fan_sizes(rows: _Rows) -> np.ndarray:
+    """(F,) triangles of each face's fan (n − 2; none under 3 vertices)."""
+    return np.maximum(rows.lengths[:, 0] - 2, 0)
+
+
 def _walk_one_list(element: Element, body: memoryview, start: int, order: str) -> _Rows:
     """The rows of an element with one list property, walked in a tight loop (faces);
     a row that does not fit is handed to :func:`_walk_row` for its message."""
-    k = next(i for i, p in enumerate(element.properties) if p.is_list)
-    prefix = sum(np.dtype(p.kind).itemsize for p in element.properties[:k])
-    count = struct.Struct(order + _STRUCT[element.properties[k].count_kind])
-    entry = np.dtype(element.properties[k].kind).itemsize
-    fixed = prefix + count.size + sum(np.dtype(p.kind).itemsize for p in element.properties[k + 1:])
+    lst, prefix, suffix = _one_list(element)
+    count = struct.Struct(order + _STRUCT[lst.count_kind])
+    entry = np.dtype(lst.kind).itemsize
+    fixed = prefix + count.size + suffix
     unpack, end = count.unpack_from, len(body)
     offsets: list[int] = []
     lengths: list[int] = []
@@ -363,13 +375,10 @@ def _fan(element: Element, rows: _Rows, body: memoryview, order: str) -> tuple[b
     if len(lists) != 1:
         raise PlyError(f"faces of mixed sizes with {len(lists)} list properties "
                        f"({', '.join(p.name for p in lists)}) are not supported; triangulate before uploading")
-    k = next(i for i, p in enumerate(element.properties) if p.is_list)
-    lst = element.properties[k]
-    prefix = sum(np.dtype(p.kind).itemsize for p in element.properties[:k])
-    suffix = sum(np.dtype(p.kind).itemsize for p in element.properties[k + 1:])
+    lst, prefix, suffix = _one_list(element)
     count_width, entry = np.dtype(lst.count_kind).itemsize, np.dtype(lst.kind).itemsize
     n = rows.lengths[:, 0]
-    per_face = np.maximum(n - 2, 0)
+    per_face = _fan_sizes(rows)
     triangles = int(per_face.sum())
     face = np.repeat(np.arange(len(n)), per_face)
     j = np.arange(triangles) - np.repeat(np.cumsum(per_face) - per_face, per_face) + 1

@@ -101,7 +101,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     from gl_passes.context import create_gl_context
     from gl_passes.gbuffer import GBufferPass
     from gl_passes.upload import SceneGPU
-    from scenes.camera import Camera, CameraError, orbit_direction
+    from scenes.camera import Camera, CameraError, look_at_scene
     from service.worker import encode_frame
 
     fmt = args.output.suffix.lower().lstrip(".")
@@ -111,21 +111,19 @@ def cmd_render(args: argparse.Namespace) -> int:
     if problem is not None:  # the service's limits (the GL framebuffer fails past them)
         raise ValueError(f"{problem} (DEPTHVIEW_MAX_WIDTH, _HEIGHT, _PIXELS)")
     scene = _load_scene(args.scene, args.detail, args.seed)
-    target = np.asarray(args.target if args.target is not None else scene.center, np.float64)
-    if args.eye is None:  # orbit the target
-        lo, hi = (np.asarray(b, np.float64) for b in scene.bounds)
-        eye = target + args.distance * (float(np.linalg.norm(hi - lo)) or 1.0) \
-            * orbit_direction(args.azimuth, args.elevation)
-    else:
-        eye = np.asarray(args.eye, np.float64)
-    try:
-        camera = Camera(tuple(eye), tuple(target), tuple(args.up), args.fov, args.width, args.height)
-    except CameraError as exc:
-        if args.eye is None and "parallel" in str(exc):
+    target = tuple(args.target) if args.target is not None else tuple(float(x) for x in scene.center)
+    if args.eye is not None:
+        camera = Camera(tuple(args.eye), target, tuple(args.up), args.fov, args.width, args.height)
+        camera = camera.fit_clip(scene.bounds)
+    else:  # orbit the target
+        try:
+            camera = look_at_scene(scene.bounds, args.azimuth, args.elevation, args.distance, args.fov,
+                                   args.width, args.height, target=target, up=tuple(args.up))
+        except CameraError as exc:
+            if "parallel" not in str(exc):
+                raise
             raise CameraError(f"{exc}: at --elevation {args.elevation:g} the orbit looks along --up; "
                               "give another --up") from None
-        raise
-    camera = camera.fit_clip(scene.bounds)
     gl = create_gl_context(args.gl_backend)
     gpu = gp = None
     try:

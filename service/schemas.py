@@ -167,6 +167,11 @@ class Effects(BaseModel):
         return self
 
 
+#: The channels of a frame's EXR, by effect (service.worker, service.effects, service.soft_shadows).
+FRAME_EXR_CHANNELS = ("RGB, Z, N.xyz, id, object (with reflections: RGB, reflected.RGB, diffuse.RGB, specular, "
+                      "ray_length; with soft shadows also visible)")
+
+
 class FrameRequest(BaseModel):
     """Render one frame of a stored scene."""
 
@@ -178,9 +183,7 @@ class FrameRequest(BaseModel):
     width: StrictInt = Field(default=512, ge=1, description="pixels; at most the service's max_width")
     height: StrictInt = Field(default=512, ge=1, description="pixels; at most the service's max_height")
     format: Literal["png", "exr"] = Field(
-        default="png", description="png: sRGB colour; exr: linear float channels RGB, Z, N.xyz, id, object "
-                                   "(with reflections: RGB, reflected, diffuse, specular, ray_length; with soft "
-                                   "shadows: RGB, Z, N.xyz, id, object, visible)")
+        default="png", description=f"png: sRGB colour; exr: linear float channels {FRAME_EXR_CHANNELS}")
     effects: Effects = Field(default_factory=Effects)
     cull_back_faces: StrictBool = Field(default=True, description="back-face culling of the camera's view (on, "
                                         "as the thesis); off is 422 with reflections, whose passes and truth "

@@ -23,7 +23,7 @@ from service.errors import json_safe, responses
 from service.frames import render
 from service.jobs import ReconstructionJob, SetJob
 from service.routes.json_body import JSONBodyRoute
-from service.schemas import DepthImagesRequest, FrameRequest, ReconstructionRequest
+from service.schemas import FRAME_EXR_CHANNELS, DepthImagesRequest, FrameRequest, ReconstructionRequest
 from service.soft_shadows import resolve_light
 
 MEDIA_TYPES = {"png": "image/png", "exr": "image/x-exr"}
@@ -47,9 +47,7 @@ depth_images = APIRouter(prefix="/scenes/{scene_id}", tags=["depth images"], dep
 @frames.post(
     "/frames", summary="Render a frame", response_class=Response,
     responses={200: {"content": {"image/png": {}, "image/x-exr": {}},
-                     "description": "PNG (sRGB colour) or EXR (linear RGB, Z, N.xyz, id, object; with "
-                                    "reflections RGB, reflected, diffuse, specular, ray_length; with soft "
-                                    "shadows also visible)"},
+                     "description": f"PNG (sRGB colour) or EXR (linear {FRAME_EXR_CHANNELS})"},
                **responses({**RENDER_ERRORS, 422: "invalid camera, effects or size, or over the memory budget"})})
 async def render_frame(scene_id: str, req: FrameRequest, r: RenderDep) -> Response:
     t0 = time.perf_counter()
@@ -66,10 +64,15 @@ async def render_frame(scene_id: str, req: FrameRequest, r: RenderDep) -> Respon
     except HTTPException as exc:
         r.metrics.frame_error(exc.status_code)
         raise
-    dt = time.perf_counter() - t0
     r.metrics.frame(req.format)
     return Response(body, media_type=MEDIA_TYPES[req.format], headers={
-        "X-Render-Seconds": f"{dt:.4f}", "Content-Disposition": f'inline; filename="frame.{req.format}"', **timing})
+        **render_seconds(t0), "Content-Disposition": f'inline; filename="frame.{req.format}"', **timing})
+
+
+def render_seconds(t0: float) -> dict[str, str]:
+    """The X-Render-Seconds header of every render response: seconds since `t0`
+    (the request's arrival in the route) to the encoded body."""
+    return {"X-Render-Seconds": f"{time.perf_counter() - t0:.4f}"}
 
 
 # --- reconstructions (thesis Ch. 3) -------------------------------------------------------
@@ -103,8 +106,7 @@ async def reconstruct(scene_id: str, req: ReconstructionRequest, r: RenderDep) -
                "camera": cams[min(k, len(cams) - 1)].describe()} for k in range(len(parts))]
     body = await r.encode(glb_bytes, parts, names, extras)
     return Response(body, media_type="model/gltf-binary",
-                    headers={"Content-Disposition": 'attachment; filename="reconstruction.glb"',
-                             "X-Render-Seconds": f"{time.perf_counter() - t0:.4f}"})
+                    headers={"Content-Disposition": 'attachment; filename="reconstruction.glb"', **render_seconds(t0)})
 
 
 # --- depth-image sets (thesis Ch. 2) ---------------------------------------------------------
@@ -127,7 +129,7 @@ async def render_depth_images(scene_id: str, req: DepthImagesRequest, r: RenderD
     images, metrics = await r.job(job, f"depth images {scene_id[:12]}")
     body = await r.encode(encode_set, images, req.format)
     media = SET_MEDIA_TYPES[req.format]
-    seconds = {"X-Render-Seconds": f"{time.perf_counter() - t0:.4f}"}
+    seconds = render_seconds(t0)
     if metrics is None:
         return Response(body, media_type=media, headers={
             **seconds, "Content-Disposition": f'attachment; filename="depth_images.{req.format}"'})
