@@ -76,7 +76,6 @@ cluster, used by later passes).
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -85,6 +84,7 @@ import numpy as np
 
 from gl_passes.cluster_units import UNITS
 from gl_passes.context import GLContext
+from gl_passes.laps import LapClock
 from gl_passes.readback import StagingBuffer, read_texture
 from gl_passes.reflective_list import LIST_RUN, ReflectiveSampleList, run_defines
 from gl_passes.releasable import grown_buffer
@@ -267,16 +267,9 @@ class ClusteringPass:
         roots, compress, split, accumulate; "grouping": the CPU's part after them)."""
         self.gl.check_thread()
         ctx = self.gl.ctx
-        self.pass_ms = {}
-        last = time.perf_counter()
-
-        def mark(name: str) -> None:
-            nonlocal last
-            if timed:
-                ctx.finish()
-                now = time.perf_counter()
-                self.pass_ms[name] = (now - last) * 1e3
-                last = now
+        clock = LapClock(ctx, sync=True, record=timed)
+        self.pass_ms = clock.ms
+        mark = clock.lap
         size = textures["obj_id"].size
         n_samples = size[0] * size[1]
         self._images(size)

@@ -106,7 +106,6 @@ thesis's occlusion-error test (§4.7.1, reference.occlusion.captured_mask).
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field, replace
 
 import moderngl
@@ -119,6 +118,7 @@ from gl_passes.cluster_units import UNITS
 from gl_passes.clustering import ClusteringPass
 from gl_passes.context import GLContext
 from gl_passes.gbuffer import GBufferPass
+from gl_passes.laps import LapClock
 from gl_passes.lod import lod_faces
 from gl_passes.readback import read_planes, read_texture
 from gl_passes.releasable import Releasable, grown_buffer
@@ -408,16 +408,8 @@ class ClusterReflections(Releasable):
         cam = camera if camera.near is not None else camera.fit_clip(scene.bounds)
         W, H = cam.width, cam.height
         ss_cam = cam.with_size(W * ss, H * ss)
-        timings: dict[str, float] = {}
-        t_start = t = time.perf_counter()
-
-        def lap(name: str) -> None:
-            nonlocal t
-            if sync_timings:
-                ctx.finish()
-            now = time.perf_counter()
-            timings[name] = (now - t) * 1e3
-            t = now
+        clock = LapClock(ctx, sync=sync_timings)
+        lap = clock.lap
 
         # 0. camera-independent per-scene records (cached: a later frame of the scene pays nothing)
         cache_hit = self._chunk_cache_hit(scene_gpu)
@@ -491,7 +483,8 @@ class ClusterReflections(Releasable):
         color, specular, reflected, ray_length, diffuse, coverage = read_planes(
             self._resolved, [(H, W, 3), (H, W), (H, W, 3), (H, W), (H, W, 3), (H, W)])
         lap("resolve")
-        timings["total"] = (time.perf_counter() - t_start) * 1e3
+        timings = clock.ms
+        timings["total"] = clock.total_ms()
         diag = self._diagnostics(cams, pack, atlas_size) if diagnostics else None
         return ClusterReflectionResult(
             color=color, reflected=reflected, diffuse=diffuse, specular=specular, reflective=coverage > 0,

@@ -29,7 +29,6 @@ GL resources (not the tracer's, which the caller owns).
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Literal, Protocol
@@ -41,6 +40,7 @@ from gl_passes.composition import DISOCCLUDED, NOT_REFLECTIVE, UNRELIABLE, Compo
 from gl_passes.context import GLContext
 from gl_passes.gbuffer import GBufferPass
 from gl_passes.keyframe import MISS_DIAGONALS, KeyframePolicy, KeyframeTextures, ReflectionDepthImage, scatter_pixels
+from gl_passes.laps import LapClock
 from gl_passes.readback import read_texture
 from gl_passes.reflection_offset import ReflectionOffsetPass
 from gl_passes.reflection_splat import ReflectionSplatPass
@@ -229,16 +229,8 @@ class ReflectionReuser(Releasable):
         st = self.settings
         ctx = self.gl.ctx
         cam = camera if camera.near is not None else camera.fit_clip(self.scene_gpu.scene.bounds)
-        timings: dict[str, float] = dict.fromkeys(STEPS, 0.0)
-        t_start = t = time.perf_counter()
-
-        def lap(name: str) -> None:
-            nonlocal t
-            if st.sync_timings:
-                ctx.finish()
-            now = time.perf_counter()
-            timings[name] += (now - t) * 1e3
-            t = now
+        clock = LapClock(ctx, sync=st.sync_timings, ms=dict.fromkeys(STEPS, 0.0))
+        lap = clock.lap
 
         # diffuse components and the new view's geometry (Alg. 8, first line)
         target = self._frame_gb.draw(self.scene_gpu, cam)
@@ -291,8 +283,8 @@ class ReflectionReuser(Releasable):
         frame = ReuseFrame(color=color, diffuse=diffuse, specular=s, reflective=reflective,
                            pixels=flat, per_pixel=(refl, rlen, pix_flags), stats=stats)
         lap("blend")
-        timings["total"] = (time.perf_counter() - t_start) * 1e3
-        stats.timings_ms = timings
+        clock.ms["total"] = clock.total_ms()
+        stats.timings_ms = clock.ms
         if not is_key and st.mode == "reuse" and st.search_stats:
             self._search_stats(stats)
         self.frames += 1

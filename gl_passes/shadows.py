@@ -45,7 +45,6 @@ truth on the benchmark's scenes without acne on a tilted plane (`bench.shadow_bi
 from __future__ import annotations
 
 import inspect
-import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -56,6 +55,7 @@ import numpy as np
 
 from gl_passes.bindings import Units
 from gl_passes.context import GLContext
+from gl_passes.laps import LapClock
 from gl_passes.readback import read_buffer
 from gl_passes.releasable import Releasable, ReleasedOnError, Scratch, grown_buffer
 from gl_passes.shaders import compute_program, program
@@ -72,6 +72,7 @@ LOOKUP_GROUP = 64
 MAX_GROUPS_X = 65535
 #: Units of shadow_lookup.comp (compiled in as `UNIT_<name>` #defines; gl_passes.bindings).
 LOOKUP_UNITS = Units(storage=("points", "normals", "bits"), textures=("depth",))
+STEPS = ("upload", "shadow_maps", "lookup", "readback")  # ShadowResult.timings_ms
 
 
 @dataclass(frozen=True)
@@ -118,11 +119,11 @@ class ShadowResult:
     bits: (H,W,ceil(k²/32)) uint32, bit s % 32 of word s // 32 set when light
     sample s (row s of light.samples(k)) sees the pixel's point; 0 outside the mask.
     counts: (H,W) uint16 visible samples per pixel (0..k²).
-    timings: seconds per step ("upload", "shadow_maps", "lookup", "readback")."""
+    timings_ms: milliseconds per step ("upload", "shadow_maps", "lookup", "readback")."""
 
     bits: np.ndarray
     counts: np.ndarray
-    timings: dict[str, float]
+    timings_ms: dict[str, float]
 
 
 def _atlas_bytes(atlas: moderngl.Texture) -> int:
@@ -392,16 +393,15 @@ class SoftShadowPass(Releasable):
             raise ValueError(f"points and normals must be (H,W,3) with mask (H,W) = {mask.shape}")
         return mask, self._upload(np.asarray(points, np.float32), np.asarray(normals, np.float32), mask)
 
-    def _result(self, mask: np.ndarray, n: int, timings: dict[str, float]) -> ShadowResult:
+    def _result(self, mask: np.ndarray, n: int, clock: LapClock) -> ShadowResult:
         """Read the receivers' bits back into (H,W,words)."""
-        t0 = time.perf_counter()
         words = self.settings.words
         bits = np.zeros((*mask.shape, words), np.uint32)
         if n:
             flat = read_buffer(self._buffers["bits"], np.uint32, n * words)
             bits.reshape(-1, words)[np.flatnonzero(mask.ravel())] = flat.reshape(n, words)
-        timings["readback"] = time.perf_counter() - t0
-        return ShadowResult(bits=bits, counts=popcount_words(bits), timings=timings)
+        clock.lap("readback")
+        return ShadowResult(bits=bits, counts=popcount_words(bits), timings_ms=clock.ms)
 
     # --- public ----------------------------------------------------------------------
     def visibility(self, occluders: Sequence[Occluder], bounds: tuple[np.ndarray, np.ndarray],
@@ -416,22 +416,16 @@ class SoftShadowPass(Releasable):
         ValueError on mismatched shapes, or when `bounds` is not entirely in front
         of the light (scenes.lights.light_camera)."""
         self.gl.check_thread()
-        timings = {"upload": 0.0, "shadow_maps": 0.0, "lookup": 0.0, "readback": 0.0}
-        t0 = time.perf_counter()
+        clock = LapClock(self.gl.ctx, sync=True, ms=dict.fromkeys(STEPS, 0.0))
         cams = shadow_cameras(light, bounds, self.settings.samples, self.settings.shadow_map_resolution)
         mask, n = self._receivers(points, normals, mask)
-        timings["upload"] = time.perf_counter() - t0
-        ctx = self.gl.ctx
+        clock.lap("upload")
         for first, count in self._batches() if n else ():
-            t0 = time.perf_counter()
             self._render_maps(occluders, cams, first, count, self.fbo)
-            ctx.finish()
-            t1 = time.perf_counter()
+            clock.lap("shadow_maps")
             self._lookup(cams, first, count, n, self.atlas)
-            ctx.finish()
-            timings["shadow_maps"] += t1 - t0
-            timings["lookup"] += time.perf_counter() - t1
-        return self._result(mask, n, timings)
+            clock.lap("lookup")
+        return self._result(mask, n, clock)
 
     def render_maps(self, occluders: Sequence[Occluder], bounds: tuple[np.ndarray, np.ndarray],
                     light: AreaLight) -> ShadowMaps:
@@ -458,13 +452,10 @@ class SoftShadowPass(Releasable):
         if len(maps.atlases) != self._n_batches:
             raise ValueError(f"{len(maps.atlases)} atlases are not the maps of this pass's {self.settings.samples}² "
                              "light samples (released)")
-        timings = {"upload": 0.0, "shadow_maps": 0.0, "lookup": 0.0, "readback": 0.0}
-        t0 = time.perf_counter()
+        clock = LapClock(self.gl.ctx, ms=dict.fromkeys(STEPS, 0.0))
         mask, n = self._receivers(points, normals, mask)
-        t1 = time.perf_counter()
-        timings["upload"] = t1 - t0
+        clock.lap("upload")
         for (first, count), atlas in zip(self._batches(), maps.atlases, strict=True) if n else ():
             self._lookup(maps.cams, first, count, n, atlas)
-        self.gl.ctx.finish()
-        timings["lookup"] = time.perf_counter() - t1
-        return self._result(mask, n, timings)
+        clock.lap("lookup", finish=True)
+        return self._result(mask, n, clock)

@@ -38,6 +38,7 @@ import numpy as np
 
 from gl_passes.depth_images import DepthImageRenderer, conventional, depth_peeling, non_redundant
 from gl_passes.gbuffer import GBuffer
+from gl_passes.laps import LapClock
 from gl_passes.mesh_gpu import MeshGPU
 from gl_passes.reconstruction import ReconstructionSettings, reconstruct_set, render_set
 from gl_passes.reflections import DEFAULT_SETTINGS, ClusterReflections
@@ -159,21 +160,6 @@ def _reconstruction(state: GLState, scene_key: str, scene: Scene, cameras: Seque
     return state.kept(scene_key, what, build)
 
 
-class _StepClock:
-    """Milliseconds of a job's steps, each from the end of the one before (`finish`:
-    wait for the GL work queued so far first, where nothing reads it back)."""
-
-    def __init__(self, state: GLState) -> None:
-        self.state, self.ms, self._t = state, {}, time.perf_counter()
-
-    def step(self, name: str, finish: bool = False) -> None:
-        if finish:
-            self.state.gl.ctx.finish()
-        now = time.perf_counter()
-        self.ms[name] = (now - self._t) * 1e3
-        self._t = now
-
-
 @dataclass(frozen=True)
 class SoftShadowJob(SceneJob):
     """(G-buffer of `camera`, per-pixel visible light samples (H,W) uint16): by shadow
@@ -195,19 +181,19 @@ class SoftShadowJob(SceneJob):
         earlier frame: a cache hit) and lookup; occluders_maps_lookup where the maps are
         drawn batch by batch."""
         scene, req = self.load(state), self.req
-        clock = _StepClock(state)
+        clock = LapClock(state.gl.ctx)
         gpu = state.scene_gpu(self.scene_key, scene)
         gbuf = state.gbuffer.render(gpu, self.camera, cull_back_faces=self.cull_back_faces)
-        clock.step("gbuffer")
+        clock.lap("gbuffer")
         if req.method == "raytrace":
             counts = raytrace_counts(self.scene_key, scene, gbuf, req)
-            clock.step("trace")
+            clock.lap("trace")
             return gbuf, counts, clock.ms, {}
         shadows = _shadow_pass(state, req.samples)
         if shadows.maps_nbytes > state.reconstruction_cache_bytes:
             with self._occluders(state, scene, gpu) as occ:
                 res = shadows.visibility(occ, scene.bounds, gbuf.position, gbuf.normal, gbuf.mask, req.light)
-            clock.step("occluders_maps_lookup")
+            clock.lap("occluders_maps_lookup")
             return gbuf, res.counts, clock.ms, {}
 
         made = []
@@ -215,18 +201,18 @@ class SoftShadowJob(SceneJob):
         def maps() -> list[ShadowMaps]:
             made.append(True)
             with self._occluders(state, scene, gpu) as occ:
-                clock.step("occluders", finish=True)
+                clock.lap("occluders", finish=True)
                 out = [shadows.render_maps(occ, scene.bounds, req.light)]
-                clock.step("shadow_maps", finish=True)
+                clock.lap("shadow_maps", finish=True)
                 return out
 
         images = (req.reconstruction, req.resolution, req.sides) if req.method != "geometry" else ()
         what = ("shadow maps", req.method, *images, req.samples, req.light)
         with state.kept(self.scene_key, what, maps, shadows.maps_nbytes) as kept:
             if not made:
-                clock.step("shadow_maps")
+                clock.lap("shadow_maps")
             res = shadows.lookup(kept[0], gbuf.position, gbuf.normal, gbuf.mask)
-            clock.step("lookup")
+            clock.lap("lookup")
         return gbuf, res.counts, clock.ms, {"shadow_maps": not made}
 
     def _occluders(self, state: GLState, scene: Scene, gpu: SceneGPU) -> AbstractContextManager[Sequence[Any]]:

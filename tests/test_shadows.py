@@ -76,7 +76,7 @@ def test_box_over_plane_matches_analytic(gl, box_setup):
     assert not r.bits[~mask].any()
     assert (r.bits[..., 1] >> np.uint32(k * k - 32)).max() == 0  # bits ≥ k² stay 0
     np.testing.assert_array_equal(r.counts, popcount_words(r.bits))
-    assert set(r.timings) >= {"shadow_maps", "lookup"}
+    assert set(r.timings_ms) >= {"shadow_maps", "lookup"}
 
     samples = LIGHT.samples(k)
     n = buf.normal[mask].astype(np.float64)
