@@ -118,9 +118,13 @@ class GBufferPass(Releasable):
             glossiness=material[..., 1].copy(),
         )
 
-    def release(self) -> None:
+    def release_target(self) -> None:
+        """Release the render target (the next `draw` makes one of its size)."""
         self.gl.check_thread()
         if self.target is not None:
             self.target.release()
             self.target = None
+
+    def release(self) -> None:
+        self.release_target()
         self.sky_vao.release()

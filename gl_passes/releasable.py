@@ -10,6 +10,9 @@ from typing import Any, Protocol, TypeVar
 
 import moderngl
 
+from gl_passes.context import GLContext
+from gl_passes.shaders import compute_program
+
 _T = TypeVar("_T", bound="Releasable")
 
 
@@ -79,3 +82,13 @@ def grown_buffer(ctx: moderngl.Context, buf: moderngl.Buffer | None, need: int,
     if buf is not None:
         buf.release()
     return ctx.buffer(reserve=need if reserve is None else reserve)
+
+
+def settle(gl: GLContext) -> None:
+    """Let the driver free what was just released: one empty compute dispatch
+    (shaders/settle.comp), then wait. Mesa's llvmpipe holds the buffers and images
+    last bound to the compute stage until the next dispatch rebinds it, so a pass's
+    released storage stays resident until some later job runs without this."""
+    gl.check_thread()
+    compute_program(gl, "settle.comp").run(1)
+    gl.ctx.finish()

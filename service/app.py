@@ -78,14 +78,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if settings.workers >= 1:
             worker = ProcessWorkerPool(settings.workers, WorkerConfig(
                 str(settings.data_dir), settings.scene_cache_size, settings.max_triangles, settings.gpu_cache_size,
-                settings.gl_backend, settings.gl_device, settings.reconstruction_cache_bytes),
+                settings.gl_backend, settings.gl_device, settings.reconstruction_cache_bytes, settings.keep_pixels),
                 queue_size=settings.queue_size,
                 job_timeout_s=settings.job_timeout_s)
         else:
             worker = RenderWorker(queue_size=settings.queue_size, job_timeout_s=settings.job_timeout_s,
                                   gpu_cache_size=settings.gpu_cache_size, backend=settings.gl_backend,
                                   device=settings.gl_device, scene_loader=app.state.store.get_scene,
-                                  reconstruction_cache_bytes=settings.reconstruction_cache_bytes)
+                                  reconstruction_cache_bytes=settings.reconstruction_cache_bytes,
+                                  keep_pixels=settings.keep_pixels)
         app.state.worker = worker.start()
         try:
             yield

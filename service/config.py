@@ -88,7 +88,9 @@ The costs were measured (see the constants); 7 GiB admits every single-image lim
 (a 4096² frame, 4 reconstructed images at 2048²) and refuses 16 images at 2048².
 What a worker keeps between requests (reconstructions, a light's k² shadow maps,
 drawn in place of the one atlas above when they fit) is bounded by
-``reconstruction_cache_bytes`` apart from this per-request budget.
+``reconstruction_cache_bytes`` apart from this per-request budget; the passes and
+targets a job sized for images over ``stream_max_pixels`` are released after it
+(``Settings.keep_pixels``), so an idle worker does not hold its largest frame's.
 """
 
 from __future__ import annotations
@@ -239,6 +241,13 @@ class Settings:
                              f"got {self.stream_reflection_mode!r}")
         if self.gl_backend is not None and self.gl_backend not in ("egl", "osmesa"):
             raise ValueError(f"setting gl_backend must be 'egl' or 'osmesa', got {self.gl_backend!r}")
+
+    @property
+    def keep_pixels(self) -> int:
+        """Image pixels a render worker keeps its passes and G-buffer target sized for
+        between jobs: the largest streamed frame's, which a stream may ask for every
+        frame. A larger job's are released after it (`GLState.end_job`)."""
+        return self.stream_max_pixels
 
     def size_problem(self, width: int, height: int, what: str = "frame") -> str | None:
         """What is over the limits in a width × height image, or None."""

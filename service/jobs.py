@@ -112,7 +112,7 @@ class ReflectionJob(SceneJob):
         hit = state.has_scene(self.scene_key)
         gpu = state.scene_gpu(self.scene_key, self.load(state))
         upload_ms = (time.perf_counter() - t0) * 1e3
-        renderer = state.resource("reflections", _reflection_renderer)
+        renderer = state.resource("reflections", _reflection_renderer, pixels=self.camera.width * self.camera.height)
         result = renderer.render(gpu, self.camera, glossy_rays=self.glossy_rays,
                                  method=GL_REFLECTION_METHODS[self.method])
         result.timings_ms["upload"] = upload_ms
@@ -135,12 +135,12 @@ class RaytraceJob(SceneJob):
         return raytrace_cached(self.scene_key, self.load(state), self.camera, self.glossy_rays)
 
 
-def _shadow_pass(state: GLState, samples: int) -> SoftShadowPass:
+def _shadow_pass(state: GLState, samples: int, pixels: int) -> SoftShadowPass:
     """The worker's soft-shadow pass, for k = `samples` (one at a time: its atlas
     and buffers are remade when k changes; kept maps stay valid for any pass of
-    their settings)."""
+    their settings), for a frame of `pixels` receivers."""
     settings = ShadowSettings(samples=samples)
-    return state.resource("soft_shadows", lambda gl: SoftShadowPass(gl, settings), settings)
+    return state.resource("soft_shadows", lambda gl: SoftShadowPass(gl, settings), settings, pixels)
 
 
 def _reconstruction(state: GLState, scene_key: str, scene: Scene, cameras: Sequence[Camera], method: str,
@@ -189,7 +189,7 @@ class SoftShadowJob(SceneJob):
             counts = raytrace_counts(self.scene_key, scene, gbuf, req)
             clock.lap("trace")
             return gbuf, counts, clock.ms, {}
-        shadows = _shadow_pass(state, req.samples)
+        shadows = _shadow_pass(state, req.samples, self.camera.width * self.camera.height)
         if shadows.maps_nbytes > state.reconstruction_cache_bytes:
             with self._occluders(state, scene, gpu) as occ:
                 res = shadows.visibility(occ, scene.bounds, gbuf.position, gbuf.normal, gbuf.mask, req.light)
@@ -271,7 +271,8 @@ def _gl_set(state: GLState, scene_key: str, scene: Scene, plan: SetPlan, want_co
     """(the set rendered by GL — None when it is Embree-only —, the conventional
     images of the reference cameras when wanted)."""
     gpu = state.scene_gpu(scene_key, scene)
-    renderer = state.resource("depth_images", DepthImageRenderer)
+    drawn = plan.cameras + ([plan.peel_camera] if plan.peel_camera is not None else [])
+    renderer = state.resource("depth_images", DepthImageRenderer, pixels=max(c.width * c.height for c in drawn))
     gl = state.gl
     images = None
     if plan.method == "conventional":

@@ -35,7 +35,17 @@ from dataclasses import dataclass, field
 from multiprocessing.reduction import ForkingPickler
 from typing import Any
 
-from service.worker import GLState, Job, JobExpired, QueueFull, WorkerDied, WorkerUnavailable, _Job, count_job
+from service.worker import (
+    GLState,
+    Job,
+    JobExpired,
+    QueueFull,
+    WorkerDied,
+    WorkerUnavailable,
+    _Job,
+    count_job,
+    end_job,
+)
 
 log = logging.getLogger("depthview.worker")
 
@@ -58,6 +68,7 @@ class WorkerConfig:
     backend: str | None
     device: int | None
     reconstruction_cache_bytes: int = 0
+    keep_pixels: int | None = None
 
 
 def _child_main(conn: Any, cfg: WorkerConfig) -> None:
@@ -70,7 +81,8 @@ def _child_main(conn: Any, cfg: WorkerConfig) -> None:
         store = SceneStore(cfg.data_dir, cfg.scene_cache_size, cfg.max_triangles, cleanup=False)
         gl = create_gl_context(cfg.backend, cfg.device)
         state = GLState(gl=gl, gbuffer=GBufferPass(gl), gpu_cache_size=cfg.gpu_cache_size,
-                        reconstruction_cache_bytes=cfg.reconstruction_cache_bytes, scene_loader=store.get_scene)
+                        reconstruction_cache_bytes=cfg.reconstruction_cache_bytes, keep_pixels=cfg.keep_pixels,
+                        scene_loader=store.get_scene)
     except BaseException as exc:  # noqa: BLE001 - reported to the parent
         conn.send(("failed", f"{type(exc).__name__}: {exc}"))
         return
@@ -106,6 +118,7 @@ def _child_main(conn: Any, cfg: WorkerConfig) -> None:
                 if lost is not None:  # the parent replaces this worker; a broken context is not released
                     log.error("render worker process %d: GL context failed (%s), exiting", os.getpid(), lost)
                     os._exit(3)
+                end_job(state)
     finally:
         state.release()
 

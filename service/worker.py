@@ -34,6 +34,7 @@ from typing import Any
 
 from gl_passes.context import GLContext, create_gl_context
 from gl_passes.gbuffer import GBuffer, GBufferPass
+from gl_passes.releasable import settle
 from gl_passes.upload import SceneGPU
 from scenes.model import Scene
 from service import image_io
@@ -94,6 +95,10 @@ class GLState:
     _resources: dict[str, tuple[Hashable, Any]] = field(default_factory=dict)
     #: Per-client state on this worker (a stream's ReflectionReuser), by client key.
     clients: dict[str, Any] = field(default_factory=dict)
+    #: Frame pixels above which `end_job` releases the passes a job used and the
+    #: G-buffer target (sized to the job's images); None: keep them all.
+    keep_pixels: int | None = None
+    _job_pixels: dict[str, int] = field(default_factory=dict)
 
     def scene_gpu(self, key: str, scene: Scene) -> SceneGPU:
         """The GPU upload of `scene`, cached under `key` (a content address: the same
@@ -179,13 +184,16 @@ class GLState:
         """How many `kept` entries are held."""
         return len(self._kept)
 
-    def resource(self, name: str, factory: Callable[[GLContext], Any], variant: Hashable = None) -> Any:
+    def resource(self, name: str, factory: Callable[[GLContext], Any], variant: Hashable = None,
+                 pixels: int = 0) -> Any:
         """A long-lived GL object (e.g. another pass) created on first use with
         `factory(gl)` and released (``.release()``) at shutdown. One per name:
         asked for with another `variant` (the settings it was made with), the held
         one is released and a new one made, so that what requests vary (a pass per
-        sample count) never piles up."""
+        sample count) never piles up. `pixels`: the largest image this job draws
+        with it (its targets and buffers grow to it; see `end_job`)."""
         self.gl.check_thread()
+        self._job_pixels[name] = max(self._job_pixels.get(name, 0), int(pixels))
         held = self._resources.get(name)
         if held is not None and held[0] != variant:
             del self._resources[name]
@@ -193,6 +201,31 @@ class GLState:
         if name not in self._resources:
             self._resources[name] = (variant, factory(self.gl))
         return self._resources[name][1]
+
+    def end_job(self) -> bool:
+        """After each job: release the passes it used for images over `keep_pixels`
+        and a G-buffer target over it, then let the driver free them (`settle`), so
+        that an idle worker does not keep the memory of its largest frame (they are
+        made again at the next job's size). True when something was released."""
+        self.gl.check_thread()
+        used, self._job_pixels = self._job_pixels, {}
+        if self.keep_pixels is None:
+            return False
+        big = [name for name, px in used.items() if px > self.keep_pixels and name in self._resources]
+        for name in big:
+            self._resources.pop(name)[1].release()
+        target = getattr(self.gbuffer, "target", None)
+        big_target = target is not None and target.size[0] * target.size[1] > self.keep_pixels
+        if big_target:
+            self.gbuffer.release_target()
+        if big or big_target:
+            settle(self.gl)
+        return bool(big or big_target)
+
+    @property
+    def resource_names(self) -> set[str]:
+        """The names of the `resource` objects held now."""
+        return set(self._resources)
 
     @property
     def gpu_cached(self) -> int:
@@ -246,6 +279,7 @@ class RenderWorker:
 
     def __init__(self, queue_size: int = 32, job_timeout_s: float = 120.0, gpu_cache_size: int = 4,
                  backend: str | None = None, device: int | None = None, reconstruction_cache_bytes: int = 0,
+                 keep_pixels: int | None = None,
                  context_factory: Callable[[], GLContext] | None = None,
                  gbuffer_factory: Callable[[GLContext], GBufferPass] | None = None, name: str = "depthview-gl",
                  scene_loader: Callable[[str], Scene] | None = None) -> None:
@@ -253,6 +287,7 @@ class RenderWorker:
         self.job_timeout_s = float(job_timeout_s)
         self.gpu_cache_size = int(gpu_cache_size)
         self.reconstruction_cache_bytes = int(reconstruction_cache_bytes)
+        self.keep_pixels = keep_pixels
         self._scene_loader = scene_loader
         self._context_factory = context_factory or (lambda: create_gl_context(backend, device))
         self._gbuffer_factory = gbuffer_factory or GBufferPass
@@ -407,7 +442,7 @@ class RenderWorker:
             raise
         self._state = GLState(gl=gl, gbuffer=gbuffer, gpu_cache_size=self.gpu_cache_size,
                               reconstruction_cache_bytes=self.reconstruction_cache_bytes,
-                              scene_loader=self._scene_loader)
+                              keep_pixels=self.keep_pixels, scene_loader=self._scene_loader)
         self.renderer, self.backend = gl.renderer, gl.backend
         self.gl_version = getattr(gl, "version", None)
         self.is_software = bool(gl.is_software)
@@ -488,6 +523,16 @@ class RenderWorker:
             fut.set_result(result)
         else:
             fut.set_exception(error)
+        end_job(self._state)
+
+
+def end_job(state: GLState) -> None:
+    """`state.end_job()` after a job's result is delivered; a failure is logged (the
+    next job's own GL calls meet a broken context and report it)."""
+    try:
+        state.end_job()
+    except Exception:  # noqa: BLE001 - releasing must not end the worker
+        log.exception("releasing a finished job's large passes failed")
 
 
 def count_job(worker: Any, outcome: str, seconds: float, waited: float) -> None:

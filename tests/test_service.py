@@ -32,6 +32,7 @@ from tests.helpers import (
     service,
     service_client,
     shared_scene,
+    sphere_on_slab,
     wait_ready,
     wait_until,
 )
@@ -697,6 +698,45 @@ def test_worker_resources_hold_one_object_per_name(gl):
     released.clear()
     st.release_objects()
     assert sorted(released) == [0, 8]
+
+
+def test_worker_releases_passes_sized_over_keep_pixels_after_the_job(gl):
+    """GLState.end_job: a pass a job used for images over keep_pixels, and a G-buffer
+    target over it, are released after the job (an idle worker does not hold its
+    largest frame's memory); smaller ones stay for the next job; keep_pixels None
+    keeps all. The next job makes them again."""
+    from gl_passes.gbuffer import GBufferPass
+    from gl_passes.upload import SceneGPU
+    from scenes.camera import Camera
+    from service.worker import GLState
+
+    released = []
+
+    class Pass:
+        def __init__(self, name: str) -> None:
+            self.name = name
+
+        def release(self) -> None:
+            released.append(self.name)
+
+    with GBufferPass(gl) as gbuffer, SceneGPU(gl, sphere_on_slab()) as gpu:
+        st = GLState(gl=gl, gbuffer=gbuffer, keep_pixels=64 * 64)
+        small = st.resource("small", lambda _: Pass("small"), pixels=64 * 64)
+        big = st.resource("big", lambda _: Pass("big"), pixels=16)
+        gbuffer.draw(gpu, Camera(eye=(0, 1, 3), target=(0, 0, 0), width=64, height=64))
+        assert st.end_job() is False and released == [] and gbuffer.target is not None
+        # the largest use within the job counts
+        assert st.resource("big", lambda _: Pass("new"), pixels=16) is big
+        assert st.resource("big", lambda _: Pass("new"), pixels=64 * 65) is big
+        gbuffer.draw(gpu, Camera(eye=(0, 1, 3), target=(0, 0, 0), width=65, height=64))
+        assert st.end_job() is True and released == ["big"] and gbuffer.target is None
+        assert st.resource("small", lambda _: Pass("new"), pixels=1) is small
+        assert st.resource("big", lambda _: Pass("new"), pixels=1).name == "new"
+        assert gbuffer.render(gpu, Camera(eye=(0, 1, 3), target=(0, 0, 0), width=32, height=32)).tri_id.any()
+
+        keep_all = GLState(gl=gl, gbuffer=gbuffer)
+        keep_all.resource("huge", lambda _: Pass("huge"), pixels=1 << 30)
+        assert keep_all.end_job() is False and released == ["big"]
 
 
 def test_worker_resources_forget_a_released_upload_first(gl):

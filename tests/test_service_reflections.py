@@ -52,6 +52,30 @@ def test_png_reflection_frame_decodes(client):
     assert png.shape == (RES, RES, 3) and png.std() > 1
 
 
+def test_a_frame_over_the_streamed_size_leaves_no_pass_of_its_size_behind(tmp_path):
+    """The worker keeps its cluster renderer between frames up to stream_max_pixels
+    (a stream asks for that every frame) and releases it after a larger one
+    (Settings.keep_pixels, GLState.end_job); the next frame makes it again."""
+    with service(tmp_path, stream_max_pixels=RES * RES) as c:
+        sid = c.post("/scenes", json={"builtin": "mirror"}).json()["id"]
+        worker = c.app.state.worker
+
+        def held() -> set[str]:
+            return worker.submit(lambda st: st.resource_names).result(timeout=60)
+
+        def render(width: int) -> None:
+            r = c.post(f"/scenes/{sid}/frames", json={"camera": MIRROR_CAMERA, "width": width, "height": RES,
+                                                       "effects": {"reflections": "cluster"}})
+            assert r.status_code == 200, r.text
+
+        render(RES)
+        assert "reflections" in held()
+        render(RES + 1)
+        assert "reflections" not in held()
+        render(RES)
+        assert "reflections" in held()
+
+
 def _server_timing(r) -> dict[str, tuple[float, str]]:
     """Server-Timing header → {name: (dur ms, desc)}."""
     out = {}
