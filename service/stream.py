@@ -429,14 +429,17 @@ class StreamSession:
             assert req is not None
             try:
                 frame = await self.source.render(req)
-            except HTTPException as exc:
-                await self.error(exc.status_code, exc.detail, req.id)
-                continue
             except Exception as exc:  # noqa: BLE001 - reported on the socket, the stream goes on
-                status = errors.store_status(exc)
-                if status >= 500:
-                    log.exception("stream frame failed", exc_info=exc)
-                await self.error(status, f"{type(exc).__name__}: {str(exc)[:300]}", req.id)
+                if isinstance(exc, HTTPException):
+                    status, detail = exc.status_code, exc.detail
+                else:
+                    status, detail = errors.store_status(exc), f"{type(exc).__name__}: {str(exc)[:300]}"
+                    if status >= 500:
+                        log.exception("stream frame failed", exc_info=exc)
+                await self.error(status, detail, req.id)
+                if status == 404:  # the scene was deleted while streaming: as for an unknown one, final
+                    await self.ws.close(CLOSE_NO_SCENE)
+                    return
                 continue
             await self._send(frame, req, "jpeg", superseded=superseded, rest=False)
             last = (frame, req)

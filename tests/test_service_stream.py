@@ -197,6 +197,29 @@ def test_unknown_scene_gets_an_error_and_a_close(client):
         assert exc.value.code == CLOSE_NO_SCENE
 
 
+def test_a_scene_deleted_while_streaming_ends_the_stream(tmp_path):
+    """The next camera message after DELETE gets the 404 and the socket closes with
+    the unknown scene's code, which the thin client treats as final (it kept the
+    slot and the worker's state while every message got a 404)."""
+    with service(tmp_path) as c:
+        # a seed other than the default's: a deletable scene (the defaults are protected)
+        sid = c.post("/scenes", json={"builtin": "cornell", "params": {"seed": 7}}).json()["id"]
+        with c.websocket_connect(f"/scenes/{sid}/stream") as ws:
+            assert ws.receive_json()["type"] == "hello"
+            ws.send_json(camera_msg(1))
+            assert receive_rendered(ws)[0]["id"] == 1
+            assert c.delete(f"/scenes/{sid}").status_code == 204
+            ws.send_json(camera_msg(2))
+            msg = ws.receive_json()
+            while msg["type"] == "frame":  # a re-send at rest of frame 1
+                ws.receive_bytes()
+                msg = ws.receive_json()
+            assert msg["type"] == "error" and msg["status"] == 404 and msg["id"] == 2, msg
+            with pytest.raises(WebSocketDisconnect) as exc:
+                ws.receive_json()
+            assert exc.value.code == CLOSE_NO_SCENE
+
+
 def test_stream_limits_per_client_and_in_total(tmp_path):
     with service(tmp_path, stream_max_per_client=2, stream_max_total=3) as c:
         url = f"/scenes/{CORNELL}/stream"
