@@ -6,7 +6,7 @@ streamed frames must arrive and change, the canvases must not be blank (pixels r
 local mode must render the reconstruction at once on orbit, fetch a new set when the view
 leaves the region, and swap the server's frame in; frames must show in the order they came
 even when a decode finishes late; the soft-shadow toggle must switch the stream to soft
-shadows that answer an orbit; the page must log no errors. A failure
+shadows that answer an orbit; a reconnect must keep the orbited view; the page must log no errors. A failure
 names a screenshot (failure.png in the test's tmp dir) and the page's state."""
 
 from __future__ import annotations
@@ -197,6 +197,39 @@ SLOW_SECOND_DECODE = """(() => {
     return calls === 2 ? bitmap.then((b) => new Promise((done) => setTimeout(() => done(b), DELAY))) : bitmap;
   };
 })();""".replace("DELAY", str(DECODE_DELAY_MS))
+
+
+#: Keeps the page's sockets (window.sockets) and what each sent (socket.sent).
+WATCH_SOCKETS = """(() => {
+  const Native = window.WebSocket;
+  window.sockets = [];
+  window.WebSocket = class extends Native {
+    constructor(...args) { super(...args); this.sent = []; window.sockets.push(this); }
+    send(data) { this.sent.push(data); return super.send(data); }
+  };
+})();"""
+
+
+def test_a_reconnect_keeps_the_users_view(page, server, tmp_path):
+    """When the socket drops, the client reconnects after a while and sends the view the
+    user had orbited to, not the hello's default view again."""
+    with reported(page, tmp_path):
+        page.add_init_script(WATCH_SOCKETS)
+        page.goto(f"{server}/client?scene=cornell&token={TOKEN}")
+        page.wait_for_function("() => window.depthview && window.depthview.framesShown >= 1", timeout=30_000)
+        first_eye = json.loads(page.evaluate("() => window.sockets[0].sent[0]"))["camera"]["eye"]
+        drag(page, 80, 30)
+        page.wait_for_function("() => window.depthview.lastRendered?.id === window.depthview.lastSentId",
+                               timeout=30_000)
+        orbited = json.loads(page.evaluate("() => window.sockets[0].sent.at(-1)"))["camera"]
+        assert max(abs(a - b) for a, b in zip(orbited["eye"], first_eye, strict=True)) > 0.1, (orbited, first_eye)
+        page.evaluate("() => window.sockets[0].close(4000)")  # as a dropped connection: reconnect
+        page.wait_for_function("() => window.sockets.length === 2 && window.sockets[1].sent.length >= 1",
+                               timeout=30_000)
+        again = json.loads(page.evaluate("() => window.sockets[1].sent[0]"))["camera"]
+        assert again["eye"] == pytest.approx(orbited["eye"]) and again["target"] == pytest.approx(orbited["target"]), \
+            (again, orbited)
+        assert page.problems == []
 
 
 def test_frames_show_in_the_order_they_came_when_a_decode_finishes_late(page, server, tmp_path):

@@ -19,7 +19,7 @@ const $ = (id) => document.getElementById(id);
 
 const state = window.depthview = {
   mode: params.get('mode') === 'local' ? 'local' : 'stream',
-  scene: null, hello: null, connected: false,
+  scene: null, hello: null, connected: false, viewScene: null,  // viewScene: the scene the view was framed for
   framesReceived: 0, framesShown: 0, lastSentId: 0, lastStats: null, lastRendered: null, latencyMs: null, errors: [],
   local: { sets: 0, meshes: 0, triangles: 0, loading: false, rendered: 0 },
 };
@@ -132,8 +132,10 @@ function connect() {
 
 function onText(msg) {
   if (msg.type === 'hello') {
-    const first = !state.hello || state.hello.scene !== msg.scene;
+    // a reconnect to the same scene keeps the user's view; another scene is framed anew
+    const first = state.viewScene !== msg.scene;
     state.hello = msg;
+    state.viewScene = msg.scene;
     if (first) resetView(msg);
     status('');
     sendCamera();
