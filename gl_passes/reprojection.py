@@ -223,8 +223,10 @@ class ReflectionReuser(Releasable):
         """The current keyframe's reflection depth image (§5.3), read back."""
         return self.keyframe.image() if self.keyframe is not None else None
 
-    def next_frame(self, camera: Camera) -> ReuseFrame:
-        """The frame for `camera` (near/far fitted to the scene when absent)."""
+    def next_frame(self, camera: Camera, keyframe: bool = False) -> ReuseFrame:
+        """The frame for `camera` (near/far fitted to the scene when absent); a
+        keyframe when the policy says so, or when the caller asks (`keyframe`: it
+        knows the keyframe no longer fits, e.g. the camera jumped)."""
         self.gl.check_thread()
         st = self.settings
         ctx = self.gl.ctx
@@ -242,7 +244,7 @@ class ReflectionReuser(Releasable):
         n_refl = len(flat)
         lap("diffuse")
         kf = self.keyframe
-        is_key = (st.mode == "full" or self.policy.due or kf is None
+        is_key = (keyframe or st.mode == "full" or self.policy.due or kf is None
                   or kf.target.size != (cam.width, cam.height))
         stats = ReuseStats(keyframe=is_key, reflective=n_refl, recomputed=0)
         if is_key:

@@ -73,6 +73,16 @@ from service.worker import GLState
 
 #: Reflection methods whose stream frames go through the stream's ReflectionReuser.
 REUSED_METHODS = ("cluster", "raytrace")
+#: A stream's reflective frame is a keyframe when its camera jumped since the last one
+#: (`camera_jump`): its view direction turned by more than JUMP_TURN_DEG (a roll about
+#: it does not count: near the vertical a look-at camera spins on smooth paths), its
+#: eye moved by more than JUMP_MOVE of its distance to the target, or tan(fov/2)
+#: changed by more than JUMP_ZOOM either way. The benchmarked fly-throughs never step
+#: that far (bench.temporal's paths at 250 frames and more: at most 7.1° and 0.10 a
+#: frame; tests/test_service_stream.py), so on them the stream reuses as measured.
+JUMP_TURN_DEG = 15.0
+JUMP_MOVE = 0.25
+JUMP_ZOOM = 1.1
 
 log = logging.getLogger("depthview.stream")
 T = TypeVar("T")
@@ -164,6 +174,20 @@ class _CachedEmbreeTracer(EmbreeTracer):
             return super().trace(camera, pixels)
 
 
+def camera_jump(prev: Camera | None, cam: Camera) -> bool:
+    """Whether `cam` jumped from `prev` (None: no reused frame before) past what the
+    reuse is measured on (JUMP_TURN_DEG, JUMP_MOVE, JUMP_ZOOM): beyond the thesis,
+    whose keyframe policy (§5.4.4) looks only at the share of pixels recomputed, so
+    a jump was answered from the old keyframe, smeared, before the policy reacted."""
+    if prev is None:
+        return True
+    turn = np.degrees(np.arccos(np.clip(np.dot(prev.basis()[2], cam.basis()[2]), -1.0, 1.0)))
+    reach = float(np.linalg.norm(np.subtract(prev.target, prev.eye)))
+    move = float(np.linalg.norm(np.subtract(cam.eye, prev.eye))) / reach
+    zoom = np.tan(np.radians(cam.fov) / 2) / np.tan(np.radians(prev.fov) / 2)
+    return bool(turn > JUMP_TURN_DEG or move > JUMP_MOVE or not 1 / JUMP_ZOOM <= zoom <= JUMP_ZOOM)
+
+
 class _Reuse:
     """A stream's ReflectionReuser and its tracer (the cluster method for reflections
     "cluster", Embree's sparse rays for "raytrace"); touched only on the worker thread
@@ -207,11 +231,14 @@ class StreamReflectionJob(SceneJob):
     stream: str
     #: ReuseSettings.mode: "reuse", or the baselines "full" and "direct" (stream_reflection_mode).
     mode: str = "reuse"
+    #: Start a keyframe whatever the policy says (the camera jumped, or frames without
+    #: reuse came between: the keyframe no longer fits).
+    keyframe: bool = False
 
     def __call__(self, state: GLState) -> Any:
         reuse = state.clients.setdefault(self.stream, _Reuse())
         reuser = reuse.get(state, self.scene_key, self.load(state), self.method, self.glossy_rays, self.mode)
-        return reuser.next_frame(self.camera)
+        return reuser.next_frame(self.camera, keyframe=self.keyframe)
 
 
 @dataclass(frozen=True)
@@ -243,9 +270,11 @@ class ReuseFrameSource(JobFrameSource):
         super().__init__(r, scene_id)
         self._key = f"stream-{uuid.uuid4().hex}"
         self._used = False
+        self._last: Camera | None = None  # the camera of the last reflective frame, None after other frames
 
     async def render(self, req: StreamRequest) -> SourceFrame:
         if req.effects.reflections not in REUSED_METHODS:
+            self._last = None  # the views in between left the keyframe behind
             return await super().render(req)
         timed = _TimedRender(self.r.settings, self.r.store, self.r.worker, self.r.metrics)
         t0 = time.perf_counter()
@@ -253,8 +282,10 @@ class ReuseFrameSource(JobFrameSource):
         camera = req.to_camera().fit_clip(scene.bounds)
         self._used = True
         job = StreamReflectionJob(self.scene_id, scene, camera, req.effects.reflections, req.effects.glossy_rays,
-                                  self._key, self.r.settings.stream_reflection_mode)
+                                  self._key, self.r.settings.stream_reflection_mode, camera_jump(self._last, camera))
+        self._last = None  # until this frame is answered: a failed one leaves no keyframe to trust
         frame = await timed.job(job, f"stream frame {self.scene_id[:12]}", pin=self._key)
+        self._last = camera
         st = frame.stats
         ratio = 0.0 if st.keyframe or not st.reflective else 1.0 - st.recomputed_fraction
         return SourceFrame(np.asarray(frame.color, np.float32), timed.render_s(t0), timed.queue_wait_s,

@@ -10,6 +10,7 @@ import io
 import json
 import threading
 import time
+from itertools import pairwise
 
 import numpy as np
 import pytest
@@ -50,6 +51,8 @@ def decode(body: bytes) -> np.ndarray:
 
 
 client = service_client(stream_rest_s=0.2)
+#: A jump from MIRROR_CAMERA: the view turns by 64°.
+JUMPED_CAMERA = {"eye": [-2.0, 1.2, 2.5], "target": [0.5, 0.9, -1.0]}
 
 
 def assert_frames_box(view: dict, bounds: list) -> None:
@@ -116,6 +119,13 @@ def test_reflective_frames_go_through_the_streams_reflection_reuser(client, monk
             True, 2, False, reused["reused_ratio"])
         ws.send_json({**moved, "id": 3, "effects": {"reflections": "none"}})  # not reflective: no reuse
         plain, plain_jpeg = receive_rendered(ws)
+        # reflections again: the views in between left the keyframe behind, so a new one
+        # (the old one answered this frame smeared); then a small step reuses, a jump does not
+        after = []
+        for i, camera in ((4, MIRROR_CAMERA_MOVED), (5, MIRROR_CAMERA), (6, JUMPED_CAMERA)):
+            ws.send_json({**body, "camera": camera, "id": i})
+            after.append(receive_rendered(ws)[0]["keyframe"])
+        assert after == [True, False, True]
     assert (key["keyframe"], key["reused_ratio"]) == (True, 0.0)
     assert reused["keyframe"] is False and reused["reused_ratio"] > 0.5, reused
     assert (plain["keyframe"], plain["reused_ratio"]) == (True, 0.0)
@@ -186,6 +196,47 @@ def test_bad_messages_get_an_error_and_the_stream_goes_on(client, message, statu
         ws.send_json(camera_msg(99))  # still alive
         stats, _ = receive_frame(ws)
         assert stats["id"] == 99
+
+
+def test_camera_jump_hand_cases():
+    """stream.camera_jump: the view direction turning past 15°, the eye moving past a
+    quarter of its distance to the target, or tan(fov/2) changing by more than 10 %;
+    a roll about the view direction does not count."""
+    from service.stream import camera_jump
+
+    cam = Camera((0.0, 0.0, 4.0), (0.0, 0.0, 0.0), fov=45.0)
+
+    def turned(deg: float) -> Camera:
+        a = np.radians(deg)
+        return Camera(cam.eye, (4 * np.sin(a), 0.0, 4 - 4 * np.cos(a)), fov=45.0)
+
+    assert camera_jump(None, cam) and not camera_jump(cam, cam)
+    assert not camera_jump(cam, turned(14.9)) and camera_jump(cam, turned(15.1))
+    assert not camera_jump(cam, Camera((0.99, 0.0, 4.0), (0.99, 0.0, 0.0))) \
+        and camera_jump(cam, Camera((1.01, 0.0, 4.0), (1.01, 0.0, 0.0)))  # 4 · 0.25 = 1
+    tan = np.tan(np.radians(22.5))
+    for ratio, jumped in ((1.099, False), (1.101, True), (1 / 1.099, False), (1 / 1.101, True)):
+        fov = float(2 * np.degrees(np.arctan(tan * ratio)))
+        assert camera_jump(cam, Camera(cam.eye, cam.target, fov=fov)) is jumped, ratio
+    assert not camera_jump(cam, Camera(cam.eye, cam.target, up=(1.0, 1.0, 0.0)))  # a 45° roll
+
+
+@pytest.mark.parametrize("frames", [250, 500, 1000])
+def test_the_benchmarked_paths_never_jump(frames):
+    """bench.temporal's fly-throughs (its scenes and seeds; the tables run 500 frames,
+    the sweeps 250 to 1000) never trigger camera_jump, so on them the stream reuses
+    exactly as the benchmark measures."""
+    from bench.temporal import PATH_SEEDS
+    from scenes.builtin import make_builtin
+    from scenes.camera import flythrough_path
+    from service.stream import camera_jump
+
+    for name in ("living_room", "bathroom"):
+        bounds = make_builtin(name).bounds
+        for seed in PATH_SEEDS:
+            cams = flythrough_path(bounds, frames, seed=seed)
+            jumps = [i for i, (a, b) in enumerate(pairwise(cams)) if camera_jump(a, b)]
+            assert jumps == [], (name, seed, jumps)
 
 
 def test_unknown_scene_gets_an_error_and_a_close(client):
