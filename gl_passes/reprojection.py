@@ -85,9 +85,10 @@ class ReuseSettings:
     triangle is dropped (§5.5.1: 16); plane_tolerance: same-surface test (depth
     discontinuity), in pixel footprints; reflected_jump: beyond the thesis, a
     triangle whose vertices' reflected-ray lengths differ by more than this fraction
-    is dropped (0 = off, the thesis: its growth limit alone catches the gaps of the
-    reflected scene; on costs recomputed pixels for less smearing, see
-    bench/results/temporal.md); miss_diagonals: the ray length given to rays that miss
+    is dropped (0 = off, the default and the thesis: its growth limit alone catches
+    the gaps of the reflected scene; on, it trades recomputed pixels for less smearing
+    at reflected silhouettes; no benchmark measures it, and the stream leaves it off);
+    miss_diagonals: the ray length given to rays that miss
     (sky), in scene diagonals; warp: how the grid mesh of §5.4.2 is rasterised —
     "splat" (gl_passes.reflection_splat: compute passes, no vertex pipeline; faster on
     a CPU rasteriser) or "mesh" (gl_passes.reflection_offset: GL's vertex, geometry
