@@ -19,6 +19,9 @@ Materials follow DESIGN.md: albedo is linear RGB; from glTF PBR baseColorFactor 
 roughnessFactor -> glossiness g, glTF spec defaults (1.0) when a factor is absent. A mesh with
 no material at all gets albedo 0.8 grey, s = 0, g = 1.
 
+glTF documents are checked and their node hierarchies flattened before trimesh reads them
+(:mod:`scenes.gltf`); trimesh's random names for a mesh's primitives are made serial.
+
 Malformed input of any kind raises :class:`SceneLoadError` (a ``ValueError``). trimesh is
 never given a URL nor ``allow_remote``; bytes uploads get no resolver at all, so references
 to external files (buffers, textures, MTL) fail or are skipped instead of being fetched.
@@ -27,6 +30,7 @@ to external files (buffers, textures, MTL) fail or are skipped instead of being 
 from __future__ import annotations
 
 import io
+import itertools
 import json
 import re
 import struct
@@ -36,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scenes import ply
+from scenes import gltf, ply
 from scenes.model import Material, Scene, SceneObject
 
 __all__ = ["SUPPORTED_FORMATS", "SceneLoadError", "TriangleLimitError", "load_scene", "load_scene_bytes"]
@@ -45,8 +49,6 @@ SUPPORTED_FORMATS = ("glb", "gltf", "obj", "ply")
 
 #: Largest object count a scene may have (object ids are uint16, 0 = none).
 _MAX_OBJECTS = 65534
-#: glTF extensions that carry compressed geometry trimesh cannot decode.
-_UNSUPPORTED_GLTF_EXTENSIONS = ("KHR_draco_mesh_compression", "EXT_meshopt_compression")
 #: Material for meshes the file gives no material (s = 0: not reflective).
 _DEFAULT_MATERIAL = Material(albedo=(0.8, 0.8, 0.8), specular=0.0, glossiness=1.0)
 #: Textures are shrunk to at most this many pixels per side before averaging.
@@ -141,6 +143,15 @@ def _load(data: bytes, fmt: str, name: str, max_triangles: int | None, resolver:
     if fmt in ("glb", "gltf"):
         gltf_header = _gltf_json(data, fmt)
         _check_gltf_header(gltf_header, label, max_triangles)
+        try:
+            problem = gltf.unsupported_features(gltf_header, label)
+            if problem:
+                raise SceneLoadError(problem)
+            flat = gltf.flattened(gltf_header)
+        except gltf.GltfError as exc:
+            raise SceneLoadError(f"malformed {label}: {exc}") from None
+        if flat is not None:
+            data = gltf.repacked(data, flat)
     elif fmt == "obj":
         data = _obj_text(data)
         _check_limit(_obj_triangle_count(data), max_triangles, estimate=False)
@@ -200,10 +211,22 @@ def _check_limit(n_triangles: int | None, max_triangles: int | None, estimate: b
     )
 
 
+_SERIAL = itertools.count()
+
+
+def _serial_id(length: int = 12) -> str:
+    """trimesh.util.unique_id without collisions (installed by `_trimesh_load`):
+    trimesh names a glTF mesh's primitives f"{node}_{unique_id(length=6)}", and
+    random 6-hex-digit names collide (about half the loads of 5,000 primitives), each
+    collision dropping a primitive, different ones each load. Unique in the process."""
+    return f"{next(_SERIAL):0{length}x}"
+
+
 def _trimesh_load(data: bytes, fmt: str, label: str, resolver: object | None):
     """trimesh.Scene from bytes; every failure becomes SceneLoadError."""
     import trimesh
 
+    trimesh.util.unique_id = _serial_id
     kwargs: dict = {"process": False}
     if fmt == "obj":
         # one mesh per (object, material); keep faces as written
@@ -276,10 +299,6 @@ def _gltf_json(data: bytes, fmt: str) -> dict:
 
 
 def _check_gltf_header(header: dict, label: str, max_triangles: int | None) -> None:
-    required = header.get("extensionsRequired") or []
-    bad = [e for e in required if e in _UNSUPPORTED_GLTF_EXTENSIONS]
-    if bad:
-        raise SceneLoadError(f"{label} needs unsupported extension(s) {', '.join(bad)}; decompress it first")
     nodes = header.get("nodes", [])
     if isinstance(nodes, list) and len(nodes) > MAX_PARTS:
         raise SceneLoadError(f"{label} has {len(nodes):,} nodes, limit is {MAX_PARTS:,}")
