@@ -34,13 +34,14 @@ import itertools
 import json
 import re
 import struct
+import threading
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import numpy as np
 
-from scenes import gltf, ply
+from scenes import gltf, obj, ply
 from scenes.model import Material, Scene, SceneObject
 
 __all__ = ["SUPPORTED_FORMATS", "SceneLoadError", "TriangleLimitError", "load_scene", "load_scene_bytes"]
@@ -153,11 +154,15 @@ def _load(data: bytes, fmt: str, name: str, max_triangles: int | None, resolver:
         if flat is not None:
             data = gltf.repacked(data, flat)
     elif fmt == "obj":
-        data = _obj_text(data)
+        try:
+            data = obj.normalised(_obj_text(data))
+        except obj.ObjError as exc:
+            raise SceneLoadError(f"malformed OBJ: {exc}") from None
         _check_limit(_obj_triangle_count(data), max_triangles, estimate=False)
-        objects = len(_OBJ_OBJECT_LINE.findall(data))
-        if objects > MAX_PARTS:
-            raise SceneLoadError(f"OBJ has {objects:,} objects ('o' lines), limit is {MAX_PARTS:,}")
+        parts = obj.part_count(data)
+        if parts > MAX_PARTS:
+            raise SceneLoadError(f"OBJ has {parts:,} parts (objects × materials, from its 'o' and 'usemtl' lines), "
+                                 f"limit is {MAX_PARTS:,}")
     else:
         data = _ply_readable(data, max_triangles)
 
@@ -222,15 +227,36 @@ def _serial_id(length: int = 12) -> str:
     return f"{next(_SERIAL):0{length}x}"
 
 
+_NAMES = threading.local()  # .counts: this thread's load's unique_name counts, by collection
+_TRIMESH_UNIQUE_NAME: Callable[..., str] | None = None
+
+
+def _unique_name(start: str | None, contains, counts: dict | None = None) -> str:
+    """trimesh.util.unique_name (installed by `_trimesh_load`) remembering, within one
+    load, the last number it gave each name, as trimesh's own ``counts`` argument
+    does: without it each repeated name scanned every number before (an OBJ whose
+    parts share a name, e.g. no materials: 20,000 parts took 148 s)."""
+    memo = getattr(_NAMES, "counts", None)
+    if counts is None and memo is not None:
+        counts = memo.setdefault(id(contains), {})
+    assert _TRIMESH_UNIQUE_NAME is not None  # set when installed
+    return _TRIMESH_UNIQUE_NAME(start, contains, counts)
+
+
 def _trimesh_load(data: bytes, fmt: str, label: str, resolver: object | None):
     """trimesh.Scene from bytes; every failure becomes SceneLoadError."""
     import trimesh
 
+    global _TRIMESH_UNIQUE_NAME
+    if trimesh.util.unique_name is not _unique_name:
+        _TRIMESH_UNIQUE_NAME = trimesh.util.unique_name
+        trimesh.util.unique_name = _unique_name
     trimesh.util.unique_id = _serial_id
     kwargs: dict = {"process": False}
     if fmt == "obj":
         # one mesh per (object, material); keep faces as written
         kwargs.update(group_material=True, split_objects=True, split_groups=False)
+    _NAMES.counts = {}
     try:
         scene = trimesh.load_scene(
             io.BytesIO(data), file_type=fmt, resolver=resolver, allow_remote=False, **kwargs
@@ -244,6 +270,8 @@ def _trimesh_load(data: bytes, fmt: str, label: str, resolver: object | None):
         elif fmt == "obj":
             msg = _obj_face_problem(data) or msg
         raise SceneLoadError(f"malformed {label}: {msg}") from exc
+    finally:
+        _NAMES.counts = None
     if not isinstance(scene, trimesh.Scene):
         raise SceneLoadError(f"malformed {label}: trimesh returned {type(scene).__name__}")
     return scene
@@ -367,7 +395,6 @@ def _obj_text(data: bytes) -> bytes:
         return data.decode("latin-1").encode("utf-8")
 
 
-_OBJ_OBJECT_LINE = re.compile(rb"^[ \t]*o[ \t]", re.MULTILINE)
 _OBJ_FACE_LINE = re.compile(rb"^[ \t]*f[ \t]+([^\r\n#]*)", re.MULTILINE)
 
 
@@ -719,8 +746,8 @@ def _merge_by_material(objects: list[SceneObject]) -> list[SceneObject]:
     """Concatenate objects that share a material (used when there are too many for uint16
     object ids). Order of first appearance is kept."""
     groups: dict[Material, list[SceneObject]] = {}
-    for obj in objects:
-        groups.setdefault(obj.material, []).append(obj)
+    for part in objects:
+        groups.setdefault(part.material, []).append(part)
     merged = []
     for material, objs in groups.items():
         offsets = np.cumsum([0] + [len(o.vertices) for o in objs[:-1]])

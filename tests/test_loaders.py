@@ -385,9 +385,14 @@ def test_parts_limit_counts_gltf_nodes_and_obj_objects(monkeypatch):
         load_scene_bytes(_triangle_gltf(3), "gltf")
     obj = "".join(f"o part{i}\nv {i} 0 0\nv {i + 1} 0 0\nv {i} 1 0\nf {3 * i + 1} {3 * i + 2} {3 * i + 3}\n"
                   for i in range(3)).encode()
-    with pytest.raises(SceneLoadError, match=r"OBJ has 3 objects \('o' lines\), limit is 2"):
+    with pytest.raises(SceneLoadError, match=r"OBJ has 3 parts \(objects × materials.*limit is 2"):
         load_scene_bytes(obj, "obj")
     assert load_scene_bytes(obj.replace(b"o part2\n", b""), "obj").n_triangles == 3
+    # material switches split parts too: 3 (object, material) pairs, though one object
+    mtl = obj.replace(b"o part1\n", b"usemtl b\n").replace(b"o part2\n", b"usemtl a\n")
+    with pytest.raises(SceneLoadError, match="OBJ has 3 parts"):
+        load_scene_bytes(mtl, "obj")
+    assert load_scene_bytes(mtl.replace(b"usemtl a", b"usemtl b"), "obj").n_triangles == 3  # (part0, b) twice
 
 
 @pytest.mark.parametrize("scale, offset, message", [
@@ -521,7 +526,7 @@ def test_ply_declaring_more_vertices_than_its_body_holds_says_so():
 
 @pytest.mark.parametrize("face, message", [
     ("f 1 2 4", "face on line 5 refers to vertex 4; the file defines 3 vertices"),
-    ("f 1/1 -4 3", "face on line 5 refers to vertex -4; the file defines 3 vertices"),
+    ("f 1/1 -4 3", "face on line 5 refers to vertex -4 (relative), but only 3 vertices come before it"),
     ("f 1 2 x", "face on line 5 refers to 'x', not a vertex number; the file defines 3 vertices"),
 ])
 def test_obj_face_naming_a_missing_vertex_says_which(face, message):
@@ -695,3 +700,33 @@ def test_required_extensions_the_loader_handles_load():
     data = _gltf([_ONE_TRIANGLE], [{"mesh": 0}], [0],
                  extensionsRequired=["KHR_materials_unlit", "KHR_texture_transform", "KHR_mesh_quantization"])
     assert load_scene_bytes(data, "gltf").n_triangles == 1
+
+
+# --------------------------------------------------------------------------------------
+# OBJ text before trimesh (scenes.obj)
+# --------------------------------------------------------------------------------------
+def test_obj_relative_indices_count_back_from_their_line():
+    """`f -3 -2 -1` names the three vertices defined last above the line (the OBJ
+    spec), not the file's last three: trimesh resolved them against the end of the
+    file, moving the first object's face onto the second's vertices."""
+    obj = (b"o a\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\n"
+           b"o b\nvt 0 0\nvn 0 0 1\nv 0 0 5\nv 1 0 5\nv 0 1 5\nf -3/-1/-1 -2/-1/-1 -1/-1/-1\nvn 0 0 1\n")
+    scene = load_scene_bytes(obj, "obj")
+    by_name = {o.name: o for o in scene.objects}
+    assert sorted(by_name) == ["a", "b"]
+    assert by_name["a"].vertices[:, 2].max() == 0 and by_name["b"].vertices[:, 2].min() == 5
+    with pytest.raises(SceneLoadError, match="face on line 5 refers to vertex -4 .relative., but only 3 vertices"):
+        load_scene_bytes(b"v 0 0 0\nv 1 0 0\nv 0 1 0\n\nf -4 -2 -1\n", "obj")
+
+
+@pytest.mark.parametrize("text", [
+    b"v\t0 0 0\nv\t1 0 0\nv\t0 1 0\nf\t1 2 3\n",  # a tab after the keyword
+    b"  v 0 0 0\n\tv 1 0 0\n v 0 1 0\n   f 1 2 3\n",  # indented lines
+    b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3 # a comment after the face\n",
+])
+def test_obj_lines_that_are_valid_but_unusual_load(text):
+    """trimesh took keywords only at the line's start and followed by a space, and
+    failed on a comment after numbers: these valid files were refused."""
+    scene = load_scene_bytes(text, "obj")
+    assert scene.n_triangles == 1
+    np.testing.assert_array_equal(np.asarray(scene.bounds), [[0, 0, 0], [1, 1, 0]])

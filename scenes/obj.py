@@ -1,0 +1,92 @@
+"""OBJ text before trimesh reads it: lines trimesh would misread rewritten as it reads
+them (`normalised`), and the parts it will split the file into counted (`part_count`).
+
+trimesh's OBJ reader takes a line's keyword only at the line's start and followed by a
+space, so indented lines and a tab after the keyword (both valid OBJ) were lost, a
+comment after a line's numbers failed the whole file, and
+it resolves relative (negative) indices against the end of the file instead of the
+line they are on, which silently moved faces of files written object by object.
+"""
+
+from __future__ import annotations
+
+import re
+
+#: Keywords whose lines define an element that relative indices count back over.
+_ELEMENTS = {b"v": 0, b"vt": 1, b"vn": 2}
+#: Lines that need rewriting: indented, a tab after the keyword, a negative index on a
+#: face or line element, or a comment after an element's numbers.
+_NEEDS_REWRITE = re.compile(rb"^[ \t]+\S|^\S+\t|^[ \t]*[fl][ \t][^\n#]*-|^[ \t]*(?:v|vt|vn|f|l)[ \t][^\n#]*#",
+                            re.MULTILINE)
+_PART_LINE = re.compile(rb"^[ \t]*(o|usemtl)[ \t]+([^\r\n#]*)", re.MULTILINE)
+
+
+class ObjError(ValueError):
+    """A face refers to an element before the first one (relative index too large)."""
+
+
+def normalised(data: bytes) -> bytes:
+    """`data` with every line's keyword at its start followed by single spaces, and
+    relative indices of faces and lines (``f -3 -2 -1``: the last three vertices
+    defined above the line) made absolute; `data` itself when nothing needs it.
+    One output line per input line, so line numbers in later messages still hold."""
+    if not _NEEDS_REWRITE.search(data):
+        return data
+    seen = [0, 0, 0]  # v, vt, vn defined so far
+    out = []
+    for number, line in enumerate(data.split(b"\n"), start=1):
+        words = line.split()
+        if not words:
+            out.append(line)
+            continue
+        key = words[0]
+        if key in _ELEMENTS:
+            seen[_ELEMENTS[key]] += 1
+            words = _before_comment(words)
+        elif key in (b"f", b"l"):
+            words = [key, *(_absolute(w, seen, number) for w in _before_comment(words[1:]))]
+        out.append(b" ".join(words))
+    return b"\n".join(out)
+
+
+def _before_comment(words: list[bytes]) -> list[bytes]:
+    for i, w in enumerate(words):
+        if w.startswith(b"#"):
+            return words[:i]
+    return words
+
+
+def _absolute(corner: bytes, seen: list[int], line: int) -> bytes:
+    """A face corner (``v``, ``v/vt``, ``v//vn``, ``v/vt/vn``) with negative indices
+    replaced by the absolute ones they name at this line."""
+    if b"-" not in corner:
+        return corner
+    refs = corner.split(b"/")
+    for k, ref in enumerate(refs[:3]):
+        if ref.startswith(b"-"):
+            try:
+                rel = int(ref)
+            except ValueError:
+                continue  # not a number: the face check names it
+            absolute = seen[k] + 1 + rel
+            if absolute < 1:
+                what, whats = (("vertex", "vertices"), ("texture coordinate", "texture coordinates"),
+                               ("normal", "normals"))[k]
+                raise ObjError(f"face on line {line:,} refers to {what} {rel} (relative), but only {seen[k]:,} "
+                               f"{whats} come before it")
+            refs[k] = str(absolute).encode()
+    return b"/".join(refs)
+
+
+def part_count(data: bytes) -> int:
+    """The meshes trimesh splits the OBJ into at most: its distinct (object, material)
+    pairs, from the ``o`` and ``usemtl`` lines (at least 1)."""
+    pairs = set()
+    obj, material = b"", b""
+    for match in _PART_LINE.finditer(data):
+        if match.group(1) == b"o":
+            obj = match.group(2).strip()
+        else:
+            material = match.group(2).strip()
+        pairs.add((obj, material))
+    return max(len(pairs), 1)
