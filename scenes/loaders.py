@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from scenes import gltf, obj, ply
+from scenes.excerpts import cut, quoted
 from scenes.model import Material, Scene, SceneObject
 
 __all__ = ["SUPPORTED_FORMATS", "SceneLoadError", "TriangleLimitError", "load_scene", "load_scene_bytes"]
@@ -283,10 +284,7 @@ LIBRARY_TEXT_CHARS = 80
 
 def _library_text(exc: Exception) -> str:
     """'Type: message' of a library's exception, the message cut to LIBRARY_TEXT_CHARS."""
-    text = str(exc)
-    if len(text) > LIBRARY_TEXT_CHARS:
-        text = f"{text[:LIBRARY_TEXT_CHARS]}… ({len(text):,} characters)"
-    return f"{type(exc).__name__}: {text}"
+    return f"{type(exc).__name__}: {cut(str(exc), LIBRARY_TEXT_CHARS)}"
 
 
 # --------------------------------------------------------------------------------------
@@ -322,7 +320,8 @@ def _gltf_json(data: bytes, fmt: str) -> dict:
         raise SceneLoadError(f"malformed {label}: JSON header is not an object")
     version = str(header.get("asset", {}).get("version", "")) if isinstance(header.get("asset"), dict) else ""
     if not version.startswith("2"):
-        raise SceneLoadError(f"malformed {label}: asset.version is {version or 'missing'!r}, only glTF 2 is supported")
+        raise SceneLoadError(f"malformed {label}: asset.version is {quoted(version) if version else 'missing'}, "
+                             "only glTF 2 is supported")
     return header
 
 
@@ -517,11 +516,11 @@ def _mesh_object(mesh, transform: np.ndarray, fmt: str, name: str, material: Mat
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
     if len(vertices) == 0 or faces.min() < 0 or faces.max() >= len(vertices):
-        raise SceneLoadError(f"malformed {fmt.upper()}: object {name!r} has face indices out of range")
+        raise SceneLoadError(f"malformed {fmt.upper()}: object {quoted(name)} has face indices out of range")
     normals = _provided_normals(mesh)
 
     if transform.shape != (4, 4) or not np.all(np.isfinite(transform)):
-        raise SceneLoadError(f"object {name!r}: non-finite node transform")
+        raise SceneLoadError(f"object {quoted(name)}: non-finite node transform")
     linear = transform[:3, :3]
     if not np.allclose(transform, np.eye(4)):
         vertices = vertices @ linear.T + transform[:3, 3]
@@ -542,7 +541,7 @@ def _mesh_object(mesh, transform: np.ndarray, fmt: str, name: str, material: Mat
     if normals is not None:
         normals = normals[used]
     if not np.all(np.isfinite(vertices)):
-        raise SceneLoadError(f"object {name!r} has non-finite vertex coordinates")
+        raise SceneLoadError(f"object {quoted(name)} has non-finite vertex coordinates")
 
     # drop degenerate faces (repeated index or zero area in float32)
     v64 = vertices.astype(np.float64)
@@ -587,7 +586,7 @@ def _mesh_object(mesh, transform: np.ndarray, fmt: str, name: str, material: Mat
             material=material,
         )
     except ValueError as exc:
-        raise SceneLoadError(f"object {name!r}: {exc}") from exc
+        raise SceneLoadError(f"object {quoted(name)}: {exc}") from exc
 
 
 def _smooth_normals(vertices: np.ndarray, faces: np.ndarray, cross: np.ndarray) -> np.ndarray:

@@ -13,6 +13,8 @@ from functools import cached_property
 
 import numpy as np
 
+from scenes.excerpts import quoted
+
 #: Ambient term of the local shading formula (identical in GLSL and numpy).
 AMBIENT = 0.25
 
@@ -57,15 +59,15 @@ class SceneObject:
         self.vertices = np.ascontiguousarray(self.vertices, dtype=np.float32).reshape(-1, 3)
         self.faces = np.ascontiguousarray(self.faces, dtype=np.uint32).reshape(-1, 3)
         if len(self.faces) and int(self.faces.max()) >= len(self.vertices):
-            raise ValueError(f"object {self.name!r}: face index out of range")
+            raise ValueError(f"object {quoted(self.name)}: face index out of range")
         if not np.all(np.isfinite(self.vertices)):
-            raise ValueError(f"object {self.name!r}: non-finite vertex coordinates")
+            raise ValueError(f"object {quoted(self.name)}: non-finite vertex coordinates")
         if self.normals is None:
             self.normals = vertex_normals(self.vertices, self.faces)
         else:
             self.normals = np.ascontiguousarray(self.normals, dtype=np.float32).reshape(-1, 3)
             if self.normals.shape != self.vertices.shape:
-                raise ValueError(f"object {self.name!r}: normals shape != vertices shape")
+                raise ValueError(f"object {quoted(self.name)}: normals shape != vertices shape")
 
     @property
     def n_triangles(self) -> int:

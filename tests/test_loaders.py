@@ -730,3 +730,14 @@ def test_obj_lines_that_are_valid_but_unusual_load(text):
     scene = load_scene_bytes(text, "obj")
     assert scene.n_triangles == 1
     np.testing.assert_array_equal(np.asarray(scene.bounds), [[0, 0, 0], [1, 1, 0]])
+
+
+def test_names_and_values_from_the_file_are_cut_in_messages():
+    """An object name or asset.version of 20,000 characters: the message quotes 80
+    of them and says how long it was (it repeated about 480)."""
+    long = "N" * 20_000
+    obj = f"o {long}\nv 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n".encode()
+    for data, fmt in ((obj, "obj"), (json.dumps({"asset": {"version": long}}).encode(), "gltf")):
+        with pytest.raises(SceneLoadError) as info:
+            load_scene_bytes(data, fmt)
+        assert "(20,002 characters)" in str(info.value) and len(str(info.value)) < 200, str(info.value)[:300]
