@@ -31,6 +31,9 @@ COMPRESSION_EXTENSIONS = ("KHR_draco_mesh_compression", "EXT_meshopt_compression
 #: Primitive modes: triangles and triangle strips load; points and lines are skipped
 #: (nothing to rasterise); triangle fans are refused (trimesh drops them silently).
 TRIANGLES, TRIANGLE_STRIP, TRIANGLE_FAN = 4, 5, 6
+#: Bytes of an accessor component type; components of an accessor type.
+_COMPONENT_BYTES = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
+_TYPE_SIZES = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 #: A node's fields that place it (replaced by one world matrix when flattened).
 _PLACEMENT = ("children", "matrix", "translation", "rotation", "scale")
 
@@ -91,6 +94,64 @@ def unsupported_features(header: dict, label: str) -> str | None:
         if targets and isinstance(weights, list) and any(w != 0 for w in weights):
             return (f"{where} has morph targets with non-zero default weights, which this loader does not apply; "
                     "bake the morph into the mesh")
+    return None
+
+
+def accessor_problem(header: dict, label: str) -> str | None:
+    """What is wrong with the accessors the primitives' positions and indices read,
+    in words naming the accessor, its buffer view or buffer; None when they fit. Each
+    must have a known type, a count, and lie within its buffer view, the view within
+    its buffer (trimesh failed on these with numpy's reshape or index errors, or the
+    triangle limit counted a count no buffer holds)."""
+    accessors, views, buffers = (_items(header, k) for k in ("accessors", "bufferViews", "buffers"))
+    checked = set()
+    for m, p, prim in _primitives(header):
+        attributes = prim.get("attributes") if isinstance(prim.get("attributes"), dict) else {}
+        for what, index in (("POSITION", attributes.get("POSITION")), ("indices", prim.get("indices"))):
+            if index is None and what == "indices" or index in checked:
+                continue
+            where = f"{label} mesh {m} primitive {p}: its {what} accessor {str(index)[:20]}"
+            if not (isinstance(index, int) and 0 <= index < len(accessors) and isinstance(accessors[index], dict)):
+                return f"{where} is not one of the file's {len(accessors)} accessors"
+            checked.add(index)
+            problem = _accessor_fit(accessors[index], views, buffers)
+            if problem:
+                return f"{where} {problem}"
+    return None
+
+
+def _accessor_fit(acc: dict, views: list, buffers: list) -> str | None:
+    """Why accessor `acc` does not fit its buffer view and buffer, or None."""
+    component = _COMPONENT_BYTES.get(acc.get("componentType"))
+    size = _TYPE_SIZES.get(acc.get("type"))
+    count = acc.get("count")
+    if component is None or size is None:
+        return f"has componentType {str(acc.get('componentType'))[:20]} and type {str(acc.get('type'))[:20]}"
+    if not isinstance(count, int) or count < 0:
+        return f"has count {str(count)[:20]}, not a count"
+    view_index = acc.get("bufferView")
+    if view_index is None:
+        return None  # all zeros (the spec), or sparse: refused apart
+    if not (isinstance(view_index, int) and 0 <= view_index < len(views) and isinstance(views[view_index], dict)):
+        return f"refers to buffer view {str(view_index)[:20]}; the file has {len(views)}"
+    view = views[view_index]
+    element = component * size
+    stride = view.get("byteStride") or element
+    need = int(acc.get("byteOffset", 0) or 0) + (stride * (count - 1) + element if count else 0)
+    length = view.get("byteLength")
+    if not isinstance(length, int) or need > length:
+        return (f"needs {need:,} bytes ({count:,} × {acc.get('type')} of {component}-byte components), but its "
+                f"buffer view {view_index} holds {str(length)[:20]}")
+    buffer_index = view.get("buffer")
+    if not (isinstance(buffer_index, int) and 0 <= buffer_index < len(buffers) and isinstance(buffers[buffer_index],
+                                                                                               dict)):
+        return f"is in buffer view {view_index}, whose buffer {str(buffer_index)[:20]} is not one of the file's " \
+               f"{len(buffers)}"
+    end = int(view.get("byteOffset", 0) or 0) + length
+    held = buffers[buffer_index].get("byteLength")
+    if not isinstance(held, int) or end > held:
+        return f"is in buffer view {view_index}, which ends at byte {end:,} of buffer {buffer_index}, which holds " \
+               f"{str(held)[:20]}"
     return None
 
 

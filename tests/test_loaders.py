@@ -425,14 +425,33 @@ def test_faces_and_nodes_naming_what_is_not_there_say_so():
 
 
 def test_a_library_message_quoting_the_file_is_cut():
-    """trimesh's KeyError quotes the accessor type: at most LIBRARY_TEXT_CHARS of it."""
-    from scenes.loaders import LIBRARY_TEXT_CHARS
+    """A library's exception text (trimesh's KeyError quoting a value of the file) is
+    repeated up to LIBRARY_TEXT_CHARS, with its length."""
+    from scenes.loaders import LIBRARY_TEXT_CHARS, _library_text
 
-    with pytest.raises(SceneLoadError) as err:
-        load_scene_bytes(_triangle_gltf(1, type="Q" * 10_000), "gltf")
-    message = str(err.value)
-    assert message.startswith("malformed glTF: ") and "Q" * 40 in message, message
-    assert message.count("Q") <= LIBRARY_TEXT_CHARS and "characters)" in message, message
+    message = _library_text(KeyError("Q" * 10_000))
+    assert message.startswith("KeyError: ") and "Q" * 40 in message, message
+    assert message.count("Q") <= LIBRARY_TEXT_CHARS and "(10,002 characters)" in message, message
+
+
+@pytest.mark.parametrize(("accessor", "view", "message"), [
+    ({"type": "Q" * 10_000}, {}, "has componentType 5126 and type Q{20}$"),
+    ({"count": 10**9}, {}, r"needs 12,000,000,000 bytes \(1,000,000,000 × VEC3 of 4-byte "
+                           r"components\), but its buffer view 0 holds 36"),
+    ({"count": 4}, {}, "needs 48 bytes"),
+    ({"byteOffset": 4}, {}, "needs 40 bytes"),
+    ({"bufferView": 3}, {}, "refers to buffer view 3; the file has 1"),
+    ({}, {"byteOffset": 8}, "buffer view 0, which ends at byte 44 of buffer 0, which holds 36"),
+    ({}, {"buffer": 2}, "whose buffer 2 is not one of the file's 1"),
+])
+def test_accessors_that_do_not_fit_their_buffers_are_named(accessor, view, message):
+    """Checked before trimesh (scenes.gltf.accessor_problem): numpy's reshape and
+    index errors named nothing, and a count no buffer holds met the triangle limit."""
+    doc = json.loads(_triangle_gltf(1, **accessor))
+    doc["bufferViews"][0].update(view)
+    with pytest.raises(SceneLoadError, match="^malformed glTF mesh 0 primitive 0: its POSITION accessor 0 .*"
+                       + message):
+        load_scene_bytes(json.dumps(doc).encode(), "gltf")
 
 
 def test_gltf_external_buffer_not_fetched():
