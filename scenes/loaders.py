@@ -273,6 +273,8 @@ def _trimesh_load(data: bytes, fmt: str, label: str, resolver: object | None):
             msg = "references an external file (not allowed for in-memory data)"
         elif fmt == "obj":
             msg = _obj_face_problem(data) or msg
+        elif fmt == "ply":
+            msg = ply.ascii_value_problem(data) or msg
         raise SceneLoadError(f"malformed {label}: {msg}") from exc
     finally:
         _NAMES.counts = None

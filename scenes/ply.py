@@ -190,6 +190,31 @@ def _check_ascii(header: Header, body: bytes) -> None:
                        f"({header.declared()})")
 
 
+def ascii_value_problem(data: bytes) -> str | None:
+    """The first value of an ASCII PLY body that is not a number, in words with its
+    line and row; None when every value is one (or the file is not ASCII PLY). Asked
+    after a parse failed: the parser's message names no line."""
+    try:
+        header = read_header(data)
+    except PlyError:
+        return None
+    if header.format != "ascii":
+        return None
+    lines = data[header.body_start:].split(b"\n")
+    first_line = len(header.lines) + 2
+    row = 0
+    for element in header.elements:
+        for r, text in enumerate(lines[row:row + element.count]):
+            for token in text.split():
+                try:
+                    float(token)
+                except ValueError:
+                    return (f"line {first_line + row + r:,} ({element.name} {r:,}) has "
+                            f"{token[:20].decode('latin-1')!r}, not a number")
+        row += element.count
+    return None
+
+
 def _check_ascii_row(element: Element, r: int, tokens: list[bytes], line: int) -> None:
     """One ASCII row of an element with list properties: each list's length, then exactly
     that many entries, and nothing to spare."""

@@ -3,6 +3,7 @@ with values to spare, trailing bytes; hand-made files whose triangles are known.
 
 from __future__ import annotations
 
+import re
 import struct
 
 import numpy as np
@@ -159,3 +160,16 @@ def test_the_triangle_limit_sees_the_fans_before_they_are_built():
     data = _binary(faces=[tuple(range(12)) * 21 + (0, 1, 2)])  # 255 indices into the 12 vertices
     with pytest.raises(TriangleLimitError, match=r"scene has 253 triangles, limit is 100"):
         load_scene_bytes(data, "ply", max_triangles=100)
+
+
+@pytest.mark.parametrize(("body", "message"), [
+    (b"0 0 0\n1 0 abc\n0 1 0\n3 0 1 2\n", "line 11 (vertex 1) has 'abc', not a number"),
+    (b"0 0 0\n1 0 0\n0 1 0\n3 0 1 x\n", "line 13 (face 0) has 'x', not a number"),
+])
+def test_an_ascii_value_that_is_not_a_number_is_named(body, message):
+    """The parser's own message ('string or file could not be read to its end')
+    named no line: the loader finds the value once the parse failed."""
+    head = (b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+            b"element face 1\nproperty list uchar int vertex_indices\nend_header\n")
+    with pytest.raises(SceneLoadError, match=f"^malformed PLY: {re.escape(message)}$"):
+        load_scene_bytes(head + body, "ply")
