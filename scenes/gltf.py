@@ -11,6 +11,8 @@ buffer is read. `repacked` writes a changed document back into the file's bytes.
 
 from __future__ import annotations
 
+import base64
+import binascii
 import json
 import struct
 from collections.abc import Iterator
@@ -120,6 +122,27 @@ def accessor_problem(header: dict, label: str) -> str | None:
     return None
 
 
+def buffer_problem(header: dict, label: str) -> str | None:
+    """What is wrong with a buffer embedded as a data URI (not base64, or shorter than
+    its byteLength), naming the buffer; None when they decode (trimesh failed on
+    these with an empty AssertionError)."""
+    for i, buf in enumerate(_items(header, "buffers")):
+        uri = buf.get("uri") if isinstance(buf, dict) else None
+        if not isinstance(uri, str) or not uri.startswith("data:"):
+            continue
+        head, sep, payload = uri.partition(",")
+        if not sep or not head.endswith(";base64"):
+            return f"{label} buffer {i} is a data URI without ';base64,' ({head[:40]!r})"
+        try:
+            size = len(base64.b64decode(payload, validate=True))
+        except (binascii.Error, ValueError):
+            return f"{label} buffer {i} is a data URI whose base64 does not decode"
+        length = buf.get("byteLength")
+        if not isinstance(length, int) or size < length:
+            return f"{label} buffer {i} holds {size:,} bytes, but its byteLength is {str(length)[:20]}"
+    return None
+
+
 def _accessor_fit(acc: dict, views: list, buffers: list) -> str | None:
     """Why accessor `acc` does not fit its buffer view and buffer, or None."""
     component = _COMPONENT_BYTES.get(acc.get("componentType"))
@@ -187,15 +210,23 @@ def flattened(header: dict) -> dict | None:
     """A copy of `header` whose default scene lists every node it reaches as a root,
     each with its world transform as its matrix and no children (node indices, names
     and meshes unchanged, so trimesh names the instances as before); None when the
-    hierarchy is already flat. A node reached twice (the spec forbids it) keeps its
-    first path's transform; cycles end where they close."""
+    hierarchy is already flat. A file without scenes gets one of its root nodes (the
+    nodes no node lists as a child), as the triangle limit counts them. A node reached
+    twice (the spec forbids it) keeps its first path's transform; cycles end where
+    they close."""
     nodes = _items(header, "nodes")
-    if not any(isinstance(n, dict) and n.get("children") for n in nodes):
-        return None
     scenes = _items(header, "scenes")
     index = header.get("scene", 0)
-    if not scenes or not isinstance(index, int) or not 0 <= index < len(scenes) or not isinstance(scenes[index], dict):
-        return None  # trimesh reports it (or finds nothing)
+    if not scenes and nodes:
+        children = {c for n in nodes if isinstance(n, dict) for c in n.get("children", [])
+                    if isinstance(c, int)}
+        scenes, index = [{"nodes": [i for i in range(len(nodes)) if i not in children]}], 0
+    elif not scenes:
+        return None
+    if not isinstance(index, int) or not 0 <= index < len(scenes) or not isinstance(scenes[index], dict):
+        raise GltfError(f"its scene {str(index)[:20]} is not one of its {len(scenes)} scenes")
+    if "scenes" in header and not any(isinstance(n, dict) and n.get("children") for n in nodes):
+        return None
     world: dict[int, np.ndarray] = {}
     stack = [(r, np.eye(4)) for r in reversed(scenes[index].get("nodes", []))]
     order = []
@@ -219,6 +250,7 @@ def flattened(header: dict) -> dict | None:
     out["nodes"] = new_nodes
     out["scenes"] = [dict(s) if isinstance(s, dict) else s for s in scenes]
     out["scenes"][index]["nodes"] = order
+    out["scene"] = index
     return out
 
 

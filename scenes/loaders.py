@@ -144,7 +144,7 @@ def _load(data: bytes, fmt: str, name: str, max_triangles: int | None, resolver:
     gltf_header = None
     if fmt in ("glb", "gltf"):
         gltf_header = _gltf_json(data, fmt)
-        problem = gltf.accessor_problem(gltf_header, label)
+        problem = gltf.buffer_problem(gltf_header, label) or gltf.accessor_problem(gltf_header, label)
         if problem:
             raise SceneLoadError(f"malformed {problem}")
         _check_gltf_header(gltf_header, label, max_triangles)

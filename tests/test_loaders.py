@@ -760,3 +760,30 @@ def test_names_and_values_from_the_file_are_cut_in_messages():
         with pytest.raises(SceneLoadError) as info:
             load_scene_bytes(data, fmt)
         assert "(20,002 characters)" in str(info.value) and len(str(info.value)) < 200, str(info.value)[:300]
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"uri": "data:application/octet-stream,AAAA"},
+     "buffer 0 is a data URI without ';base64,' ('data:application/octet-stream')"),
+    ({"uri": "data:application/octet-stream;base64,@@@@"}, "buffer 0 is a data URI whose base64 does not decode"),
+    ({"byteLength": 48}, "buffer 0 holds 36 bytes, but its byteLength is 48"),
+])
+def test_embedded_buffers_that_do_not_decode_are_named(change, message):
+    """trimesh failed on these with an empty AssertionError."""
+    doc = json.loads(_triangle_gltf(1))
+    doc["buffers"][0].update(change)
+    doc["bufferViews"][0]["byteLength"] = min(36, doc["buffers"][0]["byteLength"])
+    with pytest.raises(SceneLoadError, match=f"^malformed glTF {re.escape(message)}$"):
+        load_scene_bytes(json.dumps(doc).encode(), "gltf")
+
+
+def test_the_default_scene_out_of_range_is_named_and_no_scenes_means_the_root_nodes():
+    """A `scene` index no scene has was trimesh's IndexError; a file without `scenes`
+    loaded nothing ('no faces') while the triangle limit counted its root nodes."""
+    doc = json.loads(_triangle_gltf(2))
+    with pytest.raises(SceneLoadError, match="^malformed glTF: its scene 3 is not one of its 1 scenes$"):
+        load_scene_bytes(json.dumps({**doc, "scene": 3}).encode(), "gltf")
+    doc["nodes"][0]["children"] = [1]
+    del doc["scenes"]
+    scene = load_scene_bytes(json.dumps(doc).encode(), "gltf")
+    assert scene.n_triangles == 2 and scene.bounds[1][0] == pytest.approx(3.0)  # node 1 at x 2 under node 0's 0
