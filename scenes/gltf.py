@@ -91,11 +91,17 @@ def unsupported_features(header: dict, label: str) -> str | None:
             if what == "POSITION" and acc.get("normalized"):
                 return (f"{where}: its POSITION accessor {index} is normalized (KHR_mesh_quantization), which this "
                         "loader does not read; export float or integer positions")
-        targets = prim.get("targets")
-        weights = header["meshes"][m].get("weights")
-        if targets and isinstance(weights, list) and any(w != 0 for w in weights):
-            return (f"{where} has morph targets with non-zero default weights, which this loader does not apply; "
-                    "bake the morph into the mesh")
+    meshes = _items(header, "meshes")
+    for i, node in enumerate(_items(header, "nodes")):
+        m = node.get("mesh") if isinstance(node, dict) else None
+        mesh = meshes[m] if isinstance(m, int) and 0 <= m < len(meshes) and isinstance(meshes[m], dict) else {}
+        prims = mesh.get("primitives") if isinstance(mesh.get("primitives"), list) else []
+        if not any(isinstance(p, dict) and p.get("targets") for p in prims):
+            continue
+        weights = node.get("weights", mesh.get("weights"))  # the node's override the mesh's (the spec)
+        if isinstance(weights, list) and any(w != 0 for w in weights):
+            return (f"{label} node {i} shows mesh {m}'s morph targets with non-zero weights, which this loader does "
+                    "not apply; bake the morph into the mesh")
     return None
 
 
@@ -110,11 +116,13 @@ def accessor_problem(header: dict, label: str) -> str | None:
     for m, p, prim in _primitives(header):
         attributes = prim.get("attributes") if isinstance(prim.get("attributes"), dict) else {}
         for what, index in (("POSITION", attributes.get("POSITION")), ("indices", prim.get("indices"))):
-            if index is None and what == "indices" or index in checked:
+            if index is None and what == "indices":
                 continue
             where = f"{label} mesh {m} primitive {p}: its {what} accessor {str(index)[:20]}"
-            if not (isinstance(index, int) and 0 <= index < len(accessors) and isinstance(accessors[index], dict)):
+            if not (_whole(index) and index < len(accessors) and isinstance(accessors[index], dict)):
                 return f"{where} is not one of the file's {len(accessors)} accessors"
+            if index in checked:
+                continue
             checked.add(index)
             problem = _accessor_fit(accessors[index], views, buffers)
             if problem:
@@ -143,26 +151,35 @@ def buffer_problem(header: dict, label: str) -> str | None:
     return None
 
 
+def _whole(value: object) -> bool:
+    """Whether `value` is a JSON whole number ≥ 0 (an index, count or byte offset)."""
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
 def _accessor_fit(acc: dict, views: list, buffers: list) -> str | None:
     """Why accessor `acc` does not fit its buffer view and buffer, or None."""
-    component = _COMPONENT_BYTES.get(acc.get("componentType"))
-    size = _TYPE_SIZES.get(acc.get("type"))
+    kind, shape = acc.get("componentType"), acc.get("type")
+    component = _COMPONENT_BYTES.get(kind) if isinstance(kind, int) else None
+    size = _TYPE_SIZES.get(shape) if isinstance(shape, str) else None
     count = acc.get("count")
     if component is None or size is None:
         return f"has componentType {str(acc.get('componentType'))[:20]} and type {str(acc.get('type'))[:20]}"
-    if not isinstance(count, int) or count < 0:
+    if not _whole(count):
         return f"has count {str(count)[:20]}, not a count"
     view_index = acc.get("bufferView")
-    if view_index is None:
-        return None  # all zeros (the spec), or sparse: refused apart
-    if not (isinstance(view_index, int) and 0 <= view_index < len(views) and isinstance(views[view_index], dict)):
+    if view_index is None:  # all zeros (the spec; sparse accessors are refused apart)
+        return "has no buffer view: all its values would be zero"
+    if not (_whole(view_index) and view_index < len(views) and isinstance(views[view_index], dict)):
         return f"refers to buffer view {str(view_index)[:20]}; the file has {len(views)}"
     view = views[view_index]
     element = component * size
-    stride = view.get("byteStride") or element
-    need = int(acc.get("byteOffset", 0) or 0) + (stride * (count - 1) + element if count else 0)
+    stride, offset = view.get("byteStride", element), acc.get("byteOffset", 0)
+    if not (_whole(stride) and stride >= element) or not _whole(offset):
+        return (f"has byteOffset {str(offset)[:20]} in buffer view {view_index} of byteStride {str(stride)[:20]}, "
+                f"not byte counts fitting its {element}-byte elements")
+    need = offset + (stride * (count - 1) + element if count else 0)
     length = view.get("byteLength")
-    if not isinstance(length, int) or need > length:
+    if not _whole(length) or need > length:
         return (f"needs {need:,} bytes ({count:,} × {acc.get('type')} of {component}-byte components), but its "
                 f"buffer view {view_index} holds {str(length)[:20]}")
     buffer_index = view.get("buffer")
@@ -170,22 +187,24 @@ def _accessor_fit(acc: dict, views: list, buffers: list) -> str | None:
                                                                                                dict)):
         return f"is in buffer view {view_index}, whose buffer {str(buffer_index)[:20]} is not one of the file's " \
                f"{len(buffers)}"
-    end = int(view.get("byteOffset", 0) or 0) + length
+    start = view.get("byteOffset", 0)
+    if not _whole(start):
+        return f"is in buffer view {view_index}, whose byteOffset {str(start)[:20]} is not a byte count"
+    end = start + length
     held = buffers[buffer_index].get("byteLength")
-    if not isinstance(held, int) or end > held:
+    if not _whole(held) or end > held:
         return f"is in buffer view {view_index}, which ends at byte {end:,} of buffer {buffer_index}, which holds " \
                f"{str(held)[:20]}"
     return None
 
 
 def _local_matrix(node: dict, index: int) -> np.ndarray:
-    """(4,4) transform of a node from its matrix (column-major) or T·R·S."""
+    """(4,4) transform of a node: its matrix (column-major) times T·R·S, as trimesh
+    composes a node that has both (the spec allows one or the other)."""
     try:
-        if "matrix" in node:
-            m = np.asarray(node["matrix"], dtype=np.float64)
-            if m.shape != (16,):
-                raise ValueError(f"matrix has {m.size} values, not 16")
-            return m.reshape(4, 4).T
+        matrix = np.asarray(node.get("matrix", np.eye(4).reshape(-1)), dtype=np.float64)
+        if matrix.shape != (16,):
+            raise ValueError(f"matrix has {matrix.size} values, not 16")
         out = np.eye(4)
         t = np.asarray(node.get("translation", (0.0, 0.0, 0.0)), dtype=np.float64)
         x, y, z, w = np.asarray(node.get("rotation", (0.0, 0.0, 0.0, 1.0)), dtype=np.float64)
@@ -203,7 +222,15 @@ def _local_matrix(node: dict, index: int) -> np.ndarray:
     ])
     out[:3, :3] = rot * s
     out[:3, 3] = t
-    return out
+    return matrix.reshape(4, 4).T @ out
+
+
+def _list(owner: dict, key: str, what: str) -> list:
+    """owner[key] (default []), which must be a list."""
+    value = owner.get(key, [])
+    if not isinstance(value, list):
+        raise GltfError(f"{what}'s {key} is {str(value)[:20]}, not a list")
+    return value
 
 
 def flattened(header: dict) -> dict | None:
@@ -212,35 +239,33 @@ def flattened(header: dict) -> dict | None:
     and meshes unchanged, so trimesh names the instances as before); None when the
     hierarchy is already flat. A file without scenes gets one of its root nodes (the
     nodes no node lists as a child), as the triangle limit counts them. A node reached
-    twice (the spec forbids it) keeps its first path's transform; cycles end where
-    they close."""
+    twice (two parents, a root that is also a child, a cycle: the spec makes the nodes
+    a tree), a child or scene list that is not a list, raise GltfError naming it."""
     nodes = _items(header, "nodes")
     scenes = _items(header, "scenes")
     index = header.get("scene", 0)
-    if not scenes and nodes:
-        children = {c for n in nodes if isinstance(n, dict) for c in n.get("children", [])
-                    if isinstance(c, int)}
+    built = not scenes
+    if built:
+        children = {c for n in nodes if isinstance(n, dict) for c in _list(n, "children", "node") if _whole(c)}
         scenes, index = [{"nodes": [i for i in range(len(nodes)) if i not in children]}], 0
-    elif not scenes:
-        return None
-    if not isinstance(index, int) or not 0 <= index < len(scenes) or not isinstance(scenes[index], dict):
+    if not (_whole(index) and index < len(scenes) and isinstance(scenes[index], dict)):
         raise GltfError(f"its scene {str(index)[:20]} is not one of its {len(scenes)} scenes")
-    if "scenes" in header and not any(isinstance(n, dict) and n.get("children") for n in nodes):
+    if not built and not any(isinstance(n, dict) and n.get("children") for n in nodes):
         return None
     world: dict[int, np.ndarray] = {}
-    stack = [(r, np.eye(4)) for r in reversed(scenes[index].get("nodes", []))]
+    stack = [(r, np.eye(4)) for r in reversed(_list(scenes[index], "nodes", f"scene {index}"))]
     order = []
     while stack:
         i, parent = stack.pop()
-        if not (isinstance(i, int) and 0 <= i < len(nodes)):
+        if not (_whole(i) and i < len(nodes)):
             raise GltfError(f"the node hierarchy refers to node {str(i)[:20]}; the file has {len(nodes)} nodes")
         if i in world:
-            continue
+            raise GltfError(f"node {i} is reached twice (two parents, a root that is also a child, or a cycle); "
+                            "glTF nodes form trees")
         node = nodes[i] if isinstance(nodes[i], dict) else {}
         world[i] = parent @ _local_matrix(node, i)
         order.append(i)
-        children = node.get("children", [])
-        stack.extend((c, world[i]) for c in reversed(children if isinstance(children, list) else []))
+        stack.extend((c, world[i]) for c in reversed(_list(node, "children", f"node {i}")))
     out = dict(header)
     new_nodes = list(nodes)
     for i in order:

@@ -144,19 +144,7 @@ def _load(data: bytes, fmt: str, name: str, max_triangles: int | None, resolver:
     gltf_header = None
     if fmt in ("glb", "gltf"):
         gltf_header = _gltf_json(data, fmt)
-        problem = gltf.buffer_problem(gltf_header, label) or gltf.accessor_problem(gltf_header, label)
-        if problem:
-            raise SceneLoadError(f"malformed {problem}")
-        _check_gltf_header(gltf_header, label, max_triangles)
-        try:
-            problem = gltf.unsupported_features(gltf_header, label)
-            if problem:
-                raise SceneLoadError(problem)
-            flat = gltf.flattened(gltf_header)
-        except gltf.GltfError as exc:
-            raise SceneLoadError(f"malformed {label}: {exc}") from None
-        if flat is not None:
-            data = gltf.repacked(data, flat)
+        data = _gltf_prepared(data, gltf_header, label, max_triangles)
     elif fmt == "obj":
         try:
             data = obj.normalised(_obj_text(data))
@@ -247,15 +235,25 @@ def _unique_name(start: str | None, contains, counts: dict | None = None) -> str
     return _TRIMESH_UNIQUE_NAME(start, contains, counts)
 
 
+_PATCH_LOCK = threading.Lock()
+
+
+def _patch_trimesh(trimesh) -> None:
+    """Install `_unique_name` and `_serial_id` in trimesh.util, once per process
+    (under a lock: two first loads must not keep each other's patch as the original)."""
+    global _TRIMESH_UNIQUE_NAME
+    with _PATCH_LOCK:
+        if _TRIMESH_UNIQUE_NAME is None:
+            _TRIMESH_UNIQUE_NAME = trimesh.util.unique_name
+            trimesh.util.unique_name = _unique_name
+            trimesh.util.unique_id = _serial_id
+
+
 def _trimesh_load(data: bytes, fmt: str, label: str, resolver: object | None):
     """trimesh.Scene from bytes; every failure becomes SceneLoadError."""
     import trimesh
 
-    global _TRIMESH_UNIQUE_NAME
-    if trimesh.util.unique_name is not _unique_name:
-        _TRIMESH_UNIQUE_NAME = trimesh.util.unique_name
-        trimesh.util.unique_name = _unique_name
-    trimesh.util.unique_id = _serial_id
+    _patch_trimesh(trimesh)
     kwargs: dict = {"process": False}
     if fmt == "obj":
         # one mesh per (object, material); keep faces as written
@@ -328,6 +326,28 @@ def _gltf_json(data: bytes, fmt: str) -> dict:
         raise SceneLoadError(f"malformed {label}: asset.version is {quoted(version) if version else 'missing'}, "
                              "only glTF 2 is supported")
     return header
+
+
+def _gltf_prepared(data: bytes, header: dict, label: str, max_triangles: int | None) -> bytes:
+    """The glTF's bytes for trimesh, once its buffers, accessors, limits and features
+    pass (scenes.gltf), its hierarchy flattened. Any failure is a SceneLoadError: the
+    document's values may be of any JSON type."""
+    try:
+        problem = gltf.buffer_problem(header, label) or gltf.accessor_problem(header, label)
+        if problem:
+            raise SceneLoadError(f"malformed {problem}")
+        _check_gltf_header(header, label, max_triangles)
+        problem = gltf.unsupported_features(header, label)
+        if problem:
+            raise SceneLoadError(problem)
+        flat = gltf.flattened(header)
+    except SceneLoadError:
+        raise
+    except gltf.GltfError as exc:
+        raise SceneLoadError(f"malformed {label}: {exc}") from None
+    except (TypeError, ValueError, KeyError, AttributeError, IndexError) as exc:
+        raise SceneLoadError(f"malformed {label}: {_library_text(exc)}") from None
+    return data if flat is None else gltf.repacked(data, flat)
 
 
 def _check_gltf_header(header: dict, label: str, max_triangles: int | None) -> None:

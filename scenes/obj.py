@@ -15,9 +15,12 @@ import re
 #: Keywords whose lines define an element that relative indices count back over.
 _ELEMENTS = {b"v": 0, b"vt": 1, b"vn": 2}
 #: Lines that need rewriting: indented, a tab after the keyword, a negative index on a
-#: face or line element, or a comment after an element's numbers.
-_NEEDS_REWRITE = re.compile(rb"^[ \t]+\S|^\S+\t|^[ \t]*[fl][ \t][^\n#]*-|^[ \t]*(?:v|vt|vn|f|l)[ \t][^\n#]*#",
+#: face or line element, a comment after a line's content, or continued on the next.
+_NEEDS_REWRITE = re.compile(rb"^[ \t]+\S|^\S+\t|^[ \t]*[fl][ \t][^\n#]*-|^[ \t]*[^#\s][^\n#]*#|\\\r?$",
                             re.MULTILINE)
+#: Keywords whose comments after the content are cut (trimesh reads a name to the
+#: line's end, comment included; the part count reads it up to the comment).
+_NAMED = (b"o", b"g", b"usemtl", b"s")
 _PART_LINE = re.compile(rb"^[ \t]*(o|usemtl)[ \t]+([^\r\n#]*)", re.MULTILINE)
 
 
@@ -34,7 +37,7 @@ def normalised(data: bytes) -> bytes:
         return data
     seen = [0, 0, 0]  # v, vt, vn defined so far
     out = []
-    for number, line in enumerate(data.split(b"\n"), start=1):
+    for number, line in _joined(data.split(b"\n")):
         words = line.split()
         if not words:
             out.append(line)
@@ -43,10 +46,32 @@ def normalised(data: bytes) -> bytes:
         if key in _ELEMENTS:
             seen[_ELEMENTS[key]] += 1
             words = _before_comment(words)
-        elif key in (b"f", b"l"):
+        elif key == b"f":
             words = [key, *(_absolute(w, seen, number) for w in _before_comment(words[1:]))]
+        elif key == b"l":  # polylines are not drawn: a corner that names nothing stays as it is
+            words = [key, *(_absolute(w, seen, number, strict=False) for w in _before_comment(words[1:]))]
+        elif key in _NAMED:
+            words = _before_comment(words)
         out.append(b" ".join(words))
     return b"\n".join(out)
+
+
+def _joined(lines: list[bytes]) -> list[tuple[int, bytes]]:
+    """(1-based line number, line) with each line ending in a backslash joined to the
+    next (OBJ's continuation, which trimesh joins too), an empty line put after the
+    joined one for each line it took, so that the line count stays the same."""
+    out: list[tuple[int, bytes]] = []
+    i = 0
+    while i < len(lines):
+        number, line, taken = i + 1, lines[i], 0
+        while line.rstrip(b"\r").endswith(b"\\") and i + 1 < len(lines):
+            i += 1
+            taken += 1
+            line = line.rstrip(b"\r")[:-1] + b" " + lines[i]
+        out.append((number, line))
+        out.extend((number + k, b"") for k in range(1, taken + 1))
+        i += 1
+    return out
 
 
 def _before_comment(words: list[bytes]) -> list[bytes]:
@@ -56,9 +81,10 @@ def _before_comment(words: list[bytes]) -> list[bytes]:
     return words
 
 
-def _absolute(corner: bytes, seen: list[int], line: int) -> bytes:
+def _absolute(corner: bytes, seen: list[int], line: int, strict: bool = True) -> bytes:
     """A face corner (``v``, ``v/vt``, ``v//vn``, ``v/vt/vn``) with negative indices
-    replaced by the absolute ones they name at this line."""
+    replaced by the absolute ones they name at this line; one that names nothing
+    raises ObjError (`strict`) or is left as it is."""
     if b"-" not in corner:
         return corner
     refs = corner.split(b"/")
@@ -69,6 +95,8 @@ def _absolute(corner: bytes, seen: list[int], line: int) -> bytes:
             except ValueError:
                 continue  # not a number: the face check names it
             absolute = seen[k] + 1 + rel
+            if absolute < 1 and not strict:
+                return corner
             if absolute < 1:
                 what, whats = (("vertex", "vertices"), ("texture coordinate", "texture coordinates"),
                                ("normal", "normals"))[k]

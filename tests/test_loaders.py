@@ -443,11 +443,15 @@ def test_a_library_message_quoting_the_file_is_cut():
     ({"bufferView": 3}, {}, "refers to buffer view 3; the file has 1"),
     ({}, {"byteOffset": 8}, "buffer view 0, which ends at byte 44 of buffer 0, which holds 36"),
     ({}, {"buffer": 2}, "whose buffer 2 is not one of the file's 1"),
+    ({"bufferView": None, "count": 10**7}, {}, "has no buffer view: all its values would be zero"),
+    ({"count": 2 * 10**8}, {"byteStride": "1"}, "byteStride 1, not byte counts fitting its 12-byte elements"),
+    ({"componentType": [5126]}, {}, r"has componentType \[5126\] and type VEC3"),
 ])
 def test_accessors_that_do_not_fit_their_buffers_are_named(accessor, view, message):
     """Checked before trimesh (scenes.gltf.accessor_problem): numpy's reshape and
     index errors named nothing, and a count no buffer holds met the triangle limit."""
     doc = json.loads(_triangle_gltf(1, **accessor))
+    doc["accessors"][0] = {k: v for k, v in doc["accessors"][0].items() if v is not None}
     doc["bufferViews"][0].update(view)
     with pytest.raises(SceneLoadError, match="^malformed glTF mesh 0 primitive 0: its POSITION accessor 0 .*"
                        + message):
@@ -639,6 +643,8 @@ def test_a_flattened_hierarchy_places_every_instance_as_trimesh_composes_it(monk
             m[:3, :3] = rng.normal(size=(3, 3))
             m[:3, 3] = rng.normal(size=3)
             node["matrix"] = m.T.reshape(-1).tolist()
+            if i % 8 == 1:  # both (the spec allows one): composed as trimesh does, matrix first
+                node["translation"] = rng.normal(size=3).tolist()
         else:
             q = rng.normal(size=4)
             node.update(translation=rng.normal(size=3).tolist(), rotation=(q / np.linalg.norm(q)).tolist(),
@@ -688,8 +694,11 @@ def test_every_primitive_of_a_mesh_loads():
     ({"sparse": {"count": 1, "indices": {"bufferView": 0, "componentType": 5125},
                  "values": {"bufferView": 0}}}, "POSITION accessor 0 is sparse"),
     ({"normalized": True}, "POSITION accessor 0 is normalized"),
-    ({"targets": [{"POSITION": 0}], "weights": [0.5]}, "morph targets with non-zero default weights"),
+    ({"targets": [{"POSITION": 0}], "weights": [0.5]}, "node 0 shows mesh 0.s morph targets with non-zero weights"),
     ({"children": [7]}, "refers to node 7; the file has 2 nodes"),
+    ({"children": [1]}, "node 1 is reached twice"),  # a root and node 0's child
+    ({"children": 5}, "node 0's children is 5, not a list"),
+    ({"targets": [{"POSITION": 0}], "node weights": [1.0]}, "node 0 shows mesh 0.s morph targets"),
 ])
 def test_gltf_features_read_wrongly_are_refused_by_name(change, message):
     """trimesh reads each of these wrongly without a word (ignores it, drops the
@@ -700,8 +709,10 @@ def test_gltf_features_read_wrongly_are_refused_by_name(change, message):
     extra: dict = {}
     doc = json.loads(_gltf([mesh], nodes, [0, 1]))
     if "mode" in change or "targets" in change:
-        prim.update({k: v for k, v in change.items() if k != "weights"})
+        prim.update({k: v for k, v in change.items() if "weights" not in k})
         mesh.update({k: v for k, v in change.items() if k == "weights"})
+        if "node weights" in change:
+            nodes[0]["weights"] = change["node weights"]
     elif "sparse" in change or "normalized" in change:
         doc["accessors"][0].update(change)
     elif "children" in change:
@@ -787,3 +798,37 @@ def test_the_default_scene_out_of_range_is_named_and_no_scenes_means_the_root_no
     del doc["scenes"]
     scene = load_scene_bytes(json.dumps(doc).encode(), "gltf")
     assert scene.n_triangles == 2 and scene.bounds[1][0] == pytest.approx(3.0)  # node 1 at x 2 under node 0's 0
+
+
+def test_obj_continued_lines_comments_in_names_and_polylines():
+    """A face continued on the next line ('\\') counts back from its own line as
+    trimesh joins it; a comment after a material name is not part of the name (trimesh
+    read it as one, so parts the limit counted as one split apart); a polyline corner
+    that names nothing does not refuse the file (polylines are not drawn)."""
+    import scenes.loaders
+
+    obj = b"o a\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 \\\n-1\no b\nv 5 0 0\nv 6 0 0\nv 5 1 0\nf -3 -2 -1\n"
+    by_name = {o.name: o for o in load_scene_bytes(obj, "obj").objects}
+    assert by_name["a"].vertices[:, 0].max() == 1 and by_name["b"].vertices[:, 0].min() == 5
+    tri = b"v 0 0 0\nv 1 0 0\nv 0 1 0\n"
+    switches = tri + b"".join(b"usemtl m #%d\nf 1 2 3\n" % i for i in range(3))
+    original = scenes.loaders.MAX_PARTS
+    try:
+        scenes.loaders.MAX_PARTS = 2
+        assert len(load_scene_bytes(switches, "obj").objects) == 1  # one material "m", as counted
+    finally:
+        scenes.loaders.MAX_PARTS = original
+    assert load_scene_bytes(tri + b"l -1/-1 -2/-2\nf 1 2 3\n", "obj").n_triangles == 1
+
+
+def test_trimesh_is_patched_once_keeping_its_own_functions():
+    """Two first loads at once must not keep each other's patch as trimesh's original
+    (every later OBJ load would then recurse)."""
+    import trimesh
+
+    import scenes.loaders as loaders
+
+    load_scene_bytes(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "obj")
+    loaders._patch_trimesh(trimesh)
+    assert loaders._TRIMESH_UNIQUE_NAME is not loaders._unique_name
+    assert trimesh.util.unique_name is loaders._unique_name and trimesh.util.unique_id is loaders._serial_id
