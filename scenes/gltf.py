@@ -58,6 +58,13 @@ def _primitives(header: dict) -> Iterator[tuple[int, int, dict]]:
                 yield m, p, prim
 
 
+def _read_accessors(prim: dict) -> tuple[tuple[str, object], tuple[str, object]]:
+    """(what, accessor index) of the two accessors a primitive's triangles are read
+    from: its POSITION attribute and its indices (None where absent)."""
+    attributes = prim.get("attributes") if isinstance(prim.get("attributes"), dict) else {}
+    return ("POSITION", attributes.get("POSITION")), ("indices", prim.get("indices"))
+
+
 def unsupported_features(header: dict, label: str) -> str | None:
     """Why the loader cannot read this document faithfully, naming the feature and
     where it is used; None when it can. Checked: required extensions (the glTF spec:
@@ -81,9 +88,8 @@ def unsupported_features(header: dict, label: str) -> str | None:
             return f"{where} is a triangle fan (mode 6), which this loader does not read; export triangles"
         if mode not in (TRIANGLES, TRIANGLE_STRIP):
             continue  # points and lines: skipped, nothing to rasterise
-        attributes = prim.get("attributes") if isinstance(prim.get("attributes"), dict) else {}
-        for what, index in (("POSITION", attributes.get("POSITION")), ("indices", prim.get("indices"))):
-            acc = accessors[index] if isinstance(index, int) and 0 <= index < len(accessors) else None
+        for what, index in _read_accessors(prim):
+            acc = accessors[index] if _whole(index) and index < len(accessors) else None
             if not isinstance(acc, dict):
                 continue
             if "sparse" in acc:
@@ -94,7 +100,7 @@ def unsupported_features(header: dict, label: str) -> str | None:
     meshes = _items(header, "meshes")
     for i, node in enumerate(_items(header, "nodes")):
         m = node.get("mesh") if isinstance(node, dict) else None
-        mesh = meshes[m] if isinstance(m, int) and 0 <= m < len(meshes) and isinstance(meshes[m], dict) else {}
+        mesh = meshes[m] if _whole(m) and m < len(meshes) and isinstance(meshes[m], dict) else {}
         prims = mesh.get("primitives") if isinstance(mesh.get("primitives"), list) else []
         if not any(isinstance(p, dict) and p.get("targets") for p in prims):
             continue
@@ -114,8 +120,7 @@ def accessor_problem(header: dict, label: str) -> str | None:
     accessors, views, buffers = (_items(header, k) for k in ("accessors", "bufferViews", "buffers"))
     checked = set()
     for m, p, prim in _primitives(header):
-        attributes = prim.get("attributes") if isinstance(prim.get("attributes"), dict) else {}
-        for what, index in (("POSITION", attributes.get("POSITION")), ("indices", prim.get("indices"))):
+        for what, index in _read_accessors(prim):
             if index is None and what == "indices":
                 continue
             where = f"{label} mesh {m} primitive {p}: its {what} accessor {str(index)[:20]}"
@@ -183,8 +188,7 @@ def _accessor_fit(acc: dict, views: list, buffers: list) -> str | None:
         return (f"needs {need:,} bytes ({count:,} × {acc.get('type')} of {component}-byte components), but its "
                 f"buffer view {view_index} holds {str(length)[:20]}")
     buffer_index = view.get("buffer")
-    if not (isinstance(buffer_index, int) and 0 <= buffer_index < len(buffers) and isinstance(buffers[buffer_index],
-                                                                                               dict)):
+    if not (_whole(buffer_index) and buffer_index < len(buffers) and isinstance(buffers[buffer_index], dict)):
         return f"is in buffer view {view_index}, whose buffer {str(buffer_index)[:20]} is not one of the file's " \
                f"{len(buffers)}"
     start = view.get("byteOffset", 0)
@@ -233,27 +237,34 @@ def _list(owner: dict, key: str, what: str) -> list:
     return value
 
 
-def flattened(header: dict) -> dict | None:
-    """A copy of `header` whose default scene lists every node it reaches as a root,
-    each with its world transform as its matrix and no children (node indices, names
-    and meshes unchanged, so trimesh names the instances as before); None when the
-    hierarchy is already flat. A file without scenes gets one of its root nodes (the
-    nodes no node lists as a child), as the triangle limit counts them. A node reached
-    twice (two parents, a root that is also a child, a cycle: the spec makes the nodes
-    a tree), a child or scene list that is not a list, raise GltfError naming it."""
-    nodes = _items(header, "nodes")
-    scenes = _items(header, "scenes")
-    index = header.get("scene", 0)
-    built = not scenes
-    if built:
+def scene_roots(header: dict) -> list:
+    """The root nodes of the default scene (``scene``, else scene 0); a file without
+    scenes: the nodes no node lists as a child. GltfError when the default scene is
+    not one of the file's, or a node or scene list is not a list."""
+    nodes, scenes = _items(header, "nodes"), _items(header, "scenes")
+    if not scenes:
         children = {c for n in nodes if isinstance(n, dict) for c in _list(n, "children", "node") if _whole(c)}
-        scenes, index = [{"nodes": [i for i in range(len(nodes)) if i not in children]}], 0
+        return [i for i in range(len(nodes)) if i not in children]
+    index = header.get("scene", 0)
     if not (_whole(index) and index < len(scenes) and isinstance(scenes[index], dict)):
         raise GltfError(f"its scene {str(index)[:20]} is not one of its {len(scenes)} scenes")
-    if not built and not any(isinstance(n, dict) and n.get("children") for n in nodes):
+    return _list(scenes[index], "nodes", f"scene {index}")
+
+
+def flattened(header: dict) -> dict | None:
+    """A copy of `header` whose default scene (`scene_roots`; one made of them for a
+    file without scenes) lists every node it reaches as a root, each with its world
+    transform as its matrix and no children (node indices, names and meshes
+    unchanged, so trimesh names the instances as before); None when the hierarchy is
+    already flat. A node reached twice (two parents, a root that is also a child, a
+    cycle: the spec makes the nodes a tree), a child list that is not a list, raise
+    GltfError naming it."""
+    nodes, scenes = _items(header, "nodes"), _items(header, "scenes")
+    roots = scene_roots(header)
+    if scenes and not any(isinstance(n, dict) and n.get("children") for n in nodes):
         return None
     world: dict[int, np.ndarray] = {}
-    stack = [(r, np.eye(4)) for r in reversed(_list(scenes[index], "nodes", f"scene {index}"))]
+    stack = [(r, np.eye(4)) for r in reversed(roots)]
     order = []
     while stack:
         i, parent = stack.pop()
@@ -273,7 +284,8 @@ def flattened(header: dict) -> dict | None:
         node["matrix"] = world[i].T.reshape(-1).tolist()
         new_nodes[i] = node
     out["nodes"] = new_nodes
-    out["scenes"] = [dict(s) if isinstance(s, dict) else s for s in scenes]
+    index = header.get("scene", 0) if scenes else 0
+    out["scenes"] = [dict(s) if isinstance(s, dict) else s for s in scenes] or [{}]
     out["scenes"][index]["nodes"] = order
     out["scene"] = index
     return out

@@ -386,14 +386,8 @@ def _gltf_triangle_count(header: dict, stop_above: int) -> tuple[int, bool]:
             n += count // 3 if mode == 4 else max(count - 2, 0) if mode in (5, 6) else 0
         per_mesh.append(n)
     nodes = header.get("nodes", [])
-    scenes = header.get("scenes")
-    if scenes:
-        roots = list(scenes[int(header.get("scene", 0))].get("nodes", []))
-    else:
-        children = {c for n in nodes for c in n.get("children", [])}
-        roots = [i for i in range(len(nodes)) if i not in children]
     total = 0
-    stack = [(r, 0) for r in roots]
+    stack = [(r, 0) for r in gltf.scene_roots(header)]
     while stack:
         idx, depth = stack.pop()
         if depth > 256:  # a cycle; trimesh will complain
