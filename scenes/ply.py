@@ -15,7 +15,7 @@ properties copied to its triangles), another element of mixed-length lists dropp
 from __future__ import annotations
 
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -170,21 +170,17 @@ def _check_ascii(header: Header, body: bytes) -> None:
     if len(lines) < rows:
         filled = sum(1 for ln in lines if ln.strip())
         raise PlyError(f"the header declares {header.declared()} ({rows:,} rows) but the body has {filled:,} lines")
-    first_line = len(header.lines) + 2  # 1-based file line of the body's first line
-    row = 0
-    for element in header.elements:
-        chunk = lines[row:row + element.count]
+    for element, chunk, first in _element_lines(header, lines):
         if any(p.is_list for p in element.properties):
             for r, text in enumerate(chunk):
-                _check_ascii_row(element, r, text.split(), first_line + row + r)
+                _check_ascii_row(element, r, text.split(), first + r)
         else:
             widths = [len(text.split()) for text in chunk]
             want = len(element.properties)
             bad = next((r for r, w in enumerate(widths) if w != want), None)
             if bad is not None:
-                raise PlyError(f"line {first_line + row + bad:,} ({element.name} {bad:,}) has {widths[bad]} values, "
+                raise PlyError(f"line {first + bad:,} ({element.name} {bad:,}) has {widths[bad]} values, "
                                f"its header calls for {want}")
-        row += element.count
     if len(lines) > rows:
         raise PlyError(f"the body has {len(lines) - rows:,} lines after the {rows:,} rows the header declares "
                        f"({header.declared()})")
@@ -200,19 +196,25 @@ def ascii_value_problem(data: bytes) -> str | None:
         return None
     if header.format != "ascii":
         return None
-    lines = data[header.body_start:].split(b"\n")
-    first_line = len(header.lines) + 2
-    row = 0
-    for element in header.elements:
-        for r, text in enumerate(lines[row:row + element.count]):
+    for element, chunk, first in _element_lines(header, data[header.body_start:].split(b"\n")):
+        for r, text in enumerate(chunk):
             for token in text.split():
                 try:
                     float(token)
                 except ValueError:
-                    return (f"line {first_line + row + r:,} ({element.name} {r:,}) has "
-                            f"{token[:20].decode('latin-1')!r}, not a number")
-        row += element.count
+                    return (f"line {first + r:,} ({element.name} {r:,}) has {token[:20].decode('latin-1')!r}, "
+                            "not a number")
     return None
+
+
+def _element_lines(header: Header, lines: list[bytes]) -> Iterator[tuple[Element, list[bytes], int]]:
+    """Each element of an ASCII body with the lines of its rows and the 1-based file
+    line of its first row."""
+    first_line = len(header.lines) + 2  # 1-based file line of the body's first line
+    row = 0
+    for element in header.elements:
+        yield element, lines[row:row + element.count], first_line + row
+        row += element.count
 
 
 def _check_ascii_row(element: Element, r: int, tokens: list[bytes], line: int) -> None:
