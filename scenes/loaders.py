@@ -88,6 +88,9 @@ class TriangleLimitError(SceneLoadError):
         self.n_triangles = n_triangles
         self.limit = limit
 
+    def __reduce__(self) -> tuple:  # picklable: the upload parser sends it between processes
+        return type(self), (str(self), self.n_triangles, self.limit)
+
 
 # --------------------------------------------------------------------------------------
 # public API

@@ -19,6 +19,9 @@ queue_size             32                           render jobs waiting for the 
                                                     queue → 503 with ``Retry-After``
 job_timeout_s          120                          how long a handler waits for its job → 504
 retry_after_s          1                            value of the ``Retry-After`` header on 503
+parse_timeout_s        60                           seconds an upload may take to parse (in a child
+                                                    process, which is then killed) → 422; its memory
+                                                    is held to max_job_bytes (→ 422)
 scene_cache_size       8                            parsed Scene objects kept in memory (LRU)
 gpu_cache_size         4                            scenes kept uploaded on the GPU (LRU, worker)
 reconstruction_cache_  1.25 GiB (1342177280)        GPU bytes of reconstructions (soft shadows'
@@ -169,6 +172,9 @@ class Settings:
     job_timeout_s: float = 120.0
     #: Seconds advertised in the Retry-After header of a 503.
     retry_after_s: int = 1
+    #: Seconds an upload may take to parse (``service.parsing``: a child process, killed
+    #: past it → 422); its memory is held to max_job_bytes.
+    parse_timeout_s: float = 60.0
     #: Parsed Scene objects kept in memory (LRU).
     scene_cache_size: int = 8
     #: Scenes kept uploaded on the GPU by the render worker (LRU; released on eviction).
@@ -231,7 +237,7 @@ class Settings:
         for name, what in (("reconstruction_cache_bytes", "0 = none"), ("workers", "0 = the worker thread")):
             if int(getattr(self, name)) < 0:
                 raise ValueError(f"setting {name} must be >= 0 ({what}), got {getattr(self, name)!r}")
-        for name in ("job_timeout_s", "header_timeout_s", "body_timeout_s", "stream_rest_s"):
+        for name in ("job_timeout_s", "parse_timeout_s", "header_timeout_s", "body_timeout_s", "stream_rest_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"setting {name} must be > 0, got {getattr(self, name)!r}")
         from gl_passes.reprojection import MODES  # ReuseSettings.mode (imported here: settings load without GL)
@@ -294,7 +300,7 @@ _INT_FIELDS = {"port", "max_upload_bytes", "max_triangles", "max_width", "max_he
                "queue_size", "retry_after_s", "scene_cache_size", "gpu_cache_size", "gl_device", "max_json_bytes",
                "max_job_bytes", "stream_max_per_client", "stream_max_total", "stream_max_message_bytes",
                "stream_max_pixels", "stream_jpeg_quality", "workers", "reconstruction_cache_bytes"}
-_FLOAT_FIELDS = {"job_timeout_s", "header_timeout_s", "body_timeout_s", "stream_rest_s"}
+_FLOAT_FIELDS = {"job_timeout_s", "parse_timeout_s", "header_timeout_s", "body_timeout_s", "stream_rest_s"}
 
 
 def _convert(name: str, raw: str, var: str) -> Any:

@@ -45,7 +45,7 @@ import threading
 import time
 import uuid
 from collections import OrderedDict
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -54,6 +54,7 @@ from scenes import builtin as builtin_scenes
 from scenes import loaders
 from scenes.model import Scene
 from service.excerpts import quoted
+from service.parsing import ParseMemoryLimit, ParseTimeLimit
 
 log = logging.getLogger("depthview.store")
 
@@ -234,15 +235,26 @@ def _fsync_dir(path: Path) -> None:
         os.close(fd)
 
 
+#: Parses an uploaded file: (data, format, name, max_triangles) → Scene; raises SceneLoadError.
+Parser = Callable[[bytes, str, str, "int | None"], Scene]
+
+
+def _parse_here(data: bytes, fmt: str, name: str, max_triangles: int | None) -> Scene:
+    return loaders.load_scene_bytes(data, fmt, name=name, max_triangles=max_triangles)
+
+
 # --- the store -----------------------------------------------------------------------
 class SceneStore:
     """Content-addressed scenes under ``<data_dir>/scenes`` with a lazy LRU of parsed Scenes.
 
-    Thread-safe: handlers call it from a thread pool. It never touches GL."""
+    Thread-safe: handlers call it from a thread pool. It never touches GL. Uploads are
+    parsed by `parse` (the service's: a child process under limits, ``service.parsing``;
+    default: in this thread)."""
 
     def __init__(self, data_dir: str | os.PathLike[str], cache_size: int = 8,
-                 max_triangles: int | None = None, cleanup: bool = True) -> None:
+                 max_triangles: int | None = None, cleanup: bool = True, parse: Parser = _parse_here) -> None:
         self.root = Path(data_dir) / "scenes"
+        self.parse = parse
         self.root.mkdir(parents=True, exist_ok=True)
         self.cache_size = max(1, int(cache_size))
         self.max_triangles = max_triangles
@@ -402,7 +414,7 @@ class SceneStore:
         except Exception as exc:  # noqa: BLE001 - corrupt entry: rebuild below
             log.warning("scene %s: unreadable meta.json (%s); re-creating it", sid, exc)
         display = _display_name(name, "upload")
-        scene = loaders.load_scene_bytes(data, fmt, name=display, max_triangles=self.max_triangles)
+        scene = self.parse(data, fmt, display, self.max_triangles)
         self._check_triangles(scene.n_triangles, "the uploaded scene")
         lo, hi = scene.bounds
         meta = SceneMeta(id=sid, kind="upload", name=display, triangles=scene.n_triangles, created_at=time.time(),
@@ -500,7 +512,9 @@ class SceneStore:
         if upload_id(meta.format, data) != meta.id:
             raise StoreCorrupted(f"scene {meta.id}: source file does not match its id")
         try:
-            return loaders.load_scene_bytes(data, meta.format, name=meta.name)
+            return self.parse(data, meta.format, meta.name, None)
+        except (ParseTimeLimit, ParseMemoryLimit):  # the limit, not the stored file (422 naming it)
+            raise
         except loaders.SceneLoadError as exc:
             raise StoreCorrupted(f"scene {meta.id}: stored source no longer loads: {exc}") from exc
 

@@ -1,0 +1,148 @@
+"""Uploads parsed in a child process under a time and memory limit.
+
+A scene file is parsed (``scenes.loaders.load_scene_bytes``) by a process forked for
+it from a ``multiprocessing`` fork server that has the loaders imported, so a parse
+starts in milliseconds. The child's address space may grow by at most
+``ParseLimits.max_bytes`` past what the fork server had (``RLIMIT_AS``); the parent
+waits at most ``ParseLimits.timeout_s`` and then kills it. Whatever ends a parse —
+the time limit, the memory limit, the loader's own error, a crash of the process — comes
+back as a :class:`scenes.loaders.SceneLoadError` (422) naming what happened; the service
+process and its worker threads are never held past the limit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import multiprocessing as mp
+import resource
+import threading
+from dataclasses import dataclass
+from typing import Any
+
+from scenes import loaders
+from scenes.model import Scene
+
+log = logging.getLogger("depthview.parsing")
+
+#: Modules the fork server imports once, so each parse forks with them loaded.
+_PRELOAD = ["__main__", "scenes.loaders", "trimesh.exchange.gltf", "trimesh.exchange.obj", "trimesh.exchange.ply"]
+#: Seconds a killed child may take to be reaped.
+_REAP_S = 5.0
+
+_context_lock = threading.Lock()
+_context: Any = None
+
+
+class ParseTimeLimit(loaders.SceneLoadError):
+    """The parse ran past its time limit and was stopped."""
+
+
+class ParseMemoryLimit(loaders.SceneLoadError):
+    """The parse needed more memory than its limit."""
+
+
+@dataclass(frozen=True)
+class ParseLimits:
+    """Limits of one parse: wall-clock seconds and bytes of address space the child
+    may add (``Settings.parse_timeout_s``, ``Settings.max_job_bytes``)."""
+
+    timeout_s: float
+    max_bytes: int
+
+
+def _fork_context() -> Any:
+    """The fork-server context, with the loaders preloaded (made once per process)."""
+    global _context
+    with _context_lock:
+        if _context is None:
+            ctx = mp.get_context("forkserver")
+            ctx.set_forkserver_preload(_PRELOAD)
+            _context = ctx
+        return _context
+
+
+def _address_space() -> int:
+    """This process's virtual memory size in bytes (``VmSize``)."""
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmSize:"):
+                return int(line.split()[1]) * 1024
+    raise OSError("no VmSize in /proc/self/status")
+
+
+def _memory_error(exc: BaseException) -> bool:
+    """Whether a MemoryError caused `exc` (the loaders wrap what they catch)."""
+    seen: set[int] = set()
+    cur: BaseException | None = exc
+    while cur is not None and id(cur) not in seen:
+        if isinstance(cur, MemoryError):
+            return True
+        seen.add(id(cur))
+        cur = cur.__cause__ or cur.__context__
+    return False
+
+
+def _child(conn: Any, data: bytes, fmt: str, name: str, max_triangles: int | None, max_bytes: int) -> None:
+    """The parse process: limit the address space, parse, send ("ok", scene), ("load",
+    the loader's SceneLoadError), or ("memory" | "crash", message)."""
+    try:
+        limit = _address_space() + max_bytes
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+        scene = loaders.load_scene_bytes(data, fmt, name=name, max_triangles=max_triangles)
+        # a fresh Scene: the loader's cached concatenations would travel twice
+        conn.send(("ok", dataclasses.replace(scene)))
+    except BaseException as exc:  # noqa: BLE001 - everything goes back to the parent
+        try:
+            if _memory_error(exc):
+                conn.send(("memory", str(exc)))
+            elif isinstance(exc, loaders.SceneLoadError):
+                conn.send(("load", exc))
+            else:
+                conn.send(("crash", f"{type(exc).__name__}: {exc}"))
+        except BaseException:  # noqa: BLE001 - out of memory again: the exit code says it
+            pass
+    finally:
+        conn.close()
+
+
+def _stop(proc: Any) -> None:
+    if proc.is_alive():
+        proc.kill()
+    proc.join(_REAP_S)
+
+
+def parse_scene(data: bytes, fmt: str, name: str, max_triangles: int | None, limits: ParseLimits) -> Scene:
+    """Parse an uploaded file as ``loaders.load_scene_bytes`` would, in a child process
+    held to `limits`. Raises SceneLoadError (ParseTimeLimit, ParseMemoryLimit, or the
+    loader's own, e.g. TriangleLimitError)."""
+    ctx = _fork_context()
+    recv, send = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_child, args=(send, data, fmt, name, max_triangles, limits.max_bytes),
+                       name="depthview-parse", daemon=True)
+    try:
+        proc.start()
+        send.close()
+        if not recv.poll(limits.timeout_s):
+            raise ParseTimeLimit(f"parsing the {fmt} file took longer than {limits.timeout_s:g} s, "
+                                 "the limit (PARSE_TIMEOUT_S)")
+        try:
+            message = recv.recv()
+        except EOFError:
+            proc.join(_REAP_S)
+            raise loaders.SceneLoadError(
+                f"the process parsing the {fmt} file died (exit code {proc.exitcode})") from None
+    finally:
+        recv.close()
+        _stop(proc)
+    kind, payload = message
+    if kind == "ok":
+        return payload
+    if kind == "load":
+        raise payload
+    if kind == "memory":
+        log.info("parsing a %s upload ran out of memory: %s", fmt, payload)
+        raise ParseMemoryLimit(f"parsing the {fmt} file needed more than {limits.max_bytes} bytes of memory, "
+                               "the limit (MAX_JOB_BYTES)")
+    log.error("parsing a %s upload failed: %s", fmt, payload)
+    raise loaders.SceneLoadError(f"the {fmt} file could not be parsed: {payload}")
