@@ -302,3 +302,35 @@ def repacked(data: bytes, header: dict) -> bytes:
     text += b" " * (-len(text) % 4)
     body = struct.pack("<II", len(text), 0x4E4F534A) + text + rest
     return struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body
+
+
+def triangle_count(header: dict, stop_above: int) -> tuple[int, bool]:
+    """(triangles, complete): triangles of all mesh instances reachable from the default
+    scene, from accessor counts only (no buffer is read). Counting stops (complete = False)
+    once the running total passes 100 * stop_above, so deep instancing cannot stall it."""
+    accessors = header.get("accessors", [])
+    per_mesh = []
+    for mesh in header.get("meshes", []):
+        n = 0
+        for prim in mesh.get("primitives", []):
+            mode = prim.get("mode", 4)
+            if "indices" in prim:
+                count = int(accessors[prim["indices"]]["count"])
+            else:
+                count = int(accessors[prim["attributes"]["POSITION"]]["count"])
+            n += count // 3 if mode == 4 else max(count - 2, 0) if mode in (5, 6) else 0
+        per_mesh.append(n)
+    nodes = header.get("nodes", [])
+    total = 0
+    stack = [(r, 0) for r in scene_roots(header)]
+    while stack:
+        idx, depth = stack.pop()
+        if depth > 256:  # a cycle; the flattening refuses it
+            break
+        node = nodes[idx]
+        if "mesh" in node:
+            total += per_mesh[node["mesh"]]
+            if total > 100 * stop_above:
+                return total, False
+        stack.extend((c, depth + 1) for c in node.get("children", []))
+    return total, True

@@ -32,7 +32,6 @@ from __future__ import annotations
 import io
 import itertools
 import json
-import re
 import struct
 import threading
 from collections import Counter
@@ -150,10 +149,10 @@ def _load(data: bytes, fmt: str, name: str, max_triangles: int | None, resolver:
         data = _gltf_prepared(data, gltf_header, label, max_triangles)
     elif fmt == "obj":
         try:
-            data = obj.normalised(_obj_text(data))
+            data = obj.normalised(obj.text(data))
         except obj.ObjError as exc:
             raise SceneLoadError(f"malformed OBJ: {exc}") from None
-        _check_limit(_obj_triangle_count(data), max_triangles, estimate=False)
+        _check_limit(obj.triangle_count(data), max_triangles, estimate=False)
         parts = obj.part_count(data)
         if parts > MAX_PARTS:
             raise SceneLoadError(f"OBJ has {parts:,} parts (objects × materials, from its 'o' and 'usemtl' lines), "
@@ -170,7 +169,7 @@ def _load(data: bytes, fmt: str, name: str, max_triangles: int | None, resolver:
         raise SceneLoadError(f"malformed {label}: {_library_text(exc)}") from exc
 
     if not objects:
-        problem = _obj_face_problem(data) if fmt == "obj" else None  # trimesh drops such faces silently
+        problem = obj.face_problem(data) if fmt == "obj" else None  # trimesh drops such faces silently
         raise SceneLoadError(f"{label} has no faces (no non-degenerate triangles)"
                              + (f": its {problem}" if problem else ""))
     total = sum(o.n_triangles for o in objects)
@@ -273,7 +272,7 @@ def _trimesh_load(data: bytes, fmt: str, label: str, resolver: object | None):
         if isinstance(exc, TypeError) and "NoneType" in str(exc) and resolver is None:
             msg = "references an external file (not allowed for in-memory data)"
         elif fmt == "obj":
-            msg = _obj_face_problem(data) or msg
+            msg = obj.face_problem(data) or msg
         elif fmt == "ply":
             msg = ply.ascii_value_problem(data) or msg
         raise SceneLoadError(f"malformed {label}: {msg}") from exc
@@ -366,87 +365,10 @@ def _check_gltf_header(header: dict, label: str, max_triangles: int | None) -> N
                                  f"mesh{'es' if n_meshes != 1 else ''}")
     if max_triangles is not None:
         try:
-            count, complete = _gltf_triangle_count(header, stop_above=max_triangles)
+            count, complete = gltf.triangle_count(header, stop_above=max_triangles)
         except Exception:  # malformed structure: trimesh will report it
             count, complete = None, True
         _check_limit(count, max_triangles, estimate=not complete)
-
-
-def _gltf_triangle_count(header: dict, stop_above: int) -> tuple[int, bool]:
-    """(triangles, complete): triangles of all mesh instances reachable from the default
-    scene, from accessor counts only (no buffer is read). Counting stops (complete = False)
-    once the running total passes 100 * stop_above, so deep instancing cannot stall it."""
-    accessors = header.get("accessors", [])
-    per_mesh = []
-    for mesh in header.get("meshes", []):
-        n = 0
-        for prim in mesh.get("primitives", []):
-            mode = prim.get("mode", 4)
-            if "indices" in prim:
-                count = int(accessors[prim["indices"]]["count"])
-            else:
-                count = int(accessors[prim["attributes"]["POSITION"]]["count"])
-            n += count // 3 if mode == 4 else max(count - 2, 0) if mode in (5, 6) else 0
-        per_mesh.append(n)
-    nodes = header.get("nodes", [])
-    total = 0
-    stack = [(r, 0) for r in gltf.scene_roots(header)]
-    while stack:
-        idx, depth = stack.pop()
-        if depth > 256:  # a cycle; trimesh will complain
-            break
-        node = nodes[idx]
-        if "mesh" in node:
-            total += per_mesh[node["mesh"]]
-            if total > 100 * stop_above:
-                return total, False
-        stack.extend((c, depth + 1) for c in node.get("children", []))
-    return total, True
-
-
-def _obj_text(data: bytes) -> bytes:
-    """OBJ data as UTF-8 bytes; binary data is rejected, other 8-bit text read as Latin-1."""
-    sample = data[:65536]
-    if b"\x00" in sample or sum(b < 9 or 13 < b < 32 for b in sample) > len(sample) // 100:
-        raise SceneLoadError("malformed OBJ: binary data, not an OBJ text file")
-    try:
-        data.decode("utf-8")
-        return data
-    except UnicodeDecodeError:
-        return data.decode("latin-1").encode("utf-8")
-
-
-_OBJ_FACE_LINE = re.compile(rb"^[ \t]*f[ \t]+([^\r\n#]*)", re.MULTILINE)
-
-
-def _obj_triangle_count(data: bytes) -> int:
-    """Triangles an OBJ's face lines fan-triangulate into (polygon with k corners -> k-2)."""
-    total = 0
-    for match in _OBJ_FACE_LINE.finditer(data):
-        total += max(len(match.group(1).split()) - 2, 0)
-    return total
-
-
-_OBJ_VERTEX_LINE = re.compile(rb"^[ \t]*v[ \t]", re.MULTILINE)
-
-
-def _obj_face_problem(data: bytes) -> str | None:
-    """The first face corner of an OBJ that names no vertex (not an integer, 0, or
-    beyond the file's vertex count either way), in words with its line; None if none."""
-    n = len(_OBJ_VERTEX_LINE.findall(data))
-    for match in _OBJ_FACE_LINE.finditer(data):
-        for token in match.group(1).split():
-            ref = token.split(b"/")[0]
-            try:
-                index = int(ref)
-            except ValueError:
-                index = None
-            if index is None or index == 0 or not -n <= index <= n:
-                line = data.count(b"\n", 0, match.start()) + 1
-                what = (f"vertex {index}" if index is not None
-                        else f"{ref[:20].decode('utf-8', 'replace')!r}, not a vertex number")
-                return f"face on line {line:,} refers to {what}; the file defines {n:,} vertices"
-    return None
 
 
 def _ply_readable(data: bytes, max_triangles: int | None) -> bytes:

@@ -1,5 +1,7 @@
-"""OBJ text before trimesh reads it: lines trimesh would misread rewritten as it reads
-them (`normalised`), and the parts it will split the file into counted (`part_count`).
+"""OBJ text before trimesh reads it: text, not binary (`text`); lines trimesh would
+misread rewritten as it reads them (`normalised`); the parts it will split the file into
+and the triangles its faces make counted (`part_count`, `triangle_count`); and the first
+face corner that names no vertex (`face_problem`), which trimesh drops silently.
 
 trimesh's OBJ reader takes a line's keyword only at the line's start and followed by a
 space, so indented lines and a tab after the keyword (both valid OBJ) were lost, a
@@ -22,10 +24,49 @@ _NEEDS_REWRITE = re.compile(rb"^[ \t]+\S|^\S+\t|^[ \t]*[fl][ \t][^\n#]*-|^[ \t]*
 #: line's end, comment included; the part count reads it up to the comment).
 _NAMED = (b"o", b"g", b"usemtl", b"s")
 _PART_LINE = re.compile(rb"^[ \t]*(o|usemtl)[ \t]+([^\r\n#]*)", re.MULTILINE)
+_FACE_LINE = re.compile(rb"^[ \t]*f[ \t]+([^\r\n#]*)", re.MULTILINE)
+_VERTEX_LINE = re.compile(rb"^[ \t]*v[ \t]", re.MULTILINE)
 
 
 class ObjError(ValueError):
-    """A face refers to an element before the first one (relative index too large)."""
+    """Binary data, or a face refers to an element before the first one (relative index
+    too large)."""
+
+
+def text(data: bytes) -> bytes:
+    """OBJ data as UTF-8 bytes; binary data raises ObjError, other 8-bit text is read as Latin-1."""
+    sample = data[:65536]
+    if b"\x00" in sample or sum(b < 9 or 13 < b < 32 for b in sample) > len(sample) // 100:
+        raise ObjError("binary data, not an OBJ text file")
+    try:
+        data.decode("utf-8")
+        return data
+    except UnicodeDecodeError:
+        return data.decode("latin-1").encode("utf-8")
+
+
+def triangle_count(data: bytes) -> int:
+    """Triangles the face lines fan-triangulate into (a polygon with k corners: k - 2)."""
+    return sum(max(len(match.group(1).split()) - 2, 0) for match in _FACE_LINE.finditer(data))
+
+
+def face_problem(data: bytes) -> str | None:
+    """The first face corner of `normalised` data that names no vertex (not an integer,
+    or outside 1..the file's vertex count), in words with its line; None if none."""
+    n = len(_VERTEX_LINE.findall(data))
+    for match in _FACE_LINE.finditer(data):
+        for token in match.group(1).split():
+            ref = token.split(b"/")[0]
+            try:
+                index = int(ref)
+            except ValueError:
+                index = None
+            if index is None or not 1 <= index <= n:
+                line = data.count(b"\n", 0, match.start()) + 1
+                what = (f"vertex {index}" if index is not None
+                        else f"{ref[:20].decode('utf-8', 'replace')!r}, not a vertex number")
+                return f"face on line {line:,} refers to {what}; the file defines {n:,} vertices"
+    return None
 
 
 def normalised(data: bytes) -> bytes:
