@@ -162,7 +162,7 @@ def _load(data: bytes, fmt: str, name: str, max_triangles: int | None, resolver:
 
     tm_scene = _trimesh_load(data, fmt, label, resolver)
     try:
-        objects = _convert(tm_scene, fmt, gltf_header, max_triangles)
+        objects, flattened_by = _convert(tm_scene, fmt, gltf_header, max_triangles)
     except SceneLoadError:
         raise
     except Exception as exc:  # trimesh visuals/graph on malformed data, numpy errors
@@ -170,6 +170,9 @@ def _load(data: bytes, fmt: str, name: str, max_triangles: int | None, resolver:
 
     if not objects:
         problem = obj.face_problem(data) if fmt == "obj" else None  # trimesh drops such faces silently
+        if flattened_by:
+            problem = (f"mesh instance{'s' if len(flattened_by) > 1 else ''} {quoted(', '.join(sorted(flattened_by)))} "
+                       "had triangles, but a node transform that scales them flat (a zero scale)")
         raise SceneLoadError(f"{label} has no faces (no non-degenerate triangles)"
                              + (f": its {problem}" if problem else ""))
     total = sum(o.n_triangles for o in objects)
@@ -387,7 +390,10 @@ def _ply_readable(data: bytes, max_triangles: int | None) -> bytes:
 # --------------------------------------------------------------------------------------
 # trimesh.Scene -> SceneObjects
 # --------------------------------------------------------------------------------------
-def _convert(tm_scene, fmt: str, gltf_header: dict | None, max_triangles: int | None) -> list[SceneObject]:
+def _convert(tm_scene, fmt: str, gltf_header: dict | None,
+             max_triangles: int | None) -> tuple[list[SceneObject], list[str]]:
+    """The scene's objects, and the names of the mesh instances a singular node
+    transform (a zero scale) left without area."""
     import trimesh
 
     header_materials: dict[str, dict] = {}
@@ -411,6 +417,7 @@ def _convert(tm_scene, fmt: str, gltf_header: dict | None, max_triangles: int | 
                  max_triangles, estimate=False)
 
     objects: list[SceneObject] = []
+    flattened_by: list[str] = []  # instances left without area by a singular transform (a zero scale)
     used_names: set[str] = set()
     material_cache: dict[int, Material] = {}
     for node in instances:
@@ -429,10 +436,13 @@ def _convert(tm_scene, fmt: str, gltf_header: dict | None, max_triangles: int | 
         key = id(mesh.visual)
         if key not in material_cache:
             material_cache[key] = _material(mesh, fmt, header_materials)
-        obj = _mesh_object(mesh, np.asarray(transform, dtype=np.float64), fmt, obj_name, material_cache[key])
+        matrix = np.asarray(transform, dtype=np.float64)
+        obj = _mesh_object(mesh, matrix, fmt, obj_name, material_cache[key])
         if obj is not None:
             objects.append(obj)
-    return objects
+        elif np.linalg.matrix_rank(matrix[:3, :3]) < 3:
+            flattened_by.append(obj_name)
+    return objects, flattened_by
 
 
 def _unique(name: str, used: set[str]) -> str:

@@ -832,3 +832,17 @@ def test_trimesh_is_patched_once_keeping_its_own_functions():
     loaders._patch_trimesh(trimesh)
     assert loaders._TRIMESH_UNIQUE_NAME is not loaders._unique_name
     assert trimesh.util.unique_name is loaders._unique_name and trimesh.util.unique_id is loaders._serial_id
+
+
+def test_instances_scaled_flat_are_named_when_nothing_else_is_left():
+    """A zero scale is valid glTF (it hides a node): such instances are dropped, and a
+    file of nothing else says so instead of only 'no faces'."""
+    nodes = [{"mesh": 0, "name": "hidden", "scale": [1, 0, 1]}, {"mesh": 0, "name": "gone", "matrix": [0] * 16}]
+    with pytest.raises(SceneLoadError, match=r"no faces.*instances 'gone, hidden' had triangles, but a node "
+                                             r"transform that scales them flat \(a zero scale\)"):
+        load_scene_bytes(_gltf([_ONE_TRIANGLE], nodes, [0, 1]), "gltf")
+    shown = load_scene_bytes(_gltf([_ONE_TRIANGLE], [*nodes, {"mesh": 0, "name": "shown"}], [0, 1, 2]), "gltf")
+    assert [o.name for o in shown.objects] == ["shown"]
+    with pytest.raises(SceneLoadError) as info:  # degenerate, not flattened: no such words
+        load_scene_bytes(b"v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n", "obj")
+    assert "zero scale" not in str(info.value)
