@@ -98,11 +98,13 @@ def _child_main(conn: Any, cfg: WorkerConfig) -> None:
                 break
             if kind == "forget":
                 state.forget(payload)
+                end_job(state)
             elif kind == "chore":
                 try:
                     payload(state)
                 except Exception:  # noqa: BLE001 - a failed chore must not end the worker
                     log.exception("worker chore failed")
+                end_job(state)
             elif kind == "job":
                 lost = None
                 try:

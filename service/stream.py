@@ -251,6 +251,7 @@ class ReleaseStream:
         reuse = state.clients.pop(self.stream, None)
         if reuse is not None:
             reuse.release(state)
+            state.freed()
 
 
 class ReuseFrameSource(JobFrameSource):

@@ -21,6 +21,8 @@ when their scene is forgotten and at shutdown, all on the worker thread.
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import logging
 import queue
 import threading
@@ -99,6 +101,7 @@ class GLState:
     #: G-buffer target (sized to the job's images); None: keep them all.
     keep_pixels: int | None = None
     _job_pixels: dict[str, int] = field(default_factory=dict)
+    _freed: bool = False
 
     def scene_gpu(self, key: str, scene: Scene) -> SceneGPU:
         """The GPU upload of `scene`, cached under `key` (a content address: the same
@@ -139,8 +142,10 @@ class GLState:
         gpu = self._gpu.pop(key, None)
         if gpu is not None:
             self._release_upload(gpu)
+            self._freed = True
         for k in [k for k in self._kept if k[0] == key]:
             _release_all(self._kept.pop(k)[0])
+            self._freed = True
 
     @contextmanager
     def kept(self, scene_key: str, what: Hashable, build: Callable[[], Sequence[Any]],
@@ -202,25 +207,36 @@ class GLState:
             self._resources[name] = (variant, factory(self.gl))
         return self._resources[name][1]
 
+    def freed(self) -> None:
+        """Note that a job or chore released GL objects (a stream's reuser): `end_job`
+        hands their memory back."""
+        self._freed = True
+
     def end_job(self) -> bool:
-        """After each job: release the passes it used for images over `keep_pixels`
-        and a G-buffer target over it, then let the driver free them (`settle`), so
-        that an idle worker does not keep the memory of its largest frame (they are
-        made again at the next job's size). True when something was released."""
+        """After each job and chore: release the passes it used for images over
+        `keep_pixels` and a G-buffer target over it; then, when anything was released
+        (here or noted by `freed`), let the driver free it (`settle`) and hand the
+        freed heap back to the system (`trim_heap`), so that an idle worker does not
+        keep the memory of its largest frame or of closed streams (passes are made
+        again at the next job's size). True when something was released."""
         self.gl.check_thread()
         used, self._job_pixels = self._job_pixels, {}
-        if self.keep_pixels is None:
-            return False
-        big = [name for name, px in used.items() if px > self.keep_pixels and name in self._resources]
-        for name in big:
-            self._resources.pop(name)[1].release()
-        target = getattr(self.gbuffer, "target", None)
-        big_target = target is not None and target.size[0] * target.size[1] > self.keep_pixels
-        if big_target:
-            self.gbuffer.release_target()
-        if big or big_target:
+        big: list[str] = []
+        big_target = False
+        if self.keep_pixels is not None:
+            big = [name for name, px in used.items() if px > self.keep_pixels and name in self._resources]
+            for name in big:
+                self._resources.pop(name)[1].release()
+            target = getattr(self.gbuffer, "target", None)
+            big_target = target is not None and target.size[0] * target.size[1] > self.keep_pixels
+            if big_target:
+                self.gbuffer.release_target()
+        released = bool(big or big_target or self._freed)
+        self._freed = False
+        if released:
             settle(self.gl)
-        return bool(big or big_target)
+            trim_heap()
+        return released
 
     @property
     def resource_names(self) -> set[str]:
@@ -487,6 +503,8 @@ class RenderWorker:
                     fn(self._state)
                 except Exception:  # noqa: BLE001 - a failed release must not end the thread
                     log.exception("worker chore failed")
+            if keys or chores:
+                end_job(self._state)
 
     def _execute(self, job: _Job) -> None:
         fut = job.future
@@ -524,6 +542,18 @@ class RenderWorker:
         else:
             fut.set_exception(error)
         end_job(self._state)
+
+
+_LIBC = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+
+
+def trim_heap() -> None:
+    """Hand the heap's free memory back to the system (glibc ``malloc_trim(0)``; a
+    no-op elsewhere). Freed frame buffers otherwise stay in the process's resident
+    memory: bench/results/stream_memory.md."""
+    trim = getattr(_LIBC, "malloc_trim", None)
+    if trim is not None:
+        trim(0)
 
 
 def end_job(state: GLState) -> None:
