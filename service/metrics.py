@@ -47,6 +47,15 @@ class Histogram:
         return out
 
 
+#: Request methods counted under their own name; any other is counted as "other".
+METHODS = frozenset({"GET", "HEAD", "POST", "PUT", "DELETE", "PATCH", "OPTIONS"})
+
+
+def label(value: object) -> str:
+    """A label value as the exposition format writes it (backslash, quote and newline escaped)."""
+    return str(value).replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n")
+
+
 class Metrics:
     """Service-level counters (the worker keeps its own)."""
 
@@ -62,6 +71,9 @@ class Metrics:
         self.started = time.time()
 
     def request(self, method: str, route: str, status: int, seconds: float) -> None:
+        """Count a response: `route` must come from a bounded set (route templates), a
+        method outside METHODS counts as "other"."""
+        method = method if method in METHODS else "other"
         with self._lock:
             self.latency.setdefault((method, route), Histogram()).observe(seconds)
             key = (method, route, status)
@@ -105,9 +117,10 @@ class Metrics:
             out.extend(f"{name}{labels} {value}" for labels, value in samples)
 
         with self._lock:
-            latency = {k: list(h.samples(f'method="{k[0]}",route="{k[1]}"')) for k, h in sorted(self.latency.items())}
+            latency = {k: list(h.samples(f'method="{label(k[0])}",route="{label(k[1])}"'))
+                       for k, h in sorted(self.latency.items())}
             responses = sorted(self.responses.items())
-            steps = {k: h.samples(f'step="{k}"') for k, h in sorted(self.steps.items())}
+            steps = {k: h.samples(f'step="{label(k)}"') for k, h in sorted(self.steps.items())}
             frames, errors = sorted(self.frames.items()), sorted(self.frame_errors.items())
             streamed, uploads = self.frames_streamed, self.uploads
         by_class = {"4xx": 0, "5xx": 0}
@@ -119,7 +132,7 @@ class Metrics:
                [s for samples in latency.values() for s in samples])
         metric("depthview_responses_total", "counter", "Responses by route, method and status (validation "
                "errors, limits and auth refusals included).",
-               [(f'{{method="{m}",route="{r}",status="{s}"}}', n) for (m, r, s), n in responses])
+               [(f'{{method="{label(m)}",route="{label(r)}",status="{s}"}}', n) for (m, r, s), n in responses])
         metric("depthview_http_errors_total", "counter", "Error responses by class.",
                [(f'{{class="{k}"}}', v) for k, v in sorted(by_class.items())])
         metric("depthview_step_seconds", "histogram", "Time per step of render requests: scene_load (parse or "
@@ -143,7 +156,7 @@ class Metrics:
         metric("depthview_last_job_seconds", "gauge", "Duration of the latest job.",
                [("", float(w["last_job_seconds"]))])
         metric("depthview_frames_total", "counter", "Frames served by format.",
-               [(f'{{format="{k}"}}', v) for k, v in frames] or [('{format="png"}', 0)])
+               [(f'{{format="{label(k)}"}}', v) for k, v in frames] or [('{format="png"}', 0)])
         metric("depthview_frame_errors_total", "counter",
                "Frame requests that passed validation and then failed, by status (all: depthview_responses_total).",
                [(f'{{status="{k}"}}', v) for k, v in errors])

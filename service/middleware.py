@@ -66,7 +66,8 @@ class RequestGuard:
     def route_label(self, scope: Scope, status: int) -> str:
         """The route template of a request for the metrics: the matched route's, else
         the template its path fits (a 405 matched no route), else the path of a
-        successful answer (docs), else "(unmatched)" — never an unbounded set of ids."""
+        successful answer (docs' static files), else "(unmatched)" — never an
+        unbounded set of ids (a redirect, e.g. of a trailing slash, is "(unmatched)")."""
         route = getattr(scope.get("route"), "path", None)
         if route is not None:
             return route
@@ -76,7 +77,7 @@ class RequestGuard:
         for pattern, template in self._patterns:
             if pattern.match(scope["path"]):
                 return template
-        return scope["path"] if status < 400 else "(unmatched)"
+        return scope["path"] if 200 <= status < 300 else "(unmatched)"
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":

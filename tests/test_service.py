@@ -7,6 +7,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import subprocess
 import sys
 import threading
@@ -558,6 +559,34 @@ def test_metrics_are_prometheus_text(client, cornell_id):
     assert values["depthview_job_seconds_count"] >= 1 and values["depthview_job_seconds_sum"] > 0
     assert values["depthview_queue_capacity"] == 32 and values["depthview_ready"] == 1
     assert "# TYPE depthview_jobs_total counter" in r.text
+
+
+#: One exposition-format sample line: name, optional labels with escaped values, a number.
+_SAMPLE = re.compile(r'^[a-zA-Z_:][a-zA-Z0-9_:]*(\{[a-zA-Z_]\w*="(?:[^"\\\n]|\\[\\"n])*"'
+                     r'(?:,[a-zA-Z_]\w*="(?:[^"\\\n]|\\[\\"n])*")*\})? [-+0-9.eEinfNa]+$')
+
+
+def test_metrics_labels_cannot_be_injected_or_grow_without_bound(client):
+    """Paths and methods come from clients: a redirected path (a trailing slash) with a
+    quote, a backslash and a newline, and made-up methods, must neither break the
+    exposition format nor add a series per request."""
+    def routes() -> set[str]:
+        return set(re.findall(r'route="((?:[^"\\]|\\.)*)"', client.get("/metrics").text))
+
+    client.get("/scenes/warm/")
+    client.request("BAR", "/scenes")  # 405: counted under /scenes
+    before = routes()
+    for i in range(5):
+        path = f"/scenes/x%22%7D%200%0Adepthview_ready%200%0Ainjected{i}%7Ba%3D%22%5C/"
+        assert client.get(path, follow_redirects=False).status_code == 307
+        client.request(f"FOO{i}", "/scenes")
+    text = client.get("/metrics").text
+    for line in text.splitlines():
+        assert line.startswith("#") or _SAMPLE.match(line), line
+    assert "injected" not in text and text.count("\ndepthview_ready 0") == 0
+    assert [line for line in text.splitlines() if line.startswith("depthview_ready ")] == ["depthview_ready 1"]
+    assert routes() == before  # the redirects and unknown methods added no route
+    assert "FOO" not in text and 'method="other"' in text
 
 
 # --- persistence ---------------------------------------------------------------------------------
