@@ -16,6 +16,7 @@ from service.config import (
     SET_BYTES_PER_PIXEL,
     SHADOW_MAP_RESOLUTION,
     SHADOW_MAPS_PER_DRAW,
+    STREAM_REUSER_BYTES_PER_PIXEL,
     Settings,
 )
 from service.schemas import DepthImagesRequest, FrameRequest, ReconstructionRequest
@@ -31,6 +32,12 @@ def _gib(n: float) -> str:
 
 def _reconstruction(images: int, resolution: int) -> int:
     return images * resolution * resolution * RECONSTRUCTION_BYTES_PER_SAMPLE
+
+
+def stream_reuser_bytes(method: str, width: int, height: int) -> int:
+    """Bytes a reflective stream's reuser (`method` "cluster" or "raytrace") keeps on its
+    worker between frames of width × height (``Settings.stream_reuse_bytes``)."""
+    return STREAM_REUSER_BYTES_PER_PIXEL[method] * width * height
 
 
 def frame_bytes(req: FrameRequest) -> tuple[int, str]:

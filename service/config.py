@@ -60,6 +60,11 @@ stream_max_message_    16 KiB (16384)               largest camera message on th
 bytes                                               a larger one gets an error message
 stream_max_pixels      2,073,600 (1920×1080)        largest streamed frame width × height (error
                                                     message; max_width/max_height apply too)
+stream_reuse_bytes     4 GiB (4294967296)           memory each worker keeps for the reusers of its
+                                                    reflective streams, estimated per frame size
+                                                    (STREAM_REUSER_BYTES_PER_PIXEL); past it the
+                                                    least recently used stream's reuser is released
+                                                    and its next frame is a keyframe
 stream_jpeg_quality    80                           JPEG quality (1–95) of frames while the camera
                                                     moves
 stream_rest_s          0.3                          seconds without a camera message after which
@@ -130,6 +135,10 @@ RECONSTRUCTION_BYTES_PER_SAMPLE = 336
 #: rendered at once into one atlas (maps_per_draw), float32 depth.
 SHADOW_MAP_RESOLUTION = 1024
 SHADOW_MAPS_PER_DRAW = 16
+#: Bytes per frame pixel a reflective stream's reuser keeps on its worker between
+#: frames, by reflection method (``stream_reuse_bytes``; bench/results/stream_memory.md,
+#: rounded up from its largest row).
+STREAM_REUSER_BYTES_PER_PIXEL = {"cluster": 448, "raytrace": 256}
 
 
 def default_workers() -> int:
@@ -209,6 +218,9 @@ class Settings:
     stream_max_message_bytes: int = 16 * 1024
     #: Largest streamed frame width × height (larger → error message on the socket).
     stream_max_pixels: int = 1920 * 1080
+    #: Bytes of reflective streams' reusers each worker keeps (estimated per frame size);
+    #: past it the least recently used one is released (its next frame a keyframe).
+    stream_reuse_bytes: int = 4 * 1024 * MIB
     #: JPEG quality of streamed frames while the camera moves (1–95).
     stream_jpeg_quality: int = 80
     #: Seconds the camera must rest before the latest view is sent again as PNG.
@@ -229,7 +241,8 @@ class Settings:
             raise ValueError("setting token must not be blank (leave it unset for no authentication)")
         for name in ("max_upload_bytes", "max_triangles", "max_width", "max_height", "max_pixels",
                      "queue_size", "scene_cache_size", "gpu_cache_size", "max_json_bytes", "max_job_bytes",
-                     "stream_max_per_client", "stream_max_total", "stream_max_message_bytes", "stream_max_pixels"):
+                     "stream_max_per_client", "stream_max_total", "stream_max_message_bytes", "stream_max_pixels",
+                     "stream_reuse_bytes"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"setting {name} must be >= 1, got {getattr(self, name)!r}")
         if not 1 <= int(self.stream_jpeg_quality) <= 95:
@@ -299,7 +312,8 @@ def _origins(raw: str) -> tuple[str, ...]:
 _INT_FIELDS = {"port", "max_upload_bytes", "max_triangles", "max_width", "max_height", "max_pixels",
                "queue_size", "retry_after_s", "scene_cache_size", "gpu_cache_size", "gl_device", "max_json_bytes",
                "max_job_bytes", "stream_max_per_client", "stream_max_total", "stream_max_message_bytes",
-               "stream_max_pixels", "stream_jpeg_quality", "workers", "reconstruction_cache_bytes"}
+               "stream_max_pixels", "stream_jpeg_quality", "workers", "reconstruction_cache_bytes",
+               "stream_reuse_bytes"}
 _FLOAT_FIELDS = {"job_timeout_s", "parse_timeout_s", "header_timeout_s", "body_timeout_s", "stream_rest_s"}
 
 

@@ -62,7 +62,7 @@ from reference.reflection_tracer import EmbreeTracer
 from scenes.camera import Camera, framing_distance, look_at_scene
 from scenes.model import Scene
 from service import errors, image_io
-from service.budget import check_budget, frame_bytes
+from service.budget import check_budget, frame_bytes, stream_reuser_bytes
 from service.config import Settings
 from service.deps import Render, check_size
 from service.effects import CASTERS
@@ -197,6 +197,7 @@ class _Reuse:
         self.reuser: ReflectionReuser | None = None
         self.tracer: ClusterTracer | _CachedEmbreeTracer | None = None
         self.key: tuple[Any, ...] | None = None
+        self.nbytes = 0  # estimated bytes of the reuser at the stream's latest frame size
 
     def get(self, state: GLState, scene_key: str, scene: Scene, method: str, glossy_rays: int,
             mode: str = "reuse") -> ReflectionReuser:
@@ -234,11 +235,41 @@ class StreamReflectionJob(SceneJob):
     #: Start a keyframe whatever the policy says (the camera jumped, or frames without
     #: reuse came between: the keyframe no longer fits).
     keyframe: bool = False
+    #: Estimated bytes of this stream's reuser (`budget.stream_reuser_bytes`) and the
+    #: most the worker's reusers may hold together (Settings.stream_reuse_bytes; None: no limit).
+    reuse_bytes: int = 0
+    reuse_budget: int | None = None
 
     def __call__(self, state: GLState) -> Any:
-        reuse = state.clients.setdefault(self.stream, _Reuse())
+        reuse = state.clients.pop(self.stream, None) or _Reuse()
+        state.clients[self.stream] = reuse  # the most recently used last
+        reuse.nbytes = self.reuse_bytes
+        if self.reuse_budget is not None:
+            evict_reusers(state, self.reuse_budget)
         reuser = reuse.get(state, self.scene_key, self.load(state), self.method, self.glossy_rays, self.mode)
         return reuser.next_frame(self.camera, keyframe=self.keyframe)
+
+
+def evict_reusers(state: GLState, budget: int) -> list[str]:
+    """Release the least recently used streams' reusers on this worker until the
+    estimated bytes of those held, the latest stream's included (it is kept), fit
+    `budget`; an evicted stream's next frame makes a new reuser, a keyframe. Returns
+    the evicted streams' keys."""
+    held = [(key, c) for key, c in state.clients.items() if isinstance(c, _Reuse)]
+    total = sum(c.nbytes for _, c in held[:-1] if c.reuser is not None) + (held[-1][1].nbytes if held else 0)
+    evicted = []
+    for key, c in held[:-1]:
+        if total <= budget:
+            break
+        if c.reuser is not None:
+            total -= c.nbytes
+            c.release(state)
+            evicted.append(key)
+    if evicted:
+        log.info("released the reflection reusers of %d stream(s) to keep them within %d bytes "
+                 "(STREAM_REUSE_BYTES); their next frames are keyframes", len(evicted), budget)
+        state.freed()
+    return evicted
 
 
 @dataclass(frozen=True)
@@ -282,8 +313,12 @@ class ReuseFrameSource(JobFrameSource):
         scene = await timed.scene(self.scene_id)
         camera = req.to_camera().fit_clip(scene.bounds)
         self._used = True
-        job = StreamReflectionJob(self.scene_id, scene, camera, req.effects.reflections, req.effects.glossy_rays,
-                                  self._key, self.r.settings.stream_reflection_mode, camera_jump(self._last, camera))
+        settings = self.r.settings
+        method = req.effects.reflections
+        job = StreamReflectionJob(self.scene_id, scene, camera, method, req.effects.glossy_rays, self._key,
+                                  settings.stream_reflection_mode, camera_jump(self._last, camera),
+                                  stream_reuser_bytes(method, camera.width, camera.height),
+                                  settings.stream_reuse_bytes)
         self._last = None  # until this frame is answered: a failed one leaves no keyframe to trust
         frame = await timed.job(job, f"stream frame {self.scene_id[:12]}", pin=self._key)
         self._last = camera

@@ -172,6 +172,31 @@ def test_the_full_trace_baseline_recomputes_every_frame(tmp_path):
     assert np.abs(decode(frames["full"][1]).astype(int) - decode(frames["reuse"][1]).astype(int)).mean() < 8
 
 
+def test_reusers_over_the_workers_budget_are_released_least_recently_used_first(tmp_path):
+    """STREAM_REUSE_BYTES: with room for one 96×64 cluster reuser, two reflective streams
+    take turns: each frame releases the other stream's reuser, so a small camera step
+    that reuses with room for both (the test above) starts a keyframe; the stream that
+    asked last keeps its reuser."""
+    from service.budget import stream_reuser_bytes
+
+    mirror = builtin_id("mirror")
+    body = {"camera": MIRROR_CAMERA, "width": 96, "height": 64, "effects": {"reflections": "cluster"}}
+    moved = {**body, "camera": MIRROR_CAMERA_MOVED}
+    one = stream_reuser_bytes("cluster", 96, 64)
+    for budget, second_is_keyframe in ((one, True), (2 * one, False)):
+        with service(tmp_path / str(budget), stream_reuse_bytes=budget) as c, \
+                c.websocket_connect(f"/scenes/{mirror}/stream") as a, \
+                c.websocket_connect(f"/scenes/{mirror}/stream") as b:
+            a.receive_json(), b.receive_json()
+            seen = []
+            for ws, msg in ((a, {**body, "id": 1}), (b, {**body, "id": 1}), (a, {**moved, "id": 2}),
+                            (a, {**body, "id": 3})):
+                ws.send_json(msg)
+                seen.append(receive_rendered(ws)[0]["keyframe"])
+            # a's third frame comes right after its second: its reuser was kept
+            assert seen == [True, True, second_is_keyframe, False], (budget, seen)
+
+
 @pytest.mark.parametrize(("message", "status", "words"), [
     ("{not json", 400, "not valid JSON"),
     (json.dumps(camera_msg(5, width=True)), 422, "width"),
