@@ -13,7 +13,8 @@ max_upload_bytes       64 MiB (67108864)            largest accepted scene file;
                                                     request body is read → 413
 max_triangles          5,000,000                    largest scene (uploads: parsed count; built-ins:
                                                     ``estimate_triangles``) → 422
-max_width/max_height   4096 / 4096                  largest frame side in pixels → 422
+max_width/max_height   4096 / 4096                  largest frame side in pixels → 422 (at most
+                                                    16384, MAX_FRAME_SIDE)
 max_pixels             16,777,216 (4096²)           largest width × height → 422
 queue_size             32                           render jobs waiting for the GL worker; a full
                                                     queue → 503 with ``Retry-After``
@@ -115,6 +116,9 @@ ENV_PREFIX = "DEPTHVIEW_"
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
 MIB = 1024 * 1024
+#: Largest max_width / max_height: the framebuffer side GL 4.5 guarantees (MAX_TEXTURE_SIZE,
+#: MAX_RENDERBUFFER_SIZE); a frame wider than the driver's limit fails in the framebuffer.
+MAX_FRAME_SIDE = 16384
 
 # Per-unit costs of the memory-budget estimate (``max_job_bytes``; formulas in the
 # module docstring, applied by ``service.budget``). Calibrated by the peak resident
@@ -238,28 +242,36 @@ class Settings:
             object.__setattr__(self, "cors_origins", _origins(self.cors_origins))
         object.__setattr__(self, "cors_origins", tuple(self.cors_origins))
         if self.token is not None and not self.token.strip():
-            raise ValueError("setting token must not be blank (leave it unset for no authentication)")
+            raise ValueError(f"{_setting('token')} must not be blank (leave it unset for no authentication)")
+        if not 0 <= int(self.port) <= 65535:
+            raise ValueError(f"{_setting('port')} must be within 0..65535, got {self.port!r}")
+        for name in ("max_width", "max_height"):
+            if int(getattr(self, name)) > MAX_FRAME_SIDE:
+                raise ValueError(f"{_setting(name)} must be <= {MAX_FRAME_SIDE} (the largest framebuffer GL 4.5 "
+                                 f"guarantees), got {getattr(self, name)!r}")
         for name in ("max_upload_bytes", "max_triangles", "max_width", "max_height", "max_pixels",
                      "queue_size", "scene_cache_size", "gpu_cache_size", "max_json_bytes", "max_job_bytes",
                      "stream_max_per_client", "stream_max_total", "stream_max_message_bytes", "stream_max_pixels",
                      "stream_reuse_bytes"):
             if int(getattr(self, name)) < 1:
-                raise ValueError(f"setting {name} must be >= 1, got {getattr(self, name)!r}")
+                raise ValueError(f"{_setting(name)} must be >= 1, got {getattr(self, name)!r}")
         if not 1 <= int(self.stream_jpeg_quality) <= 95:
-            raise ValueError(f"setting stream_jpeg_quality must be within 1..95, got {self.stream_jpeg_quality!r}")
-        for name, what in (("reconstruction_cache_bytes", "0 = none"), ("workers", "0 = the worker thread")):
+            raise ValueError(f"{_setting('stream_jpeg_quality')} must be within 1..95, "
+                             f"got {self.stream_jpeg_quality!r}")
+        for name, what in (("reconstruction_cache_bytes", "0 = none"), ("workers", "0 = the worker thread"),
+                           ("retry_after_s", "seconds in Retry-After")):
             if int(getattr(self, name)) < 0:
-                raise ValueError(f"setting {name} must be >= 0 ({what}), got {getattr(self, name)!r}")
+                raise ValueError(f"{_setting(name)} must be >= 0 ({what}), got {getattr(self, name)!r}")
         for name in ("job_timeout_s", "parse_timeout_s", "header_timeout_s", "body_timeout_s", "stream_rest_s"):
             if not getattr(self, name) > 0:
-                raise ValueError(f"setting {name} must be > 0, got {getattr(self, name)!r}")
+                raise ValueError(f"{_setting(name)} must be > 0, got {getattr(self, name)!r}")
         from gl_passes.reprojection import MODES  # ReuseSettings.mode (imported here: settings load without GL)
 
         if self.stream_reflection_mode not in MODES:
-            raise ValueError(f"setting stream_reflection_mode must be one of {', '.join(MODES)}, "
+            raise ValueError(f"{_setting('stream_reflection_mode')} must be one of {', '.join(MODES)}, "
                              f"got {self.stream_reflection_mode!r}")
         if self.gl_backend is not None and self.gl_backend not in ("egl", "osmesa"):
-            raise ValueError(f"setting gl_backend must be 'egl' or 'osmesa', got {self.gl_backend!r}")
+            raise ValueError(f"{_setting('gl_backend')} must be 'egl' or 'osmesa', got {self.gl_backend!r}")
 
     @property
     def keep_pixels(self) -> int:
@@ -292,6 +304,8 @@ class Settings:
                 continue
             for var in _ENV_NAMES.get(f.name, (ENV_PREFIX + f.name.upper(),)):
                 raw = env.get(var)
+                if f.name == "token" and raw is not None and not raw.strip():
+                    raise ValueError(f"{var} is set but blank: unset it for no authentication, or give a token")
                 if raw is not None and raw.strip() != "":
                     values[f.name] = _convert(f.name, raw, var)
                     break
@@ -303,6 +317,11 @@ class Settings:
 
 #: Fields read from other variables than DEPTHVIEW_<FIELD> (first one set wins).
 _ENV_NAMES = {"gl_backend": (ENV_PREFIX + "GL", ENV_PREFIX + "GL_BACKEND")}
+
+
+def _setting(name: str) -> str:
+    """A setting in messages: its field and the variable it is read from."""
+    return f"setting {name} ({_ENV_NAMES.get(name, (ENV_PREFIX + name.upper(),))[0]})"
 
 
 def _origins(raw: str) -> tuple[str, ...]:

@@ -8,6 +8,7 @@ import json
 import socket
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
@@ -79,6 +80,29 @@ def test_settings_from_env_new_settings_and_none_overrides():
         Settings.from_env({"DEPTHVIEW_GL": "vulkan"})
     with pytest.raises(ValueError, match="body_timeout_s"):
         Settings(body_timeout_s=0)
+
+
+@pytest.mark.parametrize(("env", "message"), [
+    ({"DEPTHVIEW_PORT": "70000"}, r"port \(DEPTHVIEW_PORT\) must be within 0..65535"),
+    ({"DEPTHVIEW_PORT": "-1"}, r"DEPTHVIEW_PORT\) must be within"),
+    ({"DEPTHVIEW_TOKEN": "  "}, "DEPTHVIEW_TOKEN is set but blank"),  # "$SECRET" unset: not an open service
+    ({"DEPTHVIEW_RETRY_AFTER_S": "-1"}, r"DEPTHVIEW_RETRY_AFTER_S\) must be >= 0"),
+    ({"DEPTHVIEW_MAX_WIDTH": "100000"}, r"DEPTHVIEW_MAX_WIDTH\) must be <= 16384"),
+    ({"DEPTHVIEW_MAX_HEIGHT": "16385"}, r"DEPTHVIEW_MAX_HEIGHT\) must be <= 16384"),
+    ({"DEPTHVIEW_QUEUE_SIZE": "0"}, r"queue_size \(DEPTHVIEW_QUEUE_SIZE\) must be >= 1"),
+    ({"DEPTHVIEW_GL": "vulkan"}, r"gl_backend \(DEPTHVIEW_GL\)"),
+    ({"DEPTHVIEW_PARSE_TIMEOUT_S": "0"}, r"DEPTHVIEW_PARSE_TIMEOUT_S\) must be > 0"),
+    ({"DEPTHVIEW_STREAM_REUSE_BYTES": "0"}, r"DEPTHVIEW_STREAM_REUSE_BYTES\) must be >= 1"),
+])
+def test_settings_out_of_range_are_refused_naming_the_variable(env, message):
+    with pytest.raises(ValueError, match=message):
+        Settings.from_env(env)
+
+
+def test_settings_at_their_bounds_are_accepted():
+    s = Settings.from_env({"DEPTHVIEW_PORT": "65535", "DEPTHVIEW_RETRY_AFTER_S": "0", "DEPTHVIEW_MAX_WIDTH": "16384",
+                           "DEPTHVIEW_DATA_DIR": " "})  # blank: unset, as for every variable but the token
+    assert (s.port, s.retry_after_s, s.max_width, s.data_dir) == (65535, 0, 16384, Path("./data"))
 
 
 # --- body size limits and short error messages -----------------------------------------------
