@@ -589,6 +589,22 @@ def test_metrics_labels_cannot_be_injected_or_grow_without_bound(client):
     assert "FOO" not in text and 'method="other"' in text
 
 
+def test_frame_errors_count_unknown_scenes_and_loader_errors(client, cornell_id):
+    """A valid frame body for a scene that is not stored is a 404 from the store (not an
+    HTTPException): counted among the frame errors like the 422s and 5xx."""
+    def count(status: int) -> float:
+        for line in client.get("/metrics").text.splitlines():
+            if line.startswith(f'depthview_frame_errors_total{{status="{status}"}} '):
+                return float(line.rsplit(" ", 1)[1])
+        return 0.0
+
+    before = count(404)
+    body = {"camera": frame_camera(FRAME_SCENE), "width": W, "height": H}
+    assert client.post(f"/scenes/{'0' * 64}/frames", json=body).status_code == 404
+    assert client.post("/scenes/not-an-id/frames", json=body).status_code == 404
+    assert count(404) == before + 2
+
+
 # --- persistence ---------------------------------------------------------------------------------
 def test_store_survives_restart_and_skips_corrupt_meta(tmp_path):
     data = obj_text(3)
