@@ -306,6 +306,8 @@ def test_ply_declaring_more_vertices_than_it_holds_is_422_saying_so(client):
     (b'{"camera": ', ("line 1 column 11", "line 1 column 12")),  # cut short
     (b'{"camera": ' + b"[" * 5000 + b"]" * 5000 + b"}", ("recursion limit", "nested too deeply")),
     (b'{"camera": "\xff\xfe"}', ("line 1 column 13", "byte offset 12")),  # not UTF-8
+    (b'{\n "width": ' + b"9" * 5000 + b"}", ("number out of range at line 2 column 11",  # past 4300 digits
+                                                      "number out of range at line 2 column 4312")),  # /scenes: its end
 ])
 def test_malformed_json_is_400_on_every_endpoint_saying_what_and_where(client, url, body, says):
     """The render routes' JSONBodyRoute names the problem like /scenes's pydantic

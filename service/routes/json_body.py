@@ -2,12 +2,13 @@
 body becomes a JSON decode error naming what is wrong and where, which FastAPI
 answers as ``json_invalid`` and ``service.errors`` as 400 "request body is not valid
 JSON: ..." (FastAPI's own handling turns anything but ``JSONDecodeError`` (invalid
-UTF-8, nesting past Python's recursion limit) into a bare "There was an error
-parsing the body")."""
+UTF-8, nesting past Python's recursion limit, an integer past Python's digit limit)
+into a bare "There was an error parsing the body")."""
 
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Callable, Coroutine
 from typing import Any
 
@@ -32,7 +33,22 @@ class JSONBodyRequest(Request):
                                            "", 0) from None
             except RecursionError:
                 raise json.JSONDecodeError("nested too deeply", "", 0) from None
+            except ValueError:  # an integer longer than sys.get_int_max_str_digits()
+                raise json.JSONDecodeError(f"number out of range {_where(body, _LONG_NUMBER.search(body))}",
+                                           "", 0) from None
         return self._json
+
+
+#: An integer as long as Python refuses to convert (4300 digits by default).
+_LONG_NUMBER = re.compile(rb"\d{4300,}")
+
+
+def _where(body: bytes, match: re.Match[bytes] | None) -> str:
+    """"at line L column C" of a match in `body` (1-based), or "" without one."""
+    if match is None:
+        return ""
+    pos, newline = match.start(), b"\n"
+    return f"at line {body.count(newline, 0, pos) + 1} column {pos - body.rfind(newline, 0, pos)}"
 
 
 class JSONBodyRoute(APIRoute):
