@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scenes.excerpts import cut, quoted
+
 __all__ = ["HEADER_BYTES", "Element", "Header", "PlyError", "Property", "read_header", "readable"]
 
 #: A header longer than this is refused (bytes).
@@ -83,7 +85,7 @@ class Header:
     def declared(self) -> str:
         if not self.elements:
             return "no elements"
-        return " and ".join(f"{e.count:,} {e.name!r}" for e in self.elements) + " elements"
+        return " and ".join(f"{e.count:,} {quoted(e.name)}" for e in self.elements) + " elements"
 
 
 def read_header(data: bytes) -> Header:
@@ -136,7 +138,7 @@ def _property(words: list[str], i: int, line: str) -> Property:
         if words[1] == "list" and len(words) == 5:
             count_kind = _TYPES[words[2]]
             if count_kind[0] == "f":
-                raise PlyError(f"header line {i + 1}: list {words[4][:30]!r} has its length as {words[2]!r}; "
+                raise PlyError(f"header line {i + 1}: list {words[4][:30]!r} has its length as {quoted(words[2])}; "
                                "a length is an integer type")
             return Property(words[4], _TYPES[words[3]], count_kind)
         if words[1] != "list" and len(words) == 3:
@@ -179,7 +181,7 @@ def _check_ascii(header: Header, body: bytes) -> None:
             want = len(element.properties)
             bad = next((r for r, w in enumerate(widths) if w != want), None)
             if bad is not None:
-                raise PlyError(f"line {first + bad:,} ({element.name} {bad:,}) has {widths[bad]} values, "
+                raise PlyError(f"line {first + bad:,} ({cut(element.name)} {bad:,}) has {widths[bad]} values, "
                                f"its header calls for {want}")
     if len(lines) > rows:
         raise PlyError(f"the body has {len(lines) - rows:,} lines after the {rows:,} rows the header declares "
@@ -202,7 +204,7 @@ def ascii_value_problem(data: bytes) -> str | None:
                 try:
                     float(token)
                 except ValueError:
-                    return (f"line {first + r:,} ({element.name} {r:,}) has {token[:20].decode('latin-1')!r}, "
+                    return (f"line {first + r:,} ({cut(element.name)} {r:,}) has {token[:20].decode('latin-1')!r}, "
                             "not a number")
     return None
 
@@ -226,18 +228,18 @@ def _check_ascii_row(element: Element, r: int, tokens: list[bytes], line: int) -
             at += 1
             continue
         if at >= len(tokens):
-            raise PlyError(f"line {line:,} ({element.name} {r:,}) has {len(tokens)} values, too few for its "
-                           f"header (list {p.name!r} has no length)")
+            raise PlyError(f"line {line:,} ({cut(element.name)} {r:,}) has {len(tokens)} values, too few for its "
+                           f"header (list {quoted(p.name)} has no length)")
         try:
             n = int(tokens[at])
         except ValueError:
-            raise PlyError(f"line {line:,} ({element.name} {r:,}): list {p.name!r} has length "
+            raise PlyError(f"line {line:,} ({cut(element.name)} {r:,}): list {quoted(p.name)} has length "
                            f"{tokens[at][:20].decode('latin-1')!r}, not a whole number") from None
         if n < 0:
-            raise PlyError(f"line {line:,} ({element.name} {r:,}): list {p.name!r} has negative length {n}")
+            raise PlyError(f"line {line:,} ({cut(element.name)} {r:,}): list {quoted(p.name)} has negative length {n}")
         at += 1 + n
     if at != len(tokens):
-        raise PlyError(f"line {line:,} ({element.name} {r:,}) has {len(tokens)} values, its header and list "
+        raise PlyError(f"line {line:,} ({cut(element.name)} {r:,}) has {len(tokens)} values, its header and list "
                        f"lengths call for {at}")
 
 
@@ -304,7 +306,7 @@ def _binary_rows(element: Element, body: memoryview, start: int, order: str) -> 
     end = start + element.count * size
     if not first_lengths:
         if end > len(body):
-            raise PlyError(f"the {element.name} rows run past the end of the body")
+            raise PlyError(f"the {cut(element.name)} rows run past the end of the body")
         return _Rows(start, end)
     if end <= len(body) and _uniform(element, body[start:end], size, first_lengths, order):
         return _Rows(start, end)
@@ -353,7 +355,7 @@ def _walk_one_list(element: Element, body: memoryview, start: int, order: str) -
         at += fixed + n * entry
         if n < 0 or at > end:
             _walk_row(element, body, offsets[-1], order, r)  # raises, naming the row and its list
-            raise PlyError(f"{element.name} {r:,} runs past the end of the body")
+            raise PlyError(f"{cut(element.name)} {r:,} runs past the end of the body")
     return _Rows(start, at, np.array(offsets, np.int64), np.array(lengths, np.int64)[:, None])
 
 
@@ -380,17 +382,17 @@ def _walk_row(element: Element, body: memoryview, at: int, order: str, r: int) -
         if p.is_list:
             width = np.dtype(p.count_kind).itemsize
             if at + width > len(body):
-                raise PlyError(f"{element.name} {r:,} runs past the end of the body")
+                raise PlyError(f"{cut(element.name)} {r:,} runs past the end of the body")
             (n,) = struct.unpack_from(order + _STRUCT[p.count_kind], body, at)
             if n < 0:
-                raise PlyError(f"{element.name} {r:,}: list {p.name!r} has negative length {n}")
+                raise PlyError(f"{cut(element.name)} {r:,}: list {quoted(p.name)} has negative length {n}")
             lengths.append(n)
             at += width + n * np.dtype(p.kind).itemsize
         else:
             at += np.dtype(p.kind).itemsize
         if at > len(body):
-            raise PlyError(f"{element.name} {r:,} runs past the end of the body"
-                           + (f" (its list {p.name!r} says {lengths[-1]:,} entries)" if p.is_list else ""))
+            raise PlyError(f"{cut(element.name)} {r:,} runs past the end of the body"
+                           + (f" (its list {quoted(p.name)} says {lengths[-1]:,} entries)" if p.is_list else ""))
     return at, lengths
 
 
