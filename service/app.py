@@ -124,6 +124,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             for name, sub in s.pop("$defs", {}).items():
                 comps.setdefault(name, sub)
             comps.setdefault(model.__name__, s)
+        for ops in schema["paths"].values():  # a string path parameter cannot fail validation
+            for op in ops.values():
+                params = op.get("parameters", [])
+                if "requestBody" not in op and all(p["in"] == "path" and p["schema"].get("type") == "string"
+                                                   for p in params):
+                    op["responses"].pop("422", None)
         for name in ("FrameRequest", "DepthImagesRequest"):  # the size limits of this service's settings
             props = comps[name]["properties"]
             props["width"]["maximum"], props["height"]["maximum"] = settings.max_width, settings.max_height

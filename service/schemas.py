@@ -13,6 +13,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictFloat, StrictInt, field_validator, model_validator
 
+from scenes.builtin import MAX_DETAIL, MIN_DETAIL
 from scenes.camera import Camera, CameraError
 from scenes.lights import MIN_LIGHT_SINE, light_sine
 from scenes.rig import peeling_camera
@@ -225,7 +226,8 @@ class BuiltinParams(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    detail: Number = Field(default=1.0, gt=0.0, allow_inf_nan=False, description="tessellation scale")
+    detail: Number = Field(default=1.0, ge=MIN_DETAIL, le=MAX_DETAIL, allow_inf_nan=False,
+                           description="tessellation scale")
     seed: StrictInt = Field(default=0, ge=0, lt=2**63, description="random seed of the procedural generator")
 
 

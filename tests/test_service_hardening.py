@@ -370,6 +370,42 @@ def test_every_documented_status_has_a_schema(client):
         assert name in spec["components"]["schemas"]
 
 
+def test_the_document_describes_what_the_routes_accept_and_answer(client):
+    """Media type objects hold only OpenAPI's fields (a description there made the
+    document invalid); every raw upload type is listed; a string path parameter cannot
+    fail validation, so no 422 is promised for it; the built-in detail range is the one
+    enforced; the response headers of uploads and renders are named."""
+    from service.routes.scenes import RAW_CONTENT_TYPES
+
+    spec = client.get("/openapi.json").json()
+    media_fields = {"schema", "example", "examples", "encoding"}
+    for path, item in spec["paths"].items():
+        for method, op in item.items():
+            bodies = [op.get("requestBody", {}), *op["responses"].values()]
+            for body in bodies:
+                for media, obj in (body.get("content") or {}).items():
+                    assert set(obj) <= media_fields, (method, path, media, set(obj) - media_fields)
+    upload = spec["paths"]["/scenes"]["post"]
+    assert set(RAW_CONTENT_TYPES) | {"multipart/form-data", "application/json"} == set(upload["requestBody"]["content"])
+    assert {"200", "201"} <= set(upload["responses"]) and "Location" in upload["responses"]["201"]["headers"]
+    for method in ("get", "delete"):
+        assert "422" not in spec["paths"]["/scenes/{scene_id}"][method]["responses"], method
+    detail = spec["components"]["schemas"]["BuiltinParams"]["properties"]["detail"]
+    assert (detail["minimum"], detail["maximum"]) == (0.01, 60.0)
+    r = client.post("/scenes", json={"builtin": "nest", "params": {"detail": 61}})
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "params", "detail"]
+    frames = spec["paths"]["/scenes/{scene_id}/frames"]["post"]["responses"]["200"]["headers"]
+    assert {"X-Render-Seconds", "Server-Timing"} == set(frames)
+    sets = spec["paths"]["/scenes/{scene_id}/depth-images"]["post"]["responses"]["200"]["content"]
+    assert sets["application/json"]["schema"]["required"] == ["metrics", "media_type", "images_b64"]
+
+
+def test_scenes_take_json_under_any_json_media_type_as_the_render_routes_do(client):
+    body = json.dumps({"builtin": "cornell"}).encode()
+    r = client.post("/scenes", content=body, headers={"content-type": "application/vnd.example+json"})
+    assert r.status_code == 200 and r.json()["id"] == CORNELL, r.text
+
+
 def test_the_document_states_the_limits_the_service_enforces(tmp_path):
     """Sizes up to this service's limits, coordinates within ±1e12, the reflection methods:
     what the service refuses with 422 the OpenAPI document says it does not accept."""

@@ -46,10 +46,20 @@ depth_images = APIRouter(prefix="/scenes/{scene_id}", tags=["depth images"], dep
 
 
 # --- frames ----------------------------------------------------------------------------
+#: The headers of every render response (OpenAPI).
+RENDER_HEADERS = {"X-Render-Seconds": {"description": "seconds in the service from the request's arrival to the "
+                                                      "encoded body", "schema": {"type": "string"}}}
+#: A frame's steps, on reflective and soft-shadow frames (OpenAPI).
+SERVER_TIMING = {"Server-Timing": {"description": "each step's milliseconds (reflective and soft-shadow frames), "
+                                                  "cached steps with desc=\"cache hit\" or \"cache miss\"",
+                                   "schema": {"type": "string"}}}
+
+
 @frames.post(
     "/frames", summary="Render a frame", response_class=Response,
     responses={200: {"content": {"image/png": {}, "image/x-exr": {}},
-                     "description": f"PNG (sRGB colour) or EXR (linear {FRAME_EXR_CHANNELS})"},
+                     "description": f"PNG (sRGB colour) or EXR (linear {FRAME_EXR_CHANNELS})",
+                     "headers": {**RENDER_HEADERS, **SERVER_TIMING}},
                **responses({**RENDER_ERRORS, 422: "invalid camera, effects or size, or over the memory budget"})})
 async def render_frame(scene_id: str, req: FrameRequest, r: RenderDep) -> Response:
     t0 = time.perf_counter()
@@ -86,7 +96,7 @@ def render_seconds(t0: float) -> dict[str, str]:
     responses={200: {"content": {"model/gltf-binary": {}},
                      "description": "binary glTF, one node per source image that holds samples: vertex colours "
                                     "under an unlit, two-sided, non-metal material; node extras: method, layer "
-                                    "(peeling), camera"},
+                                    "(peeling), camera", "headers": RENDER_HEADERS},
                **responses({**RENDER_ERRORS, 422: "invalid cameras, light or size, or over the memory budget"})})
 async def reconstruct(scene_id: str, req: ReconstructionRequest, r: RenderDep) -> Response:
     t0 = time.perf_counter()
@@ -117,9 +127,14 @@ async def reconstruct(scene_id: str, req: ReconstructionRequest, r: RenderDep) -
 # --- depth-image sets (thesis Ch. 2) ---------------------------------------------------------
 @depth_images.post(
     "/depth-images", summary="Render a depth-image set", response_class=Response,
-    responses={200: {"content": {"image/x-exr": {}, "application/x-npz": {}, "application/json": {}},
+    responses={200: {"content": {"image/x-exr": {}, "application/x-npz": {}, "application/json": {"schema": {
+                         "type": "object", "required": ["metrics", "media_type", "images_b64"], "properties": {
+                             "metrics": {"type": "object", "description": "the four sampling metrics (§2.3.2)"},
+                             "media_type": {"type": "string", "description": "of the encoded set"},
+                             "images_b64": {"type": "string", "contentEncoding": "base64",
+                                            "description": "the set, as the EXR or npz response's body"}}}}},
                      "description": "multi-part EXR (one part per image) or npz; with metrics=true JSON "
-                                    "{metrics, media_type, images_b64}"},
+                                    "{metrics, media_type, images_b64}", "headers": RENDER_HEADERS},
                **responses({**RENDER_ERRORS, 422: "invalid cameras or size, or over the memory budget"})})
 async def render_depth_images(scene_id: str, req: DepthImagesRequest, r: RenderDep) -> Response:
     t0 = time.perf_counter()

@@ -18,7 +18,7 @@ from starlette.formparsers import MultiPartException, MultiPartParser
 
 from service.config import Settings
 from service.deps import MetricsDep, SettingsDep, StoreDep, WorkerDep, require_token
-from service.errors import responses
+from service.errors import json_media_type, responses
 from service.middleware import MULTIPART_OVERHEAD
 from service.schemas import BuiltinSceneRequest, SceneInfo, SceneList
 from service.store import SceneMeta
@@ -136,9 +136,15 @@ async def list_scenes(store: StoreDep) -> SceneList:
     return SceneList(scenes=[_info(m) for m in metas])
 
 
+#: The Location header of a stored scene (OpenAPI).
+LOCATION = {"Location": {"description": "the scene's URL, /scenes/{id}", "schema": {"type": "string"}}}
+
+
 @router.post(
     "", response_model=SceneInfo, status_code=201, summary="Upload a scene file or register a built-in scene",
-    responses={200: {"model": SceneInfo, "description": "already stored (same content ⇒ same id)"},
+    responses={200: {"model": SceneInfo, "description": "already stored (same content ⇒ same id)",
+                     "headers": LOCATION},
+               201: {"description": "stored", "headers": LOCATION},
                **responses({400: "malformed body (not JSON, bad multipart)",
                             408: "the body stalled (DEPTHVIEW_BODY_TIMEOUT_S)",
                             413: "upload or JSON body too large", 415: "unsupported format or content type",
@@ -151,12 +157,13 @@ async def list_scenes(store: StoreDep) -> SceneList:
                        "description": "overrides the file name suffix"},
             "name": {"type": "string", "description": "display name (default: the file name stem)"}}}},
         "application/json": {"schema": {"$ref": "#/components/schemas/BuiltinSceneRequest"}},
-        "application/octet-stream": {"schema": {"type": "string", "format": "binary"},
-                                     "description": "raw file; give ?format="}}}})
+        **{ctype: {"schema": {"type": "string", "format": "binary"}} for ctype in RAW_CONTENT_TYPES}},
+        "description": "a scene file as multipart/form-data (field 'file'), a raw file body (its format from "
+                       "its content type, else from ?format=), or JSON naming a built-in scene"}})
 async def create_scene(request: Request, settings: SettingsDep, store: StoreDep, metrics: MetricsDep,
                        format: str | None = None, name: str | None = None) -> JSONResponse:
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
-    if ctype == "application/json":
+    if json_media_type(ctype):
         body = await _read_limited(request, settings.max_json_bytes, "JSON body")
         try:
             req = BuiltinSceneRequest.model_validate_json(body)
