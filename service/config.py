@@ -282,11 +282,11 @@ class Settings:
 
     def size_problem(self, width: int, height: int, what: str = "frame") -> str | None:
         """What is over the limits in a width × height image, or None."""
-        for name, value, limit in ((f"{what} width", width, self.max_width),
-                                   (f"{what} height", height, self.max_height),
-                                   (f"{what} width × height", width * height, self.max_pixels)):
+        for name, value, limit, field_ in ((f"{what} width", width, self.max_width, "max_width"),
+                                           (f"{what} height", height, self.max_height, "max_height"),
+                                           (f"{what} width × height", width * height, self.max_pixels, "max_pixels")):
             if value > limit:
-                return f"{name} {value} exceeds the limit {limit}"
+                return f"{name} {value} exceeds the limit {limit} ({ENV_PREFIX}{field_.upper()})"
         return None
 
     @classmethod

@@ -89,6 +89,7 @@ def test_readyz_is_503_until_the_gl_context_exists(tmp_path, monkeypatch):
         assert c.get("/healthz").status_code == 200
         r = c.get("/readyz")
         assert r.status_code == 503 and r.json()["ready"] is False
+        assert "no render worker is ready yet" in r.json()["error"]
         gate.set()
         assert wait_ready(c)["ready"] is True
 
@@ -327,8 +328,8 @@ def test_bad_cameras_are_422_naming_the_problem(client, cornell_id, camera_text,
 @pytest.mark.parametrize("extra, needle", [
     ({"width": 0}, "width"),
     ({"height": -3}, "height"),
-    ({"width": 5000}, "width 5000 exceeds the limit 4096"),
-    ({"height": 4097}, "height 4097 exceeds the limit 4096"),
+    ({"width": 5000}, "width 5000 exceeds the limit 4096 (DEPTHVIEW_MAX_WIDTH)"),
+    ({"height": 4097}, "height 4097 exceeds the limit 4096 (DEPTHVIEW_MAX_HEIGHT)"),
     ({"width": 1.5}, "width"),
     ({"format": "jpg"}, "format"),
     ({"effects": {"shadows": "pcss"}}, "shadows"),
@@ -362,7 +363,7 @@ def test_upload_and_triangle_and_size_limits(tmp_path):
         # Streamed without Content-Length: cut off while reading.
         r = c.post("/scenes?format=obj", content=iter([big[:3000], big[3000:]]),
                    headers={"content-type": "application/octet-stream"})
-        assert r.status_code == 413
+        assert r.status_code == 413 and "DEPTHVIEW_MAX_UPLOAD_BYTES" in r.json()["detail"]
         huge = b"v 0 0 0\n" * 20000  # past the multipart allowance: refused from Content-Length
         r = c.post("/scenes", files={"file": ("huge.obj", huge)})
         assert r.status_code == 413

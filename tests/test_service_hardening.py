@@ -125,7 +125,7 @@ def test_json_body_over_the_limit_is_413_without_an_echo(tmp_path_factory, path)
 def test_builtin_scene_json_body_over_the_limit_is_413(tmp_path):
     with service(tmp_path, ready=False, max_json_bytes=1024) as c:
         r = post_text(c, "/scenes", json.dumps({"builtin": "nest", "pad": "y" * 4000}))
-        assert r.status_code == 413 and len(r.content) < 300
+        assert r.status_code == 413 and len(r.content) < 300 and "DEPTHVIEW_MAX_JSON_BYTES" in r.json()["detail"]
 
 
 def test_validation_errors_repeat_only_an_excerpt_of_the_input(client):

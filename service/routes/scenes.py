@@ -53,6 +53,10 @@ async def _limited(stream: AsyncIterator[bytes], limit: int) -> AsyncIterator[by
         yield chunk
 
 
+#: The variable of each body limit, named in its 413.
+_LIMIT_VARS = {"upload": "DEPTHVIEW_MAX_UPLOAD_BYTES", "JSON body": "DEPTHVIEW_MAX_JSON_BYTES"}
+
+
 def _check_content_length(request: Request, limit: int, what: str) -> None:
     cl = request.headers.get("content-length")
     if cl is None:
@@ -62,7 +66,7 @@ def _check_content_length(request: Request, limit: int, what: str) -> None:
     except ValueError:
         raise HTTPException(400, "invalid Content-Length header") from None
     if n > limit:
-        raise HTTPException(413, f"{what} is {n} bytes; the limit is {limit} bytes")
+        raise HTTPException(413, f"{what} is {n} bytes; the limit is {limit} bytes ({_LIMIT_VARS[what]})")
 
 
 async def _read_limited(request: Request, limit: int, what: str) -> bytes:
@@ -72,7 +76,7 @@ async def _read_limited(request: Request, limit: int, what: str) -> bytes:
         async for chunk in _limited(request.stream(), limit):
             buf.extend(chunk)
     except _BodyTooLarge as exc:
-        raise HTTPException(413, f"{what} exceeds the limit of {exc.limit} bytes") from None
+        raise HTTPException(413, f"{what} exceeds the limit of {exc.limit} bytes ({_LIMIT_VARS[what]})") from None
     return bytes(buf)
 
 
@@ -110,8 +114,8 @@ async def _read_multipart(request: Request, settings: Settings, fmt: str | None,
     try:
         form = await parser.parse()
     except _BodyTooLarge as exc:
-        raise HTTPException(413, f"upload exceeds the limit of {limit} bytes (body passed {exc.limit} "
-                                 "bytes including multipart overhead)") from None
+        raise HTTPException(413, f"upload exceeds the limit of {limit} bytes, DEPTHVIEW_MAX_UPLOAD_BYTES (body "
+                                 f"passed {exc.limit} bytes including multipart overhead)") from None
     except MultiPartException as exc:
         raise HTTPException(400, f"malformed multipart body: {_multipart_problem(exc)}") from None
     try:
@@ -120,7 +124,7 @@ async def _read_multipart(request: Request, settings: Settings, fmt: str | None,
             raise HTTPException(422, "multipart upload needs a file field named 'file'")
         data = await upload.read(limit + 1)
         if len(data) > limit:
-            raise HTTPException(413, f"upload is larger than the limit of {limit} bytes")
+            raise HTTPException(413, f"upload is larger than the limit of {limit} bytes (DEPTHVIEW_MAX_UPLOAD_BYTES)")
         form_fmt = form.get("format")
         form_name = form.get("name")
         fmt_ = _format_from(fmt or (form_fmt if isinstance(form_fmt, str) else None), upload.filename)

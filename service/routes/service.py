@@ -13,6 +13,10 @@ probes = APIRouter(tags=["service"])
 metrics_router = APIRouter(tags=["service"], dependencies=[Depends(require_token)])
 
 
+#: Why /readyz is 503 while no worker failed to start: it is starting, or one is being replaced.
+NOT_READY = "no render worker is ready yet: starting, or replacing one that died or ran past its time limit"
+
+
 @probes.get("/healthz", summary="Liveness: the process is up")
 async def healthz() -> dict[str, str]:
     return {"status": "ok"}
@@ -22,7 +26,8 @@ async def healthz() -> dict[str, str]:
             responses={503: {"model": Readiness, "description": "GL context not (yet) alive"}})
 async def readyz(worker: WorkerDep) -> JSONResponse:
     body = Readiness(ready=worker.ready, renderer=worker.renderer, backend=worker.backend,
-                     software=worker.is_software, gl_version=worker.gl_version, error=worker.startup_error)
+                     software=worker.is_software, gl_version=worker.gl_version,
+                     error=worker.startup_error or (None if worker.ready else NOT_READY))
     return JSONResponse(body.model_dump(), status_code=200 if worker.ready else 503)
 
 
