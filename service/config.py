@@ -12,7 +12,8 @@ host / port            ``127.0.0.1`` / ``8000``     where ``depthview serve`` li
 max_upload_bytes       64 MiB (67108864)            largest accepted scene file; counted while the
                                                     request body is read → 413
 max_triangles          5,000,000                    largest scene (uploads: parsed count; built-ins:
-                                                    ``estimate_triangles``) → 422
+                                                    ``estimate_triangles``) → 422; the built-ins at
+                                                    their default parameters are exempt
 max_width/max_height   4096 / 4096                  largest frame side in pixels → 422 (at most
                                                     16384, MAX_FRAME_SIDE)
 max_pixels             16,777,216 (4096²)           largest width × height → 422
