@@ -7,7 +7,10 @@ starts in milliseconds. The child's address space may grow by at most
 waits at most ``ParseLimits.timeout_s`` and then kills it. Whatever ends a parse —
 the time limit, the memory limit, the loader's own error, a crash of the process — comes
 back as a :class:`scenes.loaders.SceneLoadError` (422) naming what happened; the service
-process and its worker threads are never held past the limit.
+process and its worker threads are never held past the limit. Where no fork server
+can start (its socket needs a writable temporary directory: a read-only container
+without one), uploads are parsed in the calling thread, without the limits, and the
+log says so once.
 """
 
 from __future__ import annotations
@@ -106,6 +109,17 @@ def _child(conn: Any, data: bytes, fmt: str, name: str, max_triangles: int | Non
         conn.close()
 
 
+_warned: list[str] = []
+
+
+def _warn_unlimited(exc: OSError) -> None:
+    """Log once that uploads are parsed in this process, without the limits."""
+    if not _warned:
+        _warned.append(str(exc))
+        log.error("cannot start the upload parser's fork server (%s): uploads are parsed in the service "
+                  "process, without PARSE_TIMEOUT_S and the memory limit", exc)
+
+
 def _stop(proc: Any) -> None:
     if proc.is_alive():
         proc.kill()
@@ -122,6 +136,12 @@ def parse_scene(data: bytes, fmt: str, name: str, max_triangles: int | None, lim
                        name="depthview-parse", daemon=True)
     try:
         proc.start()
+    except OSError as exc:  # no fork server: e.g. no writable temporary directory for its socket
+        recv.close()
+        send.close()
+        _warn_unlimited(exc)
+        return loaders.load_scene_bytes(data, fmt, name=name, max_triangles=max_triangles)
+    try:
         send.close()
         if not recv.poll(limits.timeout_s):
             raise ParseTimeLimit(f"parsing the {fmt} file took longer than {limits.timeout_s:g} s, "

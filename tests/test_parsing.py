@@ -82,3 +82,26 @@ def test_service_refuses_uploads_past_the_parse_limits_and_keeps_serving(tmp_pat
         assert "MAX_JOB_BYTES" in r.json()["detail"]
         r = client.post("/scenes", files={"file": ("ball.glb", sphere_glb(3))})
         assert r.status_code == 201 and r.json()["triangles"] == 1280
+
+
+def test_without_a_fork_server_uploads_are_parsed_here_and_the_log_says_so(monkeypatch, caplog):
+    """A read-only container without a writable temporary directory cannot start the
+    fork server (its socket lives there): the service still takes uploads."""
+    import service.parsing as parsing
+
+    class NoServer:
+        def Pipe(self, duplex: bool):  # noqa: N802 - multiprocessing's name
+            return parsing.mp.Pipe(duplex)
+
+        def Process(self, **kw):  # noqa: N802
+            class P:
+                def start(self) -> None:
+                    raise FileNotFoundError("No usable temporary directory found")
+            return P()
+
+    monkeypatch.setattr(parsing, "_fork_context", lambda: NoServer())
+    monkeypatch.setattr(parsing, "_warned", [])
+    for _ in range(2):
+        assert parse_scene(sphere_glb(1), "glb", "ball", None, ParseLimits(60.0, GIB)).n_triangles == 80
+    logged = [r for r in caplog.records if "fork server" in r.getMessage()]
+    assert len(logged) == 1 and "without PARSE_TIMEOUT_S" in logged[0].getMessage()
