@@ -120,6 +120,8 @@ MIB = 1024 * 1024
 #: Largest max_width / max_height: the framebuffer side GL 4.5 guarantees (MAX_TEXTURE_SIZE,
 #: MAX_RENDERBUFFER_SIZE); a frame wider than the driver's limit fails in the framebuffer.
 MAX_FRAME_SIDE = 16384
+#: Longest time setting in seconds (a day): waits take finite timeouts (inf or 1e12 s overflowed).
+MAX_SECONDS = 86400.0
 
 # Per-unit costs of the memory-budget estimate (``max_job_bytes``; formulas in the
 # module docstring, applied by ``service.budget``). Calibrated by the peak resident
@@ -264,8 +266,9 @@ class Settings:
             if int(getattr(self, name)) < 0:
                 raise ValueError(f"{_setting(name)} must be >= 0 ({what}), got {getattr(self, name)!r}")
         for name in ("job_timeout_s", "parse_timeout_s", "header_timeout_s", "body_timeout_s", "stream_rest_s"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{_setting(name)} must be > 0, got {getattr(self, name)!r}")
+            if not 0 < getattr(self, name) <= MAX_SECONDS:
+                raise ValueError(f"{_setting(name)} must be > 0 and at most {MAX_SECONDS:g} s, "
+                                 f"got {getattr(self, name)!r}")
         from gl_passes.reprojection import MODES  # ReuseSettings.mode (imported here: settings load without GL)
 
         if self.stream_reflection_mode not in MODES:

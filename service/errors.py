@@ -29,6 +29,7 @@ from starlette.routing import Match
 
 from scenes.loaders import SceneLoadError
 from service.excerpts import EXCERPT_CHARS, cut
+from service.parsing import ParseUnavailable
 from service.store import (
     InvalidBuiltin,
     InvalidSceneId,
@@ -56,6 +57,7 @@ STORE_STATUS: tuple[tuple[type[Exception] | tuple[type[Exception], ...], int], .
     (UnsupportedFormat, 415),
     ((TriangleLimitExceeded, InvalidBuiltin, SceneLoadError), 422),
     (StoreCorrupted, 500),
+    (ParseUnavailable, 503),
 )
 
 
@@ -186,6 +188,7 @@ def install(app: FastAPI) -> None:
     """Register the handlers on `app`."""
     app.add_exception_handler(StoreError, store_error)
     app.add_exception_handler(SceneLoadError, store_error)
+    app.add_exception_handler(ParseUnavailable, store_error)
     app.add_exception_handler(RequestValidationError, validation_error)
     app.add_exception_handler(StarletteHTTPException, http_error)
     app.add_exception_handler(Exception, internal_error)

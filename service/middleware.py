@@ -36,6 +36,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
 from service.config import Settings
+from service.errors import json_media_type
 from service.metrics import Metrics
 
 #: Allowance for multipart boundaries and small form fields on top of max_upload_bytes.
@@ -45,8 +46,8 @@ MULTIPART_OVERHEAD = 64 * 1024
 def body_limit(settings: Settings, scope: Scope) -> tuple[int, str]:
     """(byte limit, the limit in words) for the body of this request."""
     headers = dict(scope.get("headers") or [])
-    ctype = headers.get(b"content-type", b"").split(b";")[0].strip().lower()
-    if scope["method"] == "POST" and scope["path"].rstrip("/") == "/scenes" and ctype != b"application/json":
+    ctype = headers.get(b"content-type", b"").decode("latin-1")
+    if scope["method"] == "POST" and scope["path"].rstrip("/") == "/scenes" and not json_media_type(ctype):
         # a backstop above the route's own exact checks of the file
         return (settings.max_upload_bytes + 2 * MULTIPART_OVERHEAD,
                 f"an upload's limit of {settings.max_upload_bytes} bytes (DEPTHVIEW_MAX_UPLOAD_BYTES) "

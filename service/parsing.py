@@ -15,12 +15,19 @@ log says so once.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import multiprocessing as mp
+import os
 import resource
+import shutil
+import signal
+import tempfile
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
+from multiprocessing import forkserver
 from typing import Any
 
 from scenes import loaders
@@ -91,7 +98,10 @@ def _child(conn: Any, data: bytes, fmt: str, name: str, max_triangles: int | Non
     the loader's SceneLoadError), or ("memory" | "crash", message)."""
     try:
         limit = _address_space() + max_bytes
-        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+        hard = resource.getrlimit(resource.RLIMIT_AS)[1]
+        if hard != resource.RLIM_INFINITY:  # a limit set outside (ulimit -v, LimitAS=) cannot be raised
+            limit = min(limit, hard)
+        resource.setrlimit(resource.RLIMIT_AS, (limit, hard))
         scene = loaders.load_scene_bytes(data, fmt, name=name, max_triangles=max_triangles)
         # a fresh Scene: the loader's cached concatenations would travel twice
         conn.send(("ok", dataclasses.replace(scene)))
@@ -109,6 +119,10 @@ def _child(conn: Any, data: bytes, fmt: str, name: str, max_triangles: int | Non
         conn.close()
 
 
+class ParseUnavailable(Exception):
+    """No parse process could be started (HTTP 503; the upload may be sent again)."""
+
+
 _warned: list[str] = []
 
 
@@ -116,12 +130,49 @@ def _warn_unlimited(exc: OSError) -> None:
     """Log once that uploads are parsed in this process, without the limits."""
     if not _warned:
         _warned.append(str(exc))
-        log.error("cannot start the upload parser's fork server (%s): uploads are parsed in the service "
-                  "process, without PARSE_TIMEOUT_S and the memory limit", exc)
+        log.error("cannot start the upload parser's fork server, no usable temporary directory for its socket "
+                  "(%s): uploads are parsed in the service process, without PARSE_TIMEOUT_S and the memory "
+                  "limit", exc)
 
 
-def _stop(proc: Any) -> None:
-    if proc.is_alive():
+def _temp_dir_usable() -> bool:
+    try:
+        shutil.rmtree(tempfile.mkdtemp(prefix="depthview-probe-"))
+        return True
+    except OSError:
+        return False
+
+
+def _started(make: Callable[[], Any]) -> Any:
+    """A parse process made by `make` and started; None where no fork server can run
+    (no usable temporary directory). A fork server that refuses (its socket removed,
+    say) is stopped and started again once; ParseUnavailable if that fails too."""
+    for attempt in range(2):
+        proc = make()
+        try:
+            proc.start()
+            return proc
+        except OSError as exc:
+            if not _temp_dir_usable():
+                _warn_unlimited(exc)
+                return None
+            log.warning("starting a parse process failed (%s); %s", exc,
+                        "restarting the fork server" if attempt == 0 else "giving up")
+            if attempt == 0:
+                with contextlib.suppress(OSError):  # its socket file may be gone already
+                    forkserver._forkserver._stop()
+            else:
+                raise ParseUnavailable(f"cannot start a process to parse the upload ({exc}); try again") from None
+    raise AssertionError("unreachable")
+
+
+def _stop(proc: Any, running: bool) -> None:
+    """Kill the parse process when it may still run (`running`: no result came; by pid:
+    a dead fork server makes ``is_alive`` false while its child runs on), then reap it."""
+    if running:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(proc.pid, signal.SIGKILL)
+    elif proc.is_alive():
         proc.kill()
     proc.join(_REAP_S)
 
@@ -129,32 +180,37 @@ def _stop(proc: Any) -> None:
 def parse_scene(data: bytes, fmt: str, name: str, max_triangles: int | None, limits: ParseLimits) -> Scene:
     """Parse an uploaded file as ``loaders.load_scene_bytes`` would, in a child process
     held to `limits`. Raises SceneLoadError (ParseTimeLimit, ParseMemoryLimit, or the
-    loader's own, e.g. TriangleLimitError)."""
+    loader's own, e.g. TriangleLimitError), or ParseUnavailable."""
     ctx = _fork_context()
     recv, send = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=_child, args=(send, data, fmt, name, max_triangles, limits.max_bytes),
-                       name="depthview-parse", daemon=True)
     try:
-        proc.start()
-    except OSError as exc:  # no fork server: e.g. no writable temporary directory for its socket
+        proc = _started(lambda: ctx.Process(
+            target=_child, args=(send, data, fmt, name, max_triangles, limits.max_bytes),
+            name="depthview-parse", daemon=True))
+    except BaseException:
         recv.close()
+        raise
+    finally:
         send.close()
-        _warn_unlimited(exc)
+    if proc is None:
+        recv.close()
         return loaders.load_scene_bytes(data, fmt, name=name, max_triangles=max_triangles)
+    running = True
     try:
-        send.close()
         if not recv.poll(limits.timeout_s):
             raise ParseTimeLimit(f"parsing the {fmt} file took longer than {limits.timeout_s:g} s, "
                                  "the limit (PARSE_TIMEOUT_S)")
         try:
             message = recv.recv()
+            running = False
         except EOFError:
+            running = False
             proc.join(_REAP_S)
             raise loaders.SceneLoadError(
                 f"the process parsing the {fmt} file died (exit code {proc.exitcode})") from None
     finally:
         recv.close()
-        _stop(proc)
+        _stop(proc, running)
     kind, payload = message
     if kind == "ok":
         return payload

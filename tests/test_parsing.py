@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import pickle
+import time
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ import trimesh
 from scenes import loaders
 from service.parsing import ParseLimits, ParseMemoryLimit, ParseTimeLimit, parse_scene
 from service.store import SceneStore
-from tests.helpers import service
+from tests.helpers import ROOT, service
 
 GIB = 1 << 30
 
@@ -68,9 +69,10 @@ def test_a_stored_upload_reloaded_past_the_limit_names_the_limit(tmp_path) -> No
 
 
 def test_service_refuses_uploads_past_the_parse_limits_and_keeps_serving(tmp_path) -> None:
-    with service(tmp_path, parse_timeout_s=0.05) as client:
+    # 1.3 M triangles take ~4 s to parse here, 80 take ~0.05 s: both ten times from 0.5 s
+    with service(tmp_path, parse_timeout_s=0.5) as client:
         before = client.get("/scenes").json()
-        r = client.post("/scenes?format=glb", content=sphere_glb(7), headers={"content-type": "model/gltf-binary"})
+        r = client.post("/scenes?format=glb", content=sphere_glb(8), headers={"content-type": "model/gltf-binary"})
         assert r.status_code == 422, r.text
         assert "PARSE_TIMEOUT_S" in r.json()["detail"]
         assert client.get("/scenes").json() == before  # nothing stored
@@ -86,7 +88,8 @@ def test_service_refuses_uploads_past_the_parse_limits_and_keeps_serving(tmp_pat
 
 def test_without_a_fork_server_uploads_are_parsed_here_and_the_log_says_so(monkeypatch, caplog):
     """A read-only container without a writable temporary directory cannot start the
-    fork server (its socket lives there): the service still takes uploads."""
+    fork server (its socket lives there): the service still takes uploads. With a usable
+    one, a server that keeps refusing makes the upload 503 instead (ParseUnavailable)."""
     import service.parsing as parsing
 
     class NoServer:
@@ -100,8 +103,78 @@ def test_without_a_fork_server_uploads_are_parsed_here_and_the_log_says_so(monke
             return P()
 
     monkeypatch.setattr(parsing, "_fork_context", lambda: NoServer())
+    monkeypatch.setattr(parsing, "_temp_dir_usable", lambda: False)
     monkeypatch.setattr(parsing, "_warned", [])
     for _ in range(2):
         assert parse_scene(sphere_glb(1), "glb", "ball", None, ParseLimits(60.0, GIB)).n_triangles == 80
     logged = [r for r in caplog.records if "fork server" in r.getMessage()]
     assert len(logged) == 1 and "without PARSE_TIMEOUT_S" in logged[0].getMessage()
+    monkeypatch.setattr(parsing, "_temp_dir_usable", lambda: True)
+    with pytest.raises(parsing.ParseUnavailable, match="cannot start a process to parse the upload"):
+        parse_scene(sphere_glb(1), "glb", "ball", None, ParseLimits(60.0, GIB))
+
+
+def test_a_fork_server_whose_socket_is_gone_is_restarted_and_the_limits_hold() -> None:
+    """A /tmp cleaner may remove the fork server's socket: the next parse restarts the
+    server instead of parsing without limits."""
+    import os
+    from multiprocessing import forkserver
+
+    parse_scene(sphere_glb(1), "glb", "ball", None, ParseLimits(60.0, GIB))  # the server runs
+    os.unlink(forkserver._forkserver._forkserver_address)
+    with pytest.raises(ParseTimeLimit):
+        parse_scene(sphere_glb(7), "glb", "ball", None, ParseLimits(0.05, GIB))
+    assert parse_scene(sphere_glb(1), "glb", "ball", None, ParseLimits(60.0, GIB)).n_triangles == 80
+
+
+def test_a_timed_out_child_is_killed_even_when_its_fork_server_died() -> None:
+    """The server's death makes the child look finished (its exit code comes through the
+    server); it must be killed by pid all the same."""
+    import os
+    import signal
+    import threading
+    from multiprocessing import forkserver
+    from pathlib import Path
+
+    def forked() -> set[int]:
+        """Live (not zombie) processes running the fork server's code: it and its children."""
+        pids = set()
+        for proc in Path("/proc").glob("[0-9]*"):
+            try:
+                if b"multiprocessing.forkserver" in (proc / "cmdline").read_bytes() and \
+                        (proc / "stat").read_text().rsplit(")", 1)[1].split()[0] != "Z":
+                    pids.add(int(proc.name))
+            except OSError:
+                continue
+        return pids
+
+    parse_scene(sphere_glb(1), "glb", "ball", None, ParseLimits(60.0, GIB))
+    server = forkserver._forkserver._forkserver_pid
+    before = forked()
+    assert server in before
+    threading.Timer(0.3, os.kill, (server, signal.SIGKILL)).start()
+    with pytest.raises(ParseTimeLimit):
+        parse_scene(sphere_glb(8), "glb", "ball", None, ParseLimits(0.8, GIB))
+    time.sleep(0.2)
+    assert forked() - before == set()  # the child was killed, not left running
+    assert parse_scene(sphere_glb(1), "glb", "ball", None, ParseLimits(60.0, GIB)).n_triangles == 80  # a new server
+
+
+def test_a_hard_address_space_limit_below_the_budget_caps_the_childs() -> None:
+    """Under ``ulimit -v`` (LimitAS=) lower than the server's size plus MAX_JOB_BYTES the
+    child cannot raise its limit to that: it keeps the hard one, and parses."""
+    import subprocess
+    import sys
+
+    code = ("import resource, trimesh, sys\n"
+            "from service.parsing import ParseLimits, parse_scene\n"
+            "def main():\n"
+            "    data = trimesh.creation.icosphere(subdivisions=1).export(file_type='glb')\n"
+            "    limit = 6 << 30\n"
+            "    resource.setrlimit(resource.RLIMIT_AS, (limit, limit))\n"
+            "    print(parse_scene(data, 'glb', 'b', None, ParseLimits(60.0, 7 << 30)).n_triangles)\n"
+            "if __name__ == '__main__':\n"
+            "    main()\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                          cwd=str(ROOT), env={**__import__("os").environ, "PYTHONPATH": str(ROOT)})
+    assert done.returncode == 0 and done.stdout.strip() == "80", done.stderr[-2000:]

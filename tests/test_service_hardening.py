@@ -92,6 +92,8 @@ def test_settings_from_env_new_settings_and_none_overrides():
     ({"DEPTHVIEW_QUEUE_SIZE": "0"}, r"queue_size \(DEPTHVIEW_QUEUE_SIZE\) must be >= 1"),
     ({"DEPTHVIEW_GL": "vulkan"}, r"gl_backend \(DEPTHVIEW_GL\)"),
     ({"DEPTHVIEW_PARSE_TIMEOUT_S": "0"}, r"DEPTHVIEW_PARSE_TIMEOUT_S\) must be > 0"),
+    ({"DEPTHVIEW_PARSE_TIMEOUT_S": "inf"}, r"DEPTHVIEW_PARSE_TIMEOUT_S\) must be > 0 and at most 86400 s"),
+    ({"DEPTHVIEW_JOB_TIMEOUT_S": "1e12"}, r"DEPTHVIEW_JOB_TIMEOUT_S\) must be > 0 and at most"),
     ({"DEPTHVIEW_STREAM_REUSE_BYTES": "0"}, r"DEPTHVIEW_STREAM_REUSE_BYTES\) must be >= 1"),
 ])
 def test_settings_out_of_range_are_refused_naming_the_variable(env, message):
@@ -306,7 +308,8 @@ def test_ply_declaring_more_vertices_than_it_holds_is_422_saying_so(client):
     (b'{"camera": ', ("line 1 column 11", "line 1 column 12")),  # cut short
     (b'{"camera": ' + b"[" * 5000 + b"]" * 5000 + b"}", ("recursion limit", "nested too deeply")),
     (b'{"camera": "\xff\xfe"}', ("line 1 column 13", "byte offset 12")),  # not UTF-8
-    (b'{\n "width": ' + b"9" * 5000 + b"}", ("number out of range at line 2 column 11",  # past 4300 digits
+    (b'{"name": "' + b"1" * 5000 + b'",\n "width": ' + b"9" * 5000 + b"}",  # past 4300 digits (not in a string)
+     ("number out of range at line 2 column 11",
                                                       "number out of range at line 2 column 4312")),  # /scenes: its end
 ])
 def test_malformed_json_is_400_on_every_endpoint_saying_what_and_where(client, url, body, says):

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import re
+import sys
 from collections.abc import Callable, Coroutine
 from typing import Any
 
@@ -34,21 +35,21 @@ class JSONBodyRequest(Request):
             except RecursionError:
                 raise json.JSONDecodeError("nested too deeply", "", 0) from None
             except ValueError:  # an integer longer than sys.get_int_max_str_digits()
-                raise json.JSONDecodeError(f"number out of range {_where(body, _LONG_NUMBER.search(body))}",
-                                           "", 0) from None
+                raise json.JSONDecodeError(f"number out of range{_where_long_number(body)}", "", 0) from None
         return self._json
 
 
-#: An integer as long as Python refuses to convert (4300 digits by default).
-_LONG_NUMBER = re.compile(rb"\d{4300,}")
-
-
-def _where(body: bytes, match: re.Match[bytes] | None) -> str:
-    """"at line L column C" of a match in `body` (1-based), or "" without one."""
+def _where_long_number(body: bytes) -> str:
+    """" at line L column C" (1-based) of the first number value in `body` with more
+    digits than Python converts, or "" where none is found."""
+    digits = sys.get_int_max_str_digits()
+    if digits == 0:
+        return ""
+    match = re.search(rb"[:\[,]\s*(-?\d{%d,})" % (digits + 1), body)
     if match is None:
         return ""
-    pos, newline = match.start(), b"\n"
-    return f"at line {body.count(newline, 0, pos) + 1} column {pos - body.rfind(newline, 0, pos)}"
+    pos, newline = match.start(1), b"\n"
+    return f" at line {body.count(newline, 0, pos) + 1} column {pos - body.rfind(newline, 0, pos)}"
 
 
 class JSONBodyRoute(APIRoute):

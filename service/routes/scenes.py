@@ -152,8 +152,9 @@ LOCATION = {"Location": {"description": "the scene's URL, /scenes/{id}", "schema
                **responses({400: "malformed body (not JSON, bad multipart)",
                             408: "the body stalled (DEPTHVIEW_BODY_TIMEOUT_S)",
                             413: "upload or JSON body too large", 415: "unsupported format or content type",
-                            422: "malformed scene file, too many triangles, unknown built-in",
-                            500: "the store is corrupted"})},
+                            422: "malformed scene file, too many triangles, unknown built-in, parse over its "
+                                 "time or memory limit",
+                            500: "the store is corrupted", 503: "no process to parse the upload could start"})},
     openapi_extra={"requestBody": {"required": True, "content": {
         "multipart/form-data": {"schema": {"type": "object", "required": ["file"], "properties": {
             "file": {"type": "string", "format": "binary", "description": "a .glb, .gltf, .obj or .ply file"},
