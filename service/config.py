@@ -35,11 +35,14 @@ bytes                                               occluders, /reconstruction m
                                                     none
 gl_backend             unset (EGL, OSMesa fallback) ``egl`` or ``osmesa`` (``DEPTHVIEW_GL``, or
                                                     ``DEPTHVIEW_GL_BACKEND``)
-gl_device              unset                        EGL device index
+gl_device              unset                        EGL device index of every worker; unset with
+                                                    several NVIDIA GPUs: worker process i uses
+                                                    device i mod the GPU count, else the default
 workers                ``auto``: one per NVIDIA     render worker processes, each with its own GL
                        GPU, else one per two cores  context and Embree devices; 0 = one worker
-                       (at least 1)                 thread in the service process instead (tests:
-                                                    a timed-out job still runs to its end there)
+                       (at least 1; the cores the   thread in the service process instead (tests:
+                       affinity mask and a cgroup   a timed-out job still runs to its end there)
+                       CPU quota allow)
 max_json_bytes         1 MiB (1048576)              largest request body of every endpoint but a
                                                     scene upload (Content-Length or counted) → 413
 max_job_bytes          7 GiB (7516192768)           memory budget of one render request, estimated
@@ -148,13 +151,48 @@ SHADOW_MAPS_PER_DRAW = 16
 STREAM_REUSER_BYTES_PER_PIXEL = {"cluster": 448, "raytrace": 256}
 
 
+#: cgroup v2's CPU limit of this process's group ("<quota> <period>" or "max <period>"), and
+#: cgroup v1's quota and period files (quota -1: none): `docker run --cpus=N` writes them.
+CGROUP_CPU_MAX = Path("/sys/fs/cgroup/cpu.max")
+CGROUP_V1_CPU = Path("/sys/fs/cgroup/cpu")
+
+
+def nvidia_gpus() -> int:
+    """NVIDIA GPUs visible here: ``/dev/nvidia<N>`` device nodes (cheap, no driver call;
+    in a container, the GPUs it was given)."""
+    return len(list(Path("/dev").glob("nvidia[0-9]*")))
+
+
+def cgroup_cpu_limit(cpu_max: Path | None = None, v1_dir: Path | None = None) -> int | None:
+    """Whole cores the cgroup CPU quota allows (ceil(quota / period)), or None without a
+    quota (or where the files cannot be read)."""
+    try:
+        quota, period = (cpu_max or CGROUP_CPU_MAX).read_text().split()[:2]
+    except (OSError, ValueError):  # no cgroup v2 file: cgroup v1
+        v1 = v1_dir or CGROUP_V1_CPU
+        try:
+            quota, period = ((v1 / f).read_text().strip() for f in ("cpu.cfs_quota_us", "cpu.cfs_period_us"))
+        except (OSError, ValueError):
+            return None
+    try:
+        q, p = int(quota), int(period)
+    except ValueError:  # "max": no quota
+        return None
+    if q <= 0 or p <= 0:
+        return None
+    return max(1, -(-q // p))
+
+
 def default_workers() -> int:
-    """One render worker per NVIDIA GPU (``/dev/nvidia<N>``: cheap, no driver call), else
-    one per two usable cores, at least one."""
-    gpus = len(list(Path("/dev").glob("nvidia[0-9]*")))
+    """One render worker per NVIDIA GPU (`nvidia_gpus`), else one per two usable cores
+    (the affinity mask, and the cgroup CPU quota where it allows fewer), at least one."""
+    gpus = nvidia_gpus()
     if gpus:
         return gpus
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    quota = cgroup_cpu_limit()
+    if quota is not None:
+        cores = min(cores, quota)
     return max(1, cores // 2)
 
 
@@ -199,11 +237,12 @@ class Settings:
     reconstruction_cache_bytes: int = 1280 * MIB
     #: GL backend: "egl" or "osmesa"; None = EGL with OSMesa fallback (DEPTHVIEW_GL).
     gl_backend: str | None = None
-    #: EGL device index; None = default device (DEPTHVIEW_GL_DEVICE).
+    #: EGL device index of every worker (DEPTHVIEW_GL_DEVICE); None = the default device, or
+    #: with several NVIDIA GPUs device i mod their count for worker process i.
     gl_device: int | None = None
     #: Render worker processes (``service.process_worker``); 0 = the in-process worker
     #: thread. Default (and ``DEPTHVIEW_WORKERS=auto``): one per NVIDIA GPU, else one per
-    #: two cores, at least one.
+    #: two cores (affinity mask, cgroup CPU quota), at least one.
     workers: int = field(default_factory=lambda: default_workers())
     #: Largest request body of every endpoint except scene uploads (413 above it).
     max_json_bytes: int = MIB

@@ -31,10 +31,11 @@ import time
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from multiprocessing.reduction import ForkingPickler
 from typing import Any
 
+from service.config import nvidia_gpus
 from service.worker import (
     GLState,
     Job,
@@ -165,6 +166,7 @@ class ProcessWorkerPool:
         self._cv = threading.Condition()
         self._shared: deque[_Job] = deque()
         self._slots = [_Slot(i) for i in range(self.workers)]
+        self._gpus = nvidia_gpus()
         self._pins: dict[str, int] = {}
         self._threads = [threading.Thread(target=self._dispatch, args=(s,), name=f"depthview-dispatch-{s.index}",
                                           daemon=True) for s in self._slots]
@@ -294,10 +296,19 @@ class ProcessWorkerPool:
             }
 
     # --- the worker processes ---------------------------------------------------------------
+    def device(self, index: int) -> int | None:
+        """The EGL device of worker process index: the configured one, else with several
+        NVIDIA GPUs device index mod their count (the NVIDIA EGL vendor's devices come
+        first: glvnd loads it before Mesa's), else None (the default device)."""
+        if self.config.device is not None:
+            return self.config.device
+        return index % self._gpus if self._gpus > 1 else None
+
     def _spawn(self, slot: _Slot) -> None:
         """Start slot's process and wait for its GL context (sets ready / startup_error)."""
         parent, child = self._ctx.Pipe()
-        proc = self._ctx.Process(target=_child_main, args=(child, self.config), name=f"depthview-gl-{slot.index}",
+        cfg = replace(self.config, device=self.device(slot.index))
+        proc = self._ctx.Process(target=_child_main, args=(child, cfg), name=f"depthview-gl-{slot.index}",
                                  daemon=True)
         proc.start()
         child.close()

@@ -9,6 +9,7 @@ import signal
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -58,6 +59,72 @@ def test_workers_setting():
     for bad in ("-1", "many"):
         with pytest.raises(ValueError):
             Settings.from_env({"DEPTHVIEW_WORKERS": bad})
+
+
+def test_default_workers_obey_a_cgroup_cpu_quota(tmp_path, monkeypatch):
+    from service import config
+
+    cpu_max = tmp_path / "cpu.max"
+    monkeypatch.setattr(config, "CGROUP_CPU_MAX", cpu_max)
+    monkeypatch.setattr(config, "CGROUP_V1_CPU", tmp_path / "no-v1")
+    monkeypatch.setattr(config, "nvidia_gpus", lambda: 0)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(64)), raising=False)
+    assert config.cgroup_cpu_limit() is None and config.default_workers() == 32  # no file: no quota
+    for text, cores, workers in (("max 100000\n", None, 32), ("200000 100000\n", 2, 1),
+                                 ("150000 100000\n", 2, 1), ("800000 100000\n", 8, 4),
+                                 ("50000 100000\n", 1, 1), ("12800000 100000\n", 128, 32)):
+        cpu_max.write_text(text)
+        assert config.cgroup_cpu_limit() == cores, text
+        assert config.default_workers() == workers, text
+    # cgroup v1 (no cpu.max): cpu.cfs_quota_us / cpu.cfs_period_us, -1 = no quota
+    cpu_max.unlink()
+    v1 = tmp_path / "v1"
+    v1.mkdir()
+    (v1 / "cpu.cfs_period_us").write_text("100000\n")
+    for quota, cores in (("-1", None), ("300000", 3)):
+        (v1 / "cpu.cfs_quota_us").write_text(quota + "\n")
+        assert config.cgroup_cpu_limit(v1_dir=v1) == cores, quota
+    monkeypatch.setattr(config, "nvidia_gpus", lambda: 4)
+    assert config.default_workers() == 4  # one per GPU, whatever the CPU quota
+
+
+def test_worker_processes_spread_over_the_nvidia_gpus(monkeypatch):
+    from service import process_worker
+    from service.process_worker import WorkerConfig
+
+    def pool(workers, gpus, device=None):
+        monkeypatch.setattr(process_worker, "nvidia_gpus", lambda: gpus)
+        p = ProcessWorkerPool(workers, WorkerConfig("data", 1, None, 1, None, device))
+        return [p.device(i) for i in range(p.workers)]
+
+    assert pool(4, 4) == [0, 1, 2, 3]  # DEPTHVIEW_WORKERS=auto: one per GPU, each on its own
+    assert pool(5, 2) == [0, 1, 0, 1, 0]  # more workers than GPUs: round robin
+    assert pool(2, 1) == [None, None]  # one GPU (or none): the default device
+    assert pool(2, 0) == [None, None]
+    assert pool(3, 4, device=2) == [2, 2, 2]  # DEPTHVIEW_GL_DEVICE pins them all
+
+    # the worker process is started with its slot's device
+    started = []
+
+    class FakeProcess:
+        exitcode = 1
+
+        def __init__(self, target, args, name, daemon):
+            started.append((name, args[1].device))
+
+        def start(self):
+            pass
+
+        def is_alive(self):
+            return False
+
+    monkeypatch.setattr(process_worker, "nvidia_gpus", lambda: 2)
+    p = ProcessWorkerPool(3, WorkerConfig("data", 1, None, 1, None, None))
+    p._ctx = SimpleNamespace(Pipe=p._ctx.Pipe, Process=FakeProcess)  # not the shared spawn context
+    for slot in p._slots:
+        p._spawn(slot)
+    assert started == [("depthview-gl-0", 0), ("depthview-gl-1", 1), ("depthview-gl-2", 0)]
+    assert p.config.device is None
 
 
 def test_frames_render_in_a_worker_process(client, tmp_path):
