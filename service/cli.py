@@ -25,6 +25,10 @@ from service.config import Settings
 
 #: Seconds an idle keep-alive connection stays open (uvicorn's timeout_keep_alive).
 KEEP_ALIVE_S = 5
+#: Seconds a stopping service (SIGTERM, Ctrl-C) waits for requests in flight before it cancels
+#: them and shuts down (uvicorn's timeout_graceful_shutdown; it waited indefinitely): less than
+#: the 10 s after which `docker stop` kills the container.
+GRACEFUL_SHUTDOWN_S = 5
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -172,8 +176,8 @@ def serve_settings(args: argparse.Namespace, environ: Mapping[str, str] | None =
 
 def server_config(settings: Settings, log_level: str = "info") -> Any:
     """The uvicorn configuration of the service: one process (the GL context lives on
-    the app's render worker thread), the h11 protocol with a header read timeout, and
-    uvicorn's keep-alive timeout for idle connections."""
+    the app's render worker thread), the h11 protocol with a header read timeout,
+    uvicorn's keep-alive timeout for idle connections, and a bounded graceful shutdown."""
     import uvicorn
 
     from service.app import create_app
@@ -181,7 +185,7 @@ def server_config(settings: Settings, log_level: str = "info") -> Any:
 
     return uvicorn.Config(create_app(settings), host=settings.host, port=settings.port, log_level=log_level,
                           workers=1, http=header_timeout_protocol(settings.header_timeout_s),
-                          timeout_keep_alive=KEEP_ALIVE_S)
+                          timeout_keep_alive=KEEP_ALIVE_S, timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S)
 
 
 def cmd_serve(args: argparse.Namespace) -> int:

@@ -54,6 +54,7 @@ def test_serve_honours_the_environment_and_options_win(tmp_path, monkeypatch):
     assert (config.host, config.port) == ("127.0.0.9", 9123)
     assert settings.data_dir == tmp_path / "store" and settings.gl_backend == "osmesa"
     assert settings.header_timeout_s == 3.0 and config.timeout_keep_alive == cli.KEEP_ALIVE_S
+    assert config.timeout_graceful_shutdown == cli.GRACEFUL_SHUTDOWN_S < 10  # before docker stop's SIGKILL
     # Options given on the command line win over the environment.
     assert cli.main(["serve", "--port", "9124", "--host", "127.0.0.10", "--data-dir", str(tmp_path / "o"),
                      "--gl-backend", "egl"]) == 0
