@@ -3,8 +3,12 @@
 VENV ?= .venv
 PY := $(VENV)/bin/python
 # What serving needs: Mesa EGL/OSMesa, a compiler for meshoptimizer's sdist, Python's venv, and
-# Node/npm for three.js (npm ci).
-APT_PKGS := libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6 g++ python3-dev
+# Node/npm for three.js (npm ci), and CA certificates for pip and npm (only recommended by nodejs,
+# so named here for installs without recommends).
+APT_PKGS := libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6 g++ python3-dev ca-certificates
+# Extra apt-get install options: the Docker images pass --no-install-recommends (a host install
+# keeps apt's default, recommends included).
+APT_FLAGS ?=
 # system-deps adds the browser test's Chromium (chromium-headless-shell where Debian has it, else
 # chromium; driven by Playwright from PyPI, never `playwright install`)
 HOST ?= 0.0.0.0
@@ -26,7 +30,7 @@ define apt_install
 	    else missing="$$missing chromium"; fi; \
 	  fi; \
 	  echo "installing system packages:$$missing"; \
-	  DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $$missing; \
+	  DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $(APT_FLAGS) $$missing; \
 	fi
 endef
 
