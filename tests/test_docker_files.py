@@ -1,6 +1,7 @@
 """Issue 15, item 7: the Docker images install what `make serve` installs. The images are
 built by `make docker-test` (not in the default suite); these checks read the files, so
-the two images cannot drift apart nor away from the Makefile's recipes."""
+the two images cannot drift apart nor away from the Makefile's recipes, nor lose what the
+Docker review fixed (non-root user, environment over options, healthcheck, slim layers)."""
 
 from __future__ import annotations
 
@@ -18,12 +19,25 @@ def instructions(name: str) -> list[str]:
     return [line.strip() for line in text.splitlines() if line.strip()]
 
 
-def install_steps(name: str) -> list[str]:
-    """The instructions between FROM and the first ENV: what the image installs."""
+def after_from(name: str) -> list[str]:
+    """The instructions after FROM."""
     lines = instructions(name)
     assert lines[0].startswith("FROM "), lines[0]
+    return lines[1:]
+
+
+def install_steps(name: str) -> list[str]:
+    """The instructions between FROM and the first ENV: what the image installs."""
+    lines = after_from(name)
     end = next(i for i, line in enumerate(lines) if line.startswith("ENV "))
-    return lines[1:end]
+    return lines[:end]
+
+
+def env(name: str) -> dict[str, str]:
+    """The image's ENV variables (ENV k=v ... lines)."""
+    pairs = " ".join(line[4:] for line in instructions(name) if line.startswith("ENV ")).split()
+    assert all("=" in p for p in pairs), pairs
+    return dict(p.split("=", 1) for p in pairs)
 
 
 def make_prerequisites(target: str) -> list[str]:
@@ -35,6 +49,45 @@ def make_prerequisites(target: str) -> list[str]:
 
 def test_both_images_install_the_same_way():
     assert install_steps(DOCKERFILES[0]) == install_steps(DOCKERFILES[1])
+    # ... and run the same way: only the base image and the NVIDIA_* variables differ
+    rest = [[line for line in after_from(n) if not line.startswith("ENV ")] for n in DOCKERFILES]
+    assert rest[0] == rest[1]
+    cpu, gpu = env(DOCKERFILES[0]), env(DOCKERFILES[1])
+    assert cpu == {k: v for k, v in gpu.items() if not k.startswith("NVIDIA_")}
+
+
+def test_the_images_run_as_a_user_who_owns_data():
+    for name in DOCKERFILES:
+        lines = after_from(name)
+        users = [line.split()[1] for line in lines if line.startswith("USER ")]
+        assert users and users[-1].split(":")[0] not in ("0", "root"), name
+        uid = users[-1].split(":")[0]
+        useradd = next(line for line in lines if "useradd" in line)
+        assert f"--uid {uid}" in useradd and re.search(r"chown \S+ /data\b", useradd), useradd
+        # /data is the user's before VOLUME, so a new named volume starts out the user's
+        assert lines.index(useradd) < lines.index("VOLUME /data"), name
+        assert env(name)["DEPTHVIEW_DATA_DIR"] == "/data"
+
+
+def test_the_environment_configures_the_service():
+    for name in DOCKERFILES:
+        variables = env(name)
+        cmd = instructions(name)[-1]
+        # CMD passes no options: they would win over DEPTHVIEW_HOST / DEPTHVIEW_PORT (docker run -e)
+        assert cmd == 'CMD ["/app/.venv/bin/depthview", "serve"]', cmd
+        assert variables["DEPTHVIEW_HOST"] == "0.0.0.0"
+        assert f"EXPOSE {variables['DEPTHVIEW_PORT']}" in instructions(name)
+        # no GL backend (it would turn off the OSMesa fallback) nor device (it pinned every worker to GPU 0)
+        assert not any(k.startswith("DEPTHVIEW_GL") for k in variables), name
+        assert variables["PATH"].startswith("/app/.venv/bin:")  # docker run IMAGE depthview scenes
+
+
+def test_the_healthcheck_asks_readyz_with_the_images_python():
+    for name in DOCKERFILES:
+        check = next(line for line in instructions(name) if line.startswith("HEALTHCHECK "))
+        assert re.search(r"--interval=\d+s --timeout=\d+s --start-period=\d+s", check), check
+        assert 'CMD ["/app/.venv/bin/python", "-c"' in check
+        assert "http://127.0.0.1:" in check and "DEPTHVIEW_PORT" in check and "/readyz" in check
 
 
 def test_the_images_run_make_serves_recipes():
