@@ -20,10 +20,11 @@ def instructions(name: str) -> list[str]:
 
 
 def after_from(name: str) -> list[str]:
-    """The instructions after FROM."""
+    """The instructions after FROM (before it: only ARG BASE, the base image FROM names)."""
     lines = instructions(name)
-    assert lines[0].startswith("FROM "), lines[0]
-    return lines[1:]
+    start = next(i for i, line in enumerate(lines) if line.startswith("FROM "))
+    assert lines[start] == "FROM ${BASE}" and lines[:start] == [next(a for a in lines if a.startswith("ARG BASE="))]
+    return lines[start + 1:]
 
 
 def install_steps(name: str) -> list[str]:
@@ -54,6 +55,7 @@ def test_both_images_install_the_same_way():
     assert rest[0] == rest[1]
     cpu, gpu = env(DOCKERFILES[0]), env(DOCKERFILES[1])
     assert cpu == {k: v for k, v in gpu.items() if not k.startswith("NVIDIA_")}
+    assert instructions(DOCKERFILES[0])[0] == "ARG BASE=debian:bookworm-slim"  # test.sh passes a stand-in
 
 
 def test_the_images_run_as_a_user_who_owns_data():
@@ -88,6 +90,26 @@ def test_the_healthcheck_asks_readyz_with_the_images_python():
         assert re.search(r"--interval=\d+s --timeout=\d+s --start-period=\d+s", check), check
         assert 'CMD ["/app/.venv/bin/python", "-c"' in check
         assert "http://127.0.0.1:" in check and "DEPTHVIEW_PORT" in check and "/readyz" in check
+
+
+def test_the_images_keep_no_apt_lists_nor_build_certificates():
+    for name in DOCKERFILES:
+        runs = [line for line in after_from(name) if line.startswith("RUN ")]
+        apt = next(line for line in runs if "make serve-deps" in line)
+        assert "make serve-deps APT_FLAGS=--no-install-recommends" in apt
+        assert "apt-get clean" in apt and "rm -rf /var/lib/apt/lists/* /var/cache/apt/*" in apt
+        # extra CA certificates come as a BuildKit secret: a build argument's value stays in the history
+        assert not any(line.startswith("ARG ") for line in after_from(name)), name
+        fetching = [line for line in runs if "/tmp/ca.pem" in line]
+        assert len(fetching) == 2 and all(line.startswith("RUN --mount=type=secret,id=ca ") for line in fetching)
+    assert re.search(r"^APT_FLAGS \?=$", (ROOT / "Makefile").read_text(), re.M)  # host installs: apt's default
+
+
+def test_docker_test_leaves_no_volume_and_shadows_no_base_image():
+    script = (ROOT / "docker" / "test.sh").read_text()
+    assert "docker rm -f -v" in script
+    assert "--build-arg BASE=" in script and "--secret id=ca," in script
+    assert "BUILD_CA_PEM" not in script
 
 
 def test_the_images_run_make_serves_recipes():
