@@ -2,10 +2,11 @@
 # the .venv, npm ci). The Docker images (docker/) run the same serve-deps recipe and npm ci.
 VENV ?= .venv
 PY := $(VENV)/bin/python
-# What serving needs: Mesa EGL/OSMesa, a compiler for meshoptimizer's sdist, Python's venv, and
-# Node/npm for three.js (npm ci), and CA certificates for pip and npm (only recommended by nodejs,
-# so named here for installs without recommends).
-APT_PKGS := libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6 g++ python3-dev ca-certificates
+# What serving needs: Mesa EGL/OSMesa (libgl1: moderngl's EGL backend loads libGL.so.1), a compiler
+# for meshoptimizer's sdist, Python's venv, Node/npm for three.js (npm ci), and CA certificates for
+# pip and npm. libgl1 and ca-certificates come only as recommends of the others, so they are named
+# here for installs without recommends.
+APT_PKGS := libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libosmesa6 g++ python3-dev ca-certificates
 # Extra apt-get install options: the Docker images pass --no-install-recommends (a host install
 # keeps apt's default, recommends included).
 APT_FLAGS ?=
