@@ -168,6 +168,9 @@ class Render:
         gone = asyncio.ensure_future(_disconnect(self.request))
         try:
             done, _ = await asyncio.wait({result, gone}, timeout=timeout, return_when=asyncio.FIRST_COMPLETED)
+        except asyncio.CancelledError:  # the request itself was cancelled (a shutdown's grace ran out):
+            result.cancel()  # drop the job if still queued; its later failure is no one's to log
+            raise
         finally:
             gone.cancel()
         if result in done:

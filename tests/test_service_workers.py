@@ -333,3 +333,39 @@ def test_two_workers_share_the_queue_and_pin_streams_apart(tmp_path):
         assert len(set(a)) == 1 and len(set(b)) == 1 and a[0] != b[0]
         pool.run_before_next_job(Sleep(0), pin="stream-a")
         assert "stream-a" not in pool._pins and "stream-b" in pool._pins
+
+
+def test_a_request_cancelled_while_its_job_waits_drops_the_job_and_logs_nothing(caplog):
+    """A stopping service cancels requests still in flight after its grace period: the
+    job's future is cancelled with it (a queued job never runs), and a worker failing it
+    later (shutting down) leaves no 'Future exception was never retrieved' error."""
+    import asyncio
+    import gc
+    from concurrent.futures import Future
+
+    from service.deps import Render
+    from service.worker import WorkerUnavailable
+
+    class StillConnected:
+        async def receive(self) -> dict:
+            await asyncio.sleep(3600)
+            return {"type": "http.disconnect"}
+
+    async def scenario() -> Future:
+        fut: Future = Future()
+        render = Render(settings=None, store=None, worker=None, metrics=None, request=StillConnected())
+        task = asyncio.ensure_future(render._result(fut, 60.0))
+        await asyncio.sleep(0.05)
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+        if not fut.cancelled():
+            fut.set_exception(WorkerUnavailable("render worker is shutting down"))
+        await asyncio.sleep(0.05)
+        return fut
+
+    with caplog.at_level("ERROR"):
+        fut = asyncio.run(scenario())
+        gc.collect()
+    assert fut.cancelled()
+    assert not [r for r in caplog.records if "never retrieved" in r.getMessage()]
