@@ -40,7 +40,6 @@ rendering run as jobs (``service.jobs``) on the ``RenderWorker`` thread.
 
 from __future__ import annotations
 
-import functools
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -55,7 +54,7 @@ from service import errors
 from service.config import Settings
 from service.metrics import Metrics
 from service.middleware import RequestGuard
-from service.parsing import ParseLimits, parse_scene
+from service.parsing import ParseLimits, UploadParser
 from service.process_worker import ProcessWorkerPool, WorkerConfig
 from service.routes import client, docs, renders, scenes, stream
 from service.routes import service as service_routes
@@ -74,7 +73,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        parse = functools.partial(parse_scene, limits=ParseLimits(settings.parse_timeout_s, settings.max_job_bytes))
+        parse = UploadParser(ParseLimits(settings.parse_timeout_s, settings.max_job_bytes), max(1, settings.workers))
         app.state.store = await run_in_threadpool(
             SceneStore, settings.data_dir, settings.scene_cache_size, settings.max_triangles, parse=parse)
         worker: Any

@@ -23,7 +23,9 @@ job_timeout_s          120                          how long a handler waits for
 retry_after_s          1                            value of the ``Retry-After`` header on 503
 parse_timeout_s        60                           seconds an upload may take to parse (in a child
                                                     process, which is then killed) → 422; its memory
-                                                    is held to max_job_bytes (→ 422)
+                                                    is held to max_job_bytes (→ 422); as many parses
+                                                    run at once as workers, and an upload waiting
+                                                    longer than this for its turn → 503
 scene_cache_size       8                            parsed Scene objects kept in memory (LRU)
 gpu_cache_size         4                            scenes kept uploaded on the GPU (LRU, worker)
 reconstruction_cache_  1.25 GiB (1342177280)        GPU bytes of reconstructions (soft shadows'

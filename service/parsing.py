@@ -222,3 +222,23 @@ def parse_scene(data: bytes, fmt: str, name: str, max_triangles: int | None, lim
                                "the limit (MAX_JOB_BYTES)")
     log.error("parsing a %s upload failed: %s", fmt, payload)
     raise loaders.SceneLoadError(f"the {fmt} file could not be parsed: {payload}")
+
+
+class UploadParser:
+    """The service's parser (``SceneStore.parse``): `parse_scene` under `limits`, at
+    most `concurrent` parses at once (one per render worker: each may grow to
+    ``max_bytes``, like a render job); an upload that waits longer than the time limit
+    for its turn is ParseUnavailable (503)."""
+
+    def __init__(self, limits: ParseLimits, concurrent: int) -> None:
+        self.limits, self.concurrent = limits, max(1, int(concurrent))
+        self._slots = threading.BoundedSemaphore(self.concurrent)
+
+    def __call__(self, data: bytes, fmt: str, name: str, max_triangles: int | None) -> Scene:
+        if not self._slots.acquire(timeout=self.limits.timeout_s):
+            raise ParseUnavailable(f"{self.concurrent} upload(s) are being parsed, as many as at once; waited "
+                                   f"{self.limits.timeout_s:g} s (PARSE_TIMEOUT_S): try again")
+        try:
+            return parse_scene(data, fmt, name, max_triangles, self.limits)
+        finally:
+            self._slots.release()

@@ -178,3 +178,18 @@ def test_a_hard_address_space_limit_below_the_budget_caps_the_childs() -> None:
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
                           cwd=str(ROOT), env={**__import__("os").environ, "PYTHONPATH": str(ROOT)})
     assert done.returncode == 0 and done.stdout.strip() == "80", done.stderr[-2000:]
+
+
+def test_parses_wait_for_a_turn_at_most_the_time_limit() -> None:
+    """As many parses at once as render workers (each may grow to MAX_JOB_BYTES); an
+    upload that cannot get a turn within PARSE_TIMEOUT_S is 503 (ParseUnavailable)."""
+    from service.parsing import ParseUnavailable, UploadParser
+
+    parser = UploadParser(ParseLimits(0.3, GIB), concurrent=1)
+    assert parser._slots.acquire(timeout=1)  # a parse in progress
+    t0 = time.monotonic()
+    with pytest.raises(ParseUnavailable, match=r"1 upload\(s\) are being parsed.*0.3 s \(PARSE_TIMEOUT_S\)"):
+        parser(sphere_glb(1), "glb", "ball", None)
+    assert 0.25 < time.monotonic() - t0 < 5
+    parser._slots.release()
+    assert parser(sphere_glb(1), "glb", "ball", None).n_triangles == 80
