@@ -32,6 +32,20 @@ def http(url: str, body: dict | None = None, timeout: float = 120.0) -> tuple[in
         return exc.code, exc.headers.get("content-type", ""), exc.read()
 
 
+def upload(url: str, data: bytes, timeout: float = 120.0) -> tuple[int, bytes]:
+    """(status, body) of a raw scene upload."""
+    req = urllib.request.Request(url, data=data, headers={"content-type": "application/octet-stream"})
+    try:
+        with urllib.request.urlopen(req, timeout=timeout) as r:
+            return r.status, r.read()
+    except urllib.error.HTTPError as exc:
+        return exc.code, exc.read()
+
+
+#: A unit quad as OBJ: uploads are parsed by a child of the service's fork server.
+QUAD_OBJ = b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n"
+
+
 def check(ok: bool, what: str) -> None:
     print(("ok   " if ok else "FAIL ") + what, flush=True)
     if not ok:
@@ -105,6 +119,10 @@ def main(argv: list[str] | None = None) -> int:
     check(png[:8] == b"\x89PNG\r\n\x1a\n", "the frame starts with the PNG signature")
     size, colours = image_stats(png, "PNG")
     check(size == (160, 120) and colours > 50, f"the frame is 160×120 with {colours} colours (a rendered scene)")
+
+    status, body = upload(base + "/scenes?format=obj&name=quad", QUAD_OBJ)
+    check(status in (200, 201) and json.loads(body)["triangles"] == 2,
+          f"POST /scenes of an OBJ → {status} (parsed in a child process, stored in the volume)")
 
     status, _, body = http(base + "/scenes", {"builtin": "mirror"})
     check(status in (200, 201), f"POST /scenes mirror → {status}")
