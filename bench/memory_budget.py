@@ -29,7 +29,6 @@ Run `python -m bench.memory_budget`; results go to bench/results/memory_budget.*
 from __future__ import annotations
 
 import argparse
-import ctypes
 import gc
 import json
 import subprocess
@@ -44,6 +43,7 @@ from typing import Any
 
 from bench.common import RESULTS_DIR, git_revision, machine_info, machine_markdown, md_table, write_json, write_text
 from scenes.builtin import mirror
+from service.worker import trim_heap
 
 MIB = 2**20
 CLEAR_REFS = Path("/proc/self/clear_refs")
@@ -165,10 +165,7 @@ def clear_refs_writable() -> bool:
 def settle() -> None:
     """Collect garbage and hand freed heap back to the system (glibc malloc_trim)."""
     gc.collect()
-    try:
-        ctypes.CDLL("libc.so.6").malloc_trim(0)
-    except (OSError, AttributeError):
-        pass
+    trim_heap()
 
 
 def estimate(kind: Kind) -> tuple[int, str]:

@@ -22,7 +22,6 @@ when their scene is forgotten and at shutdown, all on the worker thread.
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import logging
 import queue
 import threading
@@ -544,7 +543,8 @@ class RenderWorker:
         end_job(self._state)
 
 
-_LIBC = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+#: The symbols this process has loaded, the C library's among them.
+_LIBC = ctypes.CDLL(None)
 
 
 def trim_heap() -> None:
