@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import logging
 import multiprocessing as mp
 import os
@@ -40,10 +41,6 @@ _PRELOAD = ["__main__", "scenes.loaders", "trimesh.exchange.gltf", "trimesh.exch
 #: Seconds a killed child may take to be reaped.
 _REAP_S = 5.0
 
-_context_lock = threading.Lock()
-_context: Any = None
-
-
 class ParseTimeLimit(loaders.SceneLoadError):
     """The parse ran past its time limit and was stopped."""
 
@@ -61,15 +58,12 @@ class ParseLimits:
     max_bytes: int
 
 
+@functools.cache
 def _fork_context() -> Any:
     """The fork-server context, with the loaders preloaded (made once per process)."""
-    global _context
-    with _context_lock:
-        if _context is None:
-            ctx = mp.get_context("forkserver")
-            ctx.set_forkserver_preload(_PRELOAD)
-            _context = ctx
-        return _context
+    ctx = mp.get_context("forkserver")
+    ctx.set_forkserver_preload(_PRELOAD)
+    return ctx
 
 
 def _address_space() -> int:
