@@ -59,6 +59,8 @@ STORE_STATUS: tuple[tuple[type[Exception] | tuple[type[Exception], ...], int], .
     (StoreCorrupted, 500),
     (ParseUnavailable, 503),
 )
+#: Every error `store_error` answers (by STORE_STATUS).
+STORE_ERRORS = (StoreError, SceneLoadError, ParseUnavailable)
 
 
 def excerpt(value: Any, limit: int = EXCERPT_CHARS) -> Any:
@@ -186,9 +188,8 @@ def allowed_methods(app: FastAPI, scope: dict) -> list[str]:
 
 def install(app: FastAPI) -> None:
     """Register the handlers on `app`."""
-    app.add_exception_handler(StoreError, store_error)
-    app.add_exception_handler(SceneLoadError, store_error)
-    app.add_exception_handler(ParseUnavailable, store_error)
+    for error in STORE_ERRORS:
+        app.add_exception_handler(error, store_error)
     app.add_exception_handler(RequestValidationError, validation_error)
     app.add_exception_handler(StarletteHTTPException, http_error)
     app.add_exception_handler(Exception, internal_error)

@@ -13,20 +13,18 @@ from fastapi.responses import JSONResponse
 
 from gl_passes.reconstruction import glb_bytes
 from scenes.lights import reference_cameras
-from scenes.loaders import SceneLoadError
 from scenes.model import AreaLight
 from scenes.rig import peeling_camera
 from service.budget import check_budget, frame_bytes, reconstruction_bytes, set_bytes
 from service.deps import RenderDep, check_size, require_token
 from service.depth_sets import encode_set, plan_set
 from service.effects import server_timing
-from service.errors import json_safe, responses, store_status
+from service.errors import STORE_ERRORS, json_safe, responses, store_status
 from service.frames import render
 from service.jobs import ReconstructionJob, SetJob
 from service.routes.json_body import JSONBodyRoute
 from service.schemas import FRAME_EXR_CHANNELS, DepthImagesRequest, FrameRequest, ReconstructionRequest
 from service.soft_shadows import resolve_light
-from service.store import StoreError
 
 MEDIA_TYPES = {"png": "image/png", "exr": "image/x-exr"}
 SET_MEDIA_TYPES = {"exr": "image/x-exr", "npz": "application/x-npz"}
@@ -76,7 +74,7 @@ async def render_frame(scene_id: str, req: FrameRequest, r: RenderDep) -> Respon
     except HTTPException as exc:
         r.metrics.frame_error(exc.status_code)
         raise
-    except (StoreError, SceneLoadError) as exc:  # answered by errors.store_error
+    except STORE_ERRORS as exc:  # answered by errors.store_error
         r.metrics.frame_error(store_status(exc))
         raise
     r.metrics.frame(req.format)
