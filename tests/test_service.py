@@ -92,6 +92,10 @@ def test_readyz_is_503_until_the_gl_context_exists(tmp_path, monkeypatch):
         assert "no render worker is ready yet" in r.json()["error"]
         gate.set()
         assert wait_ready(c)["ready"] is True
+        # the probe's 503 is its answer, not an error of the service
+        metrics = c.get("/metrics").text
+        assert re.search(r'depthview_responses_total\{method="GET",route="/readyz",status="503"\} [1-9]', metrics)
+        assert 'depthview_http_errors_total{class="5xx"} 0' in metrics
 
 
 def test_gl_failure_makes_readyz_and_frames_503(tmp_path, monkeypatch):
