@@ -137,27 +137,25 @@ def _temp_dir_usable() -> bool:
         return False
 
 
-def _started(make: Callable[[], Any]) -> Any:
+def _started(make: Callable[[], Any], retry: bool = True) -> Any:
     """A parse process made by `make` and started; None where no fork server can run
     (no usable temporary directory). A fork server that refuses (its socket removed,
-    say) is stopped and started again once; ParseUnavailable if that fails too."""
-    for attempt in range(2):
-        proc = make()
-        try:
-            proc.start()
-            return proc
-        except OSError as exc:
-            if not _temp_dir_usable():
-                _warn_unlimited(exc)
-                return None
-            log.warning("starting a parse process failed (%s); %s", exc,
-                        "restarting the fork server" if attempt == 0 else "giving up")
-            if attempt == 0:
-                with contextlib.suppress(OSError):  # its socket file may be gone already
-                    forkserver._forkserver._stop()
-            else:
-                raise ParseUnavailable(f"cannot start a process to parse the upload ({exc}); try again") from None
-    raise AssertionError("unreachable")
+    say) is stopped and started again once (`retry`); ParseUnavailable if that fails too."""
+    proc = make()
+    try:
+        proc.start()
+        return proc
+    except OSError as exc:
+        if not _temp_dir_usable():
+            _warn_unlimited(exc)
+            return None
+        if not retry:
+            log.warning("starting a parse process failed again (%s); giving up", exc)
+            raise ParseUnavailable(f"cannot start a process to parse the upload ({exc}); try again") from None
+        log.warning("starting a parse process failed (%s); restarting the fork server", exc)
+    with contextlib.suppress(OSError):  # its socket file may be gone already
+        forkserver._forkserver._stop()
+    return _started(make, retry=False)
 
 
 def _stop(proc: Any, running: bool) -> None:
