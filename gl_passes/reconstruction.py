@@ -52,7 +52,10 @@
   measured in the capturing image (`image_space`: pixels across it, and in depth
   one footprint at the median sample depth, the nearer the tighter); borders
   and discontinuities stay where they are up to that bound (edge collapses keep
-  the mesh's topology, so no surface is joined across a discontinuity).
+  the mesh's topology, so no surface is joined across a discontinuity). The
+  bound is the simplifier's quadric error, not a distance: a piece narrower than
+  it would collapse to nothing, so a piece the simplifier drops whole is kept as
+  it was (`keep_pieces`).
 
 Meshes are `MeshGPU`s (positions in world units, linear vertex colours
 quantised to RGBA8), triangles counter-clockwise as seen from the capturing
@@ -77,7 +80,7 @@ from gl_passes.bindings import Units
 from gl_passes.context import GLContext
 from gl_passes.depth_images import DepthImageRenderer, prepare_cameras
 from gl_passes.mesh_gpu import VERTEX_BYTES, MeshGPU, pack_colors
-from gl_passes.quad_splats import split_splats
+from gl_passes.quad_splats import split_splats, triangle_pieces
 from gl_passes.readback import StagingBuffer, read_buffer
 from gl_passes.releasable import Releasable, ReleasedOnError, Scratch
 from gl_passes.shaders import compute_program
@@ -399,7 +402,7 @@ class Reconstructor(Releasable):
             simplified = simplify(image_space(records[:, :3], cam, median), tri, settings.compact_error)
         else:
             simplified = simplify(records[:, :3], tri, settings.compact_error * cam.pixel_footprint * median)
-        return self._upload_mesh(records, simplified, cam, settings)
+        return self._upload_mesh(records, keep_pieces(tri, simplified), cam, settings)
 
     def reconstruct(self, image: DepthImage, offset: DepthImage | None, settings: ReconstructionSettings,
                     evidence: Sequence[DepthImage] = (), complete: Sequence[bool] = ()) -> MeshGPU:
@@ -487,6 +490,24 @@ def image_space(positions: np.ndarray, camera: Camera, median_depth: float) -> n
     (Δd ≤ e·(f·d)·d/median_depth at d)."""
     px, d = camera.project(np.asarray(positions, np.float64))
     return np.column_stack([px, median_depth / (camera.pixel_footprint * d)]).astype(np.float32)
+
+
+def keep_pieces(triangles: np.ndarray, simplified: np.ndarray) -> np.ndarray:
+    """(M'',3) uint32: `simplified` (the simplifier's output for `triangles` (M,3), on
+    the same vertices) with every piece of `triangles` (connected through shared
+    vertices) that it lost whole put back as it was. The simplifier's bound is a
+    quadric error, not a distance: it collapses a piece narrower than the bound (a
+    lone quad 1 × 0.3 px, a blade seen edge-on) to nothing."""
+    tri = np.asarray(triangles, np.uint32).reshape(-1, 3)
+    out = np.asarray(simplified, np.uint32).reshape(-1, 3)
+    if len(tri) == 0:
+        return out
+    piece = triangle_pieces(tri)
+    label = np.full(int(tri.max()) + 1, -1, np.int64)
+    label[tri.ravel()] = np.repeat(piece, 3)
+    alive = np.zeros(int(piece.max()) + 1, bool)
+    alive[label[out[:, 0]]] = True
+    return np.concatenate([out, tri[~alive[piece]]])
 
 
 def simplify(positions: np.ndarray, triangles: np.ndarray, max_error: float) -> np.ndarray:

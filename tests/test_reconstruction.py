@@ -14,12 +14,14 @@ import pytest
 import trimesh
 
 from gl_passes import mesh_gpu
+from gl_passes.mesh_gpu import pack_vertices
 from gl_passes.reconstruction import (
     ReconstructionSettings,
     Reconstructor,
     canonical_order,
     export_glb,
     fetch_order,
+    keep_pieces,
     mesh_arrays,
     offset_camera,
     reconstruct_set,
@@ -29,6 +31,7 @@ from gl_passes.upload import SceneGPU
 from reference.raycast import RayCaster
 from scenes import Camera, Material, Scene, SceneObject
 from scenes.builtin.geometry import make_object, uv_sphere
+from scenes.depth_image import DepthImage
 from tests.gl_leaks import gl_object_growth
 from tests.helpers import box, figure11_scene, triangle_rows
 
@@ -419,6 +422,49 @@ def test_compact_keeps_the_surface_within_its_bound(gl):
     near_outline = window.any(axis=0) & ~window.all(axis=0)
     flipped = hc != cc
     assert flipped.any() and not (flipped & ~near_outline).any()
+
+
+def test_compact_keeps_every_piece_the_simplifier_would_drop(gl):
+    """A hybrid mesh with strips 4 × 0.3 px (a blade seen edge-on, its outline pulled in
+    by the evidence rule) beside a wall of whole-pixel quads: the simplifier alone
+    collapses the strips to nothing (its bound is a quadric error); the compact mesh
+    keeps them as they were and still simplifies the wall."""
+    depth = 4.0
+    strips = [(2 + 9 * k, 6 + 9 * k, 4.35, 4.65) for k in range(4)]
+    wall = [(u, u + 1, v, v + 1) for u in range(4, 36) for v in range(14, 26)]
+    verts, faces = [], []
+    for u0, u1, v0, v1 in strips + wall:  # one quad each, corners shared within the wall
+        b = len(verts)
+        verts += [tuple(pixel_point(u, v, depth)) for u, v in ((u0, v1), (u1, v1), (u1, v0), (u0, v0))]
+        faces += [[b, b + 1, b + 2], [b, b + 2, b + 3]]
+    unique, inverse = np.unique(np.round(np.array(verts), 9), axis=0, return_inverse=True)
+    tri = inverse.reshape(-1)[np.array(faces)].astype(np.uint32)
+    records = pack_vertices(unique.astype(np.float32), np.full((len(unique), 3), 0.5))
+    z = np.full((H, W), np.inf, np.float32)
+    z[14:26, 4:36] = depth
+    image = DepthImage(FRONT, np.zeros((H, W, 3), np.float32), z, np.zeros((H, W, 3), np.float32),
+                       np.zeros((H, W, 3), np.float32), np.where(np.isfinite(z), 1, 0).astype(np.uint32))
+    r = Reconstructor(gl)
+    hybrid = mesh_gpu.MeshGPU.from_records(gl, records, tri)
+    try:
+        compact = r.compact(hybrid, image, ReconstructionSettings(kind="compact"))
+        pos, ctri = mesh_arrays(compact)
+        compact.release()
+    finally:
+        hybrid.release()
+        r.release()
+    rows = FRONT.project(pos[ctri].reshape(-1, 3).astype(np.float64))[0][:, 1]
+    assert np.isclose(rows, 4.35, atol=1e-3).sum() + np.isclose(rows, 4.65, atol=1e-3).sum() == 4 * 2 * 3
+    assert len(ctri) < 8 + 2 * len(wall) / 8
+
+
+def test_keep_pieces_puts_back_the_pieces_lost_whole():
+    tri = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [7, 8, 9], [7, 9, 10]], np.uint32)  # pieces of 2, 1, 2
+    simplified = np.array([[0, 1, 3]], np.uint32)  # the first piece simplified, the others gone
+    assert keep_pieces(tri, simplified).tolist() == [[0, 1, 3], [4, 5, 6], [7, 8, 9], [7, 9, 10]]
+    assert keep_pieces(tri, tri).tolist() == tri.tolist()
+    assert keep_pieces(tri, np.zeros((0, 3), np.uint32)).tolist() == tri.tolist()
+    assert keep_pieces(np.zeros((0, 3), np.uint32), np.zeros((0, 3), np.uint32)).shape == (0, 3)
 
 
 def test_canonical_order_depends_on_the_mesh_alone():
