@@ -262,3 +262,85 @@ def flythrough_path(bounds: tuple[np.ndarray, np.ndarray], frames: int, seed: in
         eye, tgt = spline(keys, t), spline(look, t)
         cams.append(Camera(tuple(eye), tuple(tgt), (0.0, 1.0, 0.0), fov, width, height).fit_clip((lo, hi)))
     return cams
+
+
+# --- camera steps ---------------------------------------------------------------------
+
+def _rotation(axis: Sequence[float], degrees: float) -> np.ndarray:
+    """(3,3) right-handed rotation by `degrees` about `axis` (Rodrigues)."""
+    k = np.asarray(axis, np.float64)
+    k = k / np.linalg.norm(k)
+    a = np.radians(degrees)
+    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + np.sin(a) * kx + (1 - np.cos(a)) * kx @ kx
+
+
+def rotated(camera: Camera, degrees: float, axis: Sequence[float]) -> Camera:
+    """The camera turned rigidly about its eye by `degrees` about the world-space
+    `axis` (right-handed): the eye stays, the target keeps its distance, the up vector
+    becomes the camera's own up (orthogonal to the view) turned along, so the image
+    turns without any other change. near/far are dropped (fit_clip the new view)."""
+    rot = _rotation(axis, degrees)
+    _, u, _ = camera.basis()
+    eye = np.asarray(camera.eye)
+    return replace(camera, target=tuple(eye + rot @ (np.asarray(camera.target) - eye)), up=tuple(rot @ u),
+                   near=None, far=None)
+
+
+def turned(camera: Camera, degrees: float) -> Camera:
+    """The view direction turned by exactly `degrees` about the camera's up vector
+    (positive: to the left), without roll (`rotated`)."""
+    return rotated(camera, degrees, camera.basis()[1])
+
+
+def rolled(camera: Camera, degrees: float) -> Camera:
+    """The camera rolled by `degrees` about its view direction (right-handed about
+    the forward vector: positive turns the up vector toward the right one); the view
+    direction and eye stay (`rotated`)."""
+    return rotated(camera, degrees, camera.basis()[2])
+
+
+def moved(camera: Camera, fraction: float, direction: Sequence[float]) -> Camera:
+    """The eye and target translated by `fraction` of the eye's distance to the
+    target along the world-space `direction` (normalised): the view direction and the
+    field of view stay. near/far are dropped."""
+    d = np.asarray(direction, np.float64)
+    shift = fraction * float(np.linalg.norm(np.subtract(camera.target, camera.eye))) * d / np.linalg.norm(d)
+    return replace(camera, eye=tuple(np.asarray(camera.eye) + shift),
+                   target=tuple(np.asarray(camera.target) + shift), near=None, far=None)
+
+
+def zoomed(camera: Camera, factor: float) -> Camera:
+    """The camera with tan(fov/2) multiplied by `factor` (> 1 widens the view: zoom
+    out); near/far are dropped."""
+    fov = 2 * np.degrees(np.arctan(factor * np.tan(np.radians(camera.fov) / 2)))
+    return replace(camera, fov=float(fov), near=None, far=None)
+
+
+@dataclass(frozen=True)
+class CameraStep:
+    """How far camera `b` is from `a` (`camera_step`): turn_deg, the angle between
+    their view directions; move, the eye's displacement over a's distance to its
+    target; zoom, b's tan(fov/2) over a's; roll_deg, the signed rotation about b's
+    view direction left after turning a's frame onto b's view by the least rotation
+    (in (-180, 180])."""
+
+    turn_deg: float
+    move: float
+    zoom: float
+    roll_deg: float
+
+
+def camera_step(a: Camera, b: Camera) -> CameraStep:
+    """The step from camera `a` to camera `b` (CameraStep)."""
+    _, ua, fa = a.basis()
+    _, ub, fb = b.basis()
+    cos = float(np.clip(np.dot(fa, fb), -1.0, 1.0))
+    axis = np.cross(fa, fb)
+    turn = float(np.degrees(np.arccos(cos)))
+    u = _rotation(axis, turn) @ ua if np.linalg.norm(axis) > 1e-12 else ua
+    roll = float(np.degrees(np.arctan2(np.dot(fb, np.cross(u, ub)), np.dot(u, ub))))
+    reach = float(np.linalg.norm(np.subtract(a.target, a.eye)))
+    move = float(np.linalg.norm(np.subtract(b.eye, a.eye))) / reach
+    zoom = float(np.tan(np.radians(b.fov) / 2) / np.tan(np.radians(a.fov) / 2))
+    return CameraStep(turn, move, zoom, roll)

@@ -9,10 +9,15 @@ from scenes.camera import (
     Camera,
     CameraError,
     box_corners,
+    camera_step,
     flythrough_path,
     framing_distance,
     look_at_scene,
+    moved,
     orbit_path,
+    rolled,
+    turned,
+    zoomed,
 )
 
 BOUNDS = (np.array([-1.0, 0.0, -2.0]), np.array([3.0, 2.0, 1.0]))
@@ -95,3 +100,33 @@ def test_paths_are_seeded_and_smooth():
     assert steps.max() < 0.2 * np.linalg.norm(BOUNDS[1] - BOUNDS[0])  # no jumps
     for cam in f:
         assert cam.near is not None and cam.far > cam.near
+
+
+def test_camera_steps_by_hand():
+    """turned / moved / zoomed / rolled change exactly what they name, by exactly the
+    amount asked, and camera_step measures it back (bench.stream_jumps' targets)."""
+    cam = Camera((0.0, 0.0, 4.0), (0.0, 0.0, 0.0), fov=90.0)  # looks down -Z; right +X, up +Y
+    left = turned(cam, 90.0)
+    np.testing.assert_allclose(left.target, (-4.0, 0.0, 4.0), atol=1e-12)  # positive: to the left
+    np.testing.assert_allclose(left.eye, cam.eye)
+    np.testing.assert_allclose(left.up, (0.0, 1.0, 0.0), atol=1e-12)
+    side = moved(cam, 0.25, (2.0, 0.0, 0.0))  # a quarter of the distance 4, along +X
+    assert side.eye == (1.0, 0.0, 4.0) and side.target == (1.0, 0.0, 0.0) and side.up == cam.up
+    wide = zoomed(cam, 2.0)  # tan(45°) = 1 → tan(fov/2) = 2
+    assert wide.fov == pytest.approx(2 * np.degrees(np.arctan(2.0))) and wide.eye == cam.eye
+    roll = rolled(cam, 90.0)  # the up vector turns onto the right one
+    np.testing.assert_allclose(roll.up, (1.0, 0.0, 0.0), atol=1e-12)
+    assert roll.target == cam.target and roll.eye == cam.eye
+    # measured back, on a camera looking obliquely (a path's), every kind alone
+    tilted = Camera((0.3, 1.7, 2.2), (-0.4, 0.2, -0.5), fov=55.0).fit_clip(BOUNDS)
+    right = tilted.basis()[0]
+    for target, (turn, move, zoom, roll_deg) in (
+            (turned(tilted, 15.0), (15.0, 0.0, 1.0, 0.0)), (turned(tilted, -45.0), (45.0, 0.0, 1.0, 0.0)),
+            (moved(tilted, 0.1, right), (0.0, 0.1, 1.0, 0.0)), (zoomed(tilted, 1.25), (0.0, 0.0, 1.25, 0.0)),
+            (zoomed(tilted, 1 / 1.1), (0.0, 0.0, 1 / 1.1, 0.0)), (rolled(tilted, 45.0), (0.0, 0.0, 1.0, 45.0)),
+            (rolled(tilted, -10.0), (0.0, 0.0, 1.0, -10.0))):
+        step = camera_step(tilted, target)
+        np.testing.assert_allclose([step.turn_deg, step.move, step.zoom, step.roll_deg], [turn, move, zoom, roll_deg],
+                                   atol=1e-6)
+        assert target.near is None and target.far is None  # a new view: its clip planes are fitted again
+    assert abs(camera_step(tilted, rolled(tilted, 180.0)).roll_deg) == pytest.approx(180.0)
