@@ -468,3 +468,21 @@ def temporal_sweeps_scenario() -> dict:
         main(["--scenes", "mirror", "--frames", "8", "--res", "32", "--thresholds", "0.0", "1.0",
               "--speeds", "4", "8", "--no-progress", "--out", str(out)])
         return {"json": json.loads(out.with_suffix(".json").read_text()), "md": out.with_suffix(".md").read_text()}
+def stream_jumps_scenario() -> dict:
+    """Scenario (own process): bench.stream_jumps on the bathroom, one keyframe camera
+    on a 40-frame path at 32², one step of each kind, both tracers."""
+    import json
+    import tempfile
+    from pathlib import Path
+
+    from bench.stream_jumps import main
+
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "jumps"
+        main(["--scenes", "bathroom", "--res", "32", "--frames", "40", "--per-path", "1", "--seeds", "0",
+              "--turns", "5", "30", "--moves", "0.1", "--zooms", "1.25", "--rolls", "90", "--path-steps", "0", "1",
+              "--no-progress", "--out", str(out)])
+        return {"json": json.loads(out.with_suffix(".json").read_text()), "md": out.with_suffix(".md").read_text(),
+                "files": sorted(p.name for p in Path(tmp).iterdir())}
+
+

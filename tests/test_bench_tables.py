@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from bench.sampling_report import layer_table, useful_table
 from scenes.camera import Camera
@@ -279,6 +280,69 @@ def test_temporal_sweeps_smoke_writes_its_tables():
     assert all(t["speedup"] > 0 and t["mae_mean"] >= 0 for t in run["thresholds"])
     assert [s["path_frames"] for s in run["speeds"]] == [4, 8] and [s["frames"] for s in run["speeds"]] == [4, 8]
     assert "## Keyframe threshold" in res["md"] and "## Camera speed" in res["md"]
+
+
+def _jump(kind, step, tracer, mae, ratio=0.5, recomputed=0.1, scene="a", **kw):
+    return {"scene": scene, "path": 0, "frame": kw.pop("frame", 0), "kind": kind, "step": step, "tracer": tracer,
+            "mae": mae, "recomputed": recomputed, "disoccluded": 0.0, "unreliable": recomputed, "reflective": 0.3,
+            "reused_ms": kw.pop("reused_ms", 100.0 * ratio), "keyframe_ms": kw.pop("keyframe_ms", 100.0),
+            "turn_deg": 0.0, "move": 0.0, "zoom": 1.0, "roll_deg": 0.0, "start_repeat_mae": 0.0, **kw}
+
+
+def test_stream_jumps_cells_baselines_and_verdicts_by_hand():
+    """bench.stream_jumps: cells average over keyframe cameras (time ratio = mean over
+    mean), the steady state is the mean of the path steps after 0, and each kind fails
+    at its first step whose MAE exceeds 2× the steady state or whose Embree reused frame
+    takes as long as a keyframe (the cluster tracer's time does not count)."""
+    from bench.stream_jumps import baselines, cells, verdicts
+
+    samples = [_jump("path", 0.0, "embree", 0.0), _jump("path", 1.0, "embree", 0.1),
+               _jump("path", 5.0, "embree", 0.3), _jump("path", 1.0, "clusters", 0.4),
+               _jump("turn", 5.0, "embree", 0.2, reused_ms=30.0, keyframe_ms=100.0),
+               _jump("turn", 5.0, "embree", 0.4, reused_ms=70.0, keyframe_ms=300.0, frame=1),
+               _jump("turn", 5.0, "clusters", 0.5, ratio=1.2),  # the cluster tracer: never cheaper, ignored
+               _jump("turn", 15.0, "embree", 0.39, recomputed=0.3), _jump("turn", 30.0, "embree", 0.41),
+               _jump("zoom_out", 1.05, "embree", 0.1), _jump("zoom_in", 1.05, "embree", 0.1),
+               _jump("zoom_out", 1.1, "embree", 0.1), _jump("zoom_in", 1.1, "embree", 0.1, ratio=1.0),
+               _jump("roll", 90.0, "embree", 0.2), _jump("roll", 90.0, "clusters", 0.7)]
+    cs = cells(samples)
+    turn5 = next(c for c in cs if (c["kind"], c["step"], c["tracer"]) == ("turn", 5.0, "embree"))
+    assert turn5["n"] == 2 and turn5["mae"] == pytest.approx(0.3) and turn5["time_ratio"] == pytest.approx(0.25)
+    assert turn5["mae_reflective"] == pytest.approx(0.3 / 0.3)  # over the 30 % of reflective pixels
+    # over all the cameras' reflective pixels: a view left with a few badly reused ones weighs little
+    (few,) = cells([_jump("roll", 10.0, "embree", 0.3), _jump("roll", 10.0, "embree", 0.1, reflective=0.01, frame=1)])
+    assert few["mae_reflective"] == pytest.approx(0.2 / 0.155)
+    assert baselines(cs, "mae") == {("a", "embree"): pytest.approx(0.2), ("a", "clusters"): pytest.approx(0.4)}
+    base = baselines(cs)
+    assert base == {("a", "embree"): pytest.approx(0.2 / 0.3), ("a", "clusters"): pytest.approx(0.4 / 0.3)}
+    vd = verdicts(cs, base, policy=0.2)
+    assert vd["turn"] == {"error_at": 30.0, "cost_at": None, "policy_at": 15.0, "keep": 15.0, "policy_keep": 5.0,
+                          "tested": [5.0, 15.0, 30.0]}
+    assert vd["zoom"]["cost_at"] == 1.1 and vd["zoom"]["keep"] == 1.05 and vd["zoom"]["error_at"] is None
+    assert vd["roll"]["keep"] == 90.0 and vd["roll"]["error_at"] is None  # clusters 0.7 < 2 × 0.4
+
+
+def test_stream_jumps_smoke_writes_its_tables():
+    """bench.stream_jumps end to end: a sample per target and tracer, the targets a
+    known step from their keyframe camera, the report's tables and plot."""
+    from tests.helpers import run_isolated, stream_jumps_scenario
+
+    res = run_isolated(stream_jumps_scenario)
+    samples = res["json"]["samples"]
+    assert len(samples) == 2 * 8 and {s["tracer"] for s in samples} == {"embree", "clusters"}
+    turn = next(s for s in samples if s["kind"] == "turn" and s["step"] == 30.0)
+    assert turn["turn_deg"] == pytest.approx(30.0) and turn["move"] == pytest.approx(0.0, abs=1e-9)
+    roll = next(s for s in samples if s["kind"] == "roll")
+    assert abs(roll["roll_deg"]) == pytest.approx(90.0) and roll["turn_deg"] == pytest.approx(0.0, abs=1e-6)
+    still = [s for s in samples if s["kind"] == "path" and s["step"] == 0.0]
+    assert all(s["start_repeat_mae"] == 0.0 and s["reused_ms"] > 0 for s in samples)
+    assert len(still) == 2 and all(s["mae"] < 1e-3 for s in still)  # at the keyframe's own camera: the keyframe
+    # a quarter roll of a square frame maps pixels onto pixels: Embree's reuse is exact
+    assert next(s for s in samples if s["kind"] == "roll" and s["tracer"] == "embree")["mae"] < 1e-3
+    assert all("keyframe_mae_vs_embree" in s for s in samples if s["tracer"] == "clusters")
+    md = res["md"]
+    assert "## Steady state" in md and "## Every cell" in md and "## Reading" in md and "JUMP_TURN_DEG" in md
+    assert "jumps_mae.png" in res["files"]
 
 
 def test_service_load_smoke_writes_its_tables(tmp_path):
