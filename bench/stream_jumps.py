@@ -70,6 +70,12 @@ XLABELS = {"turn": "turn (degrees)", "move": "move (of the distance to the targe
 #: "Clearly above the steady state": the reused frame's MAE over this many times the
 #: mean MAE of the path steps 1-10 (same scene, tracer and keyframe cameras).
 CLEARLY = 2.0
+#: The recommended thresholds keep a margin below the cost crossing: the largest step
+#: at which (and below which) Embree's reused frame costs at most this share of a
+#: keyframe in every scene. Past it a keyframe forced at a single jump is the cheaper
+#: choice: the reused jump frame costs nearly a keyframe and, recomputing more than the
+#: keyframe policy's share, makes the next frame a keyframe anyway.
+MARGIN_RATIO = 0.8
 
 
 def room(point: np.ndarray, bounds: tuple[np.ndarray, np.ndarray]) -> float:
@@ -193,7 +199,12 @@ def verdicts(cs: list[dict], base: dict[tuple[str, str], float], policy: float) 
     (the keyframe threshold) of its reflective pixels are recomputed (the next frame
     is a keyframe anyway). `keep`: the largest step below the first
     error or cost failure (reuse is fine up to there; None: not even the smallest);
-    `policy_keep`: the largest below the first failure of any of the three."""
+    `policy_keep`: the largest below the first failure of any of the three;
+    `margin`: the largest below the first error failure and the first step at which
+    Embree's reused frame costs over MARGIN_RATIO of a keyframe (the recommendation);
+    `saving_at_keep`: the share of a keyframe's time Embree's reused frame saves there
+    (the least over the scenes); `exact`: per step, whether Embree's reused frames
+    equal its keyframes (MAE < 0.001, under 0.1 % recomputed)."""
     out = {}
     for kind, names in (("turn", ("turn",)), ("move", ("move",)), ("zoom", ("zoom_out", "zoom_in")),
                         ("roll", ("roll",))):
@@ -213,8 +224,17 @@ def verdicts(cs: list[dict], base: dict[tuple[str, str], float], policy: float) 
             first = min((s for s in limits if s is not None), default=None)
             below = [s for s in steps if first is None or s < first]
             return max(below) if below else None
-        out[kind] = {**at, "keep": largest_below(at["error_at"], at["cost_at"]),
-                     "policy_keep": largest_below(at["error_at"], at["cost_at"], at["policy_at"]), "tested": steps}
+        keep = largest_below(at["error_at"], at["cost_at"])
+        ratios = [c["time_ratio"] for c in mine if c["step"] == keep and c["tracer"] == "embree"]
+        worst = {x: max((c["time_ratio"] for c in mine if c["step"] == x and c["tracer"] == "embree"), default=0.0)
+                 for x in steps}
+        over = [x for x in steps if worst[x] > MARGIN_RATIO]
+        margin = largest_below(at["error_at"], at["cost_at"], min(over, default=None))
+        out[kind] = {**at, "keep": keep, "saving_at_keep": 1 - max(ratios) if ratios else None, "margin": margin,
+                     "policy_keep": largest_below(at["error_at"], at["cost_at"], at["policy_at"]), "tested": steps,
+                     "exact": {x: bool(em) and all(c["mae"] < 1e-3 and c["recomputed"] < 1e-3 for c in em)
+                               for x in steps for em in [[c for c in mine
+                                                          if c["step"] == x and c["tracer"] == "embree"]]}}
     return out
 
 
@@ -308,7 +328,10 @@ def reading(vd: dict, policy: float) -> list[str]:
              "followed by slow motion saves a little (the reused jump frame costs more than an ordinary reused "
              "frame, and the policy's keyframe follows it), while on a camera moving that fast every frame, "
              "forcing keyframes costs more (a keyframe every frame, against the policy's reused and keyframes in "
-             "turn); so (c) bounds nothing either way.", ""]
+             "turn); so (c) bounds nothing either way. Where the reused jump frame costs nearly a keyframe, "
+             "though, the single-jump saving is about an ordinary reused frame, so the recommended thresholds "
+             f"keep a margin: the largest step passing (a) at which Embree's reused frame costs at most "
+             f"{MARGIN_RATIO:g} of a keyframe in every scene.", ""]
     rows, say = [], []
     for kind, v in vd.items():
         fmt = UNITS["zoom_out"] if kind == "zoom" else UNITS[kind]
@@ -320,21 +343,31 @@ def reading(vd: dict, policy: float) -> list[str]:
         if cur is None:
             verdict = "— (none)"
         else:
-            word = ("too loose (lets failing steps through)" if fail is not None and cur >= fail
-                    else "stricter than the data need (forces keyframes the reuse copes without)"
-                    if v["keep"] is not None and cur < v["keep"] else "holds")
-            verdict = (f"{cur:g}: {word}; data: ≥ {f(v['keep'])}"
+            lo = v.get("margin")
+            word = ("too loose (lets steps through where the reuse fails)" if fail is not None and cur >= fail
+                    else "stricter than the data need (forces keyframes where the reuse is cheap and as good)"
+                    if lo is not None and cur < lo else "holds")
+            verdict = (f"{cur:g}: {word}; data: ≥ {f(lo)}"
                        + (f", < {f(fail)}" if fail is not None else ", no tested step fails"))
-        rows.append([kind, f(v["error_at"]), f(v["cost_at"]), f(v["policy_at"]), f(v["keep"]), verdict])
+        rows.append([kind, f(v["error_at"]), f(v["cost_at"]), f(v["policy_at"]), f(v["keep"]),
+                     f(v.get("margin")), verdict])
         if kind in THRESHOLDS:
-            rec = (f"{THRESHOLDS[kind]} = {v['keep']:g}" + (" or more" if fail is None else "")
-                   if v["keep"] is not None else f"{THRESHOLDS[kind]} below {f(min(v['tested']))}")
-            say.append(f"- {kind}: error and cost pass up to {f(v['keep'])}"
+            lim = (f"{v['keep']:g}" + (" or more" if fail is None else "") if v["keep"] is not None
+                   else f"below {f(min(v['tested']))}")
+            rec = (f"{v['margin']:g}" if v.get("margin") is not None else f"below {f(min(v['tested']))}")
+            saving = (f" (there Embree's reused frame saves {v['saving_at_keep']:.0%} of a keyframe's time)"
+                      if v.get("saving_at_keep") is not None else "")
+            say.append(f"- {kind}: error and cost pass up to {f(v['keep'])}{saving}"
                        + (f" and fail from {f(fail)}" if fail is not None else " (every tested step)")
-                       + f"; recomputed > {pct} from {f(v['policy_at'])}. From the data {rec}; now "
-                       + verdict + ".")
+                       + f"; recomputed > {pct} from {f(v['policy_at'])}. The data allow {THRESHOLDS[kind]} up to "
+                       + f"{lim}; recommended (margin: Embree's reused frame at most {MARGIN_RATIO:g} of a keyframe) "
+                       + f"{THRESHOLDS[kind]} = {rec}; now " + verdict + ".")
         elif fail is None:
+            exact = [x for x in v["tested"] if x in (90.0, 180.0) and v.get("exact", {}).get(x)]
             say.append(f"- roll: error and cost pass at every tested roll (up to {f(max(v['tested']))})"
+                       + (f"; a roll of {' or '.join(map(f, exact))} maps a square frame's pixels onto pixels, "
+                          "so there Embree's reuse is exact (MAE < 0.001) and recomputes almost nothing (< 0.1 %)"
+                          if exact else "")
                        + (f"; recomputed > {pct} from {f(v['policy_at'])} (the image corners)"
                           if v["policy_at"] is not None else "") + ": no roll threshold is needed.")
         else:
@@ -342,7 +375,8 @@ def reading(vd: dict, policy: float) -> list[str]:
                        "it, but the fly-through paths' look-at cameras spin that much near the vertical "
                        "(service.stream), so it would fire on them.")
     lines += [md_table(["kind", f"(a) MAE > {CLEARLY:g}× steady from", "(b) Embree reused ≥ keyframe time from",
-                        f"(c) recomputed > {pct} from", "largest step passing (a), (b)", "current threshold"],
+                        f"(c) recomputed > {pct} from", "largest step passing (a), (b)",
+                        f"recommended (reused ≤ {MARGIN_RATIO:g} keyframe)", "current threshold"],
                        rows), "", *say, ""]
     return lines
 

@@ -317,8 +317,12 @@ def test_stream_jumps_cells_baselines_and_verdicts_by_hand():
     assert base == {("a", "embree"): pytest.approx(0.2 / 0.3), ("a", "clusters"): pytest.approx(0.4 / 0.3)}
     vd = verdicts(cs, base, policy=0.2)
     assert vd["turn"] == {"error_at": 30.0, "cost_at": None, "policy_at": 15.0, "keep": 15.0, "policy_keep": 5.0,
-                          "tested": [5.0, 15.0, 30.0]}
+                          "saving_at_keep": pytest.approx(0.5), "margin": 15.0, "tested": [5.0, 15.0, 30.0],
+                          "exact": {5.0: False, 15.0: False, 30.0: False}}
     assert vd["zoom"]["cost_at"] == 1.1 and vd["zoom"]["keep"] == 1.05 and vd["zoom"]["error_at"] is None
+    # the recommendation keeps a margin: Embree's reused frame at most MARGIN_RATIO of a keyframe
+    margin = verdicts(cells([*samples, _jump("roll", 10.0, "embree", 0.2, ratio=0.85)]), base, policy=0.2)["roll"]
+    assert margin["keep"] == 90.0 and margin["margin"] is None  # 10° already costs 0.85 of a keyframe
     assert vd["roll"]["keep"] == 90.0 and vd["roll"]["error_at"] is None  # clusters 0.7 < 2 × 0.4
 
 
