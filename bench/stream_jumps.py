@@ -28,6 +28,7 @@ bench/results/stream_jumps.md (+ .json, + _mae.png).
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import time
 from pathlib import Path
@@ -189,6 +190,38 @@ def baselines(cs: list[dict], key: str = "mae_reflective") -> dict[tuple[str, st
     return {k: float(np.mean(v)) for k, v in groups.items()}
 
 
+#: Fly-through lengths whose frames the thresholds must let through: bench.temporal's tables
+#: run 500 frames, its sweeps 250 to 1000 (tests/test_service_stream.py).
+PATH_LENGTHS = (250, 500, 1000)
+
+
+def path_floor(scenes: list[str]) -> dict[str, float]:
+    """The largest step between consecutive frames of bench.temporal's fly-throughs
+    (PATH_SEEDS, PATH_LENGTHS) in the built-in `scenes`, per threshold kind: turn
+    (degrees), move, zoom (≥ 1, either way). A threshold at or below it fires on them."""
+    out = {"turn": 0.0, "move": 0.0, "zoom": 1.0}
+    for name in scenes:
+        bounds = load_named_scene(name).bounds
+        for frames in PATH_LENGTHS:
+            for seed in PATH_SEEDS:
+                cams = flythrough_path(bounds, frames, seed=seed)
+                for a, b in itertools.pairwise(cams):
+                    st = camera_step(a, b)
+                    out = {"turn": max(out["turn"], st.turn_deg), "move": max(out["move"], st.move),
+                           "zoom": max(out["zoom"], st.zoom, 1 / st.zoom)}
+    return out
+
+
+def recommended(v: dict, floor: float) -> float | None:
+    """The threshold to use: the margin step (`verdicts`) where it lets the fly-throughs'
+    steps through (above `floor`), else the smallest tested step above the floor that
+    error and cost pass (up to `keep`); None where none does."""
+    if v.get("margin") is not None and v["margin"] > floor:
+        return v["margin"]
+    passing = [x for x in v["tested"] if floor < x and v["keep"] is not None and x <= v["keep"]]
+    return min(passing) if passing else None
+
+
 def verdicts(cs: list[dict], base: dict[tuple[str, str], float], policy: float) -> dict[str, dict]:
     """Per kind that camera_jump limits (turn, move, zoom: out and in together) and
     roll, the first step at which, in some scene (mean over its keyframe cameras):
@@ -309,8 +342,9 @@ def temporal_steady(path: Path) -> list[list[str]]:
     return [[s, t, res, len(v), f"{np.mean(v):.3f}"] for (s, t, res), v in groups.items()]
 
 
-def reading(vd: dict, policy: float) -> list[str]:
-    """The closing reading: where error or cost rise, what a roll does, the thresholds."""
+def reading(vd: dict, policy: float, floor: dict[str, float]) -> list[str]:
+    """The closing reading: where error or cost rise, what a roll does, the thresholds
+    (`floor`: the fly-throughs' largest steps, `path_floor`)."""
     from service.stream import JUMP_MOVE, JUMP_TURN_DEG, JUMP_ZOOM
 
     current = {"turn": JUMP_TURN_DEG, "move": JUMP_MOVE, "zoom": JUMP_ZOOM}
@@ -331,7 +365,11 @@ def reading(vd: dict, policy: float) -> list[str]:
              "turn); so (c) bounds nothing either way. Where the reused jump frame costs nearly a keyframe, "
              "though, the single-jump saving is about an ordinary reused frame, so the recommended thresholds "
              f"keep a margin: the largest step passing (a) at which Embree's reused frame costs at most "
-             f"{MARGIN_RATIO:g} of a keyframe in every scene.", ""]
+             f"{MARGIN_RATIO:g} of a keyframe in every scene, unless that step would fire on bench.temporal's "
+             "fly-throughs (their largest step between frames: "
+             f"{floor['turn']:.2f}°, move {floor['move']:.4f}, zoom ×{floor['zoom']:.4f}; paths of "
+             f"{', '.join(map(str, PATH_LENGTHS))} frames), where the stream would then stop reusing as "
+             "bench.temporal measures: then the smallest tested step above them that (a) and (b) pass.", ""]
     rows, say = [], []
     for kind, v in vd.items():
         fmt = UNITS["zoom_out"] if kind == "zoom" else UNITS[kind]
@@ -343,18 +381,22 @@ def reading(vd: dict, policy: float) -> list[str]:
         if cur is None:
             verdict = "— (none)"
         else:
-            lo = v.get("margin")
+            lo = recommended(v, floor[kind])
             word = ("too loose (lets steps through where the reuse fails)" if fail is not None and cur >= fail
                     else "stricter than the data need (forces keyframes where the reuse is cheap and as good)"
                     if lo is not None and cur < lo else "holds")
             verdict = (f"{cur:g}: {word}; data: ≥ {f(lo)}"
                        + (f", < {f(fail)}" if fail is not None else ", no tested step fails"))
         rows.append([kind, f(v["error_at"]), f(v["cost_at"]), f(v["policy_at"]), f(v["keep"]),
-                     f(v.get("margin")), verdict])
+                     f(recommended(v, floor[kind]) if kind in THRESHOLDS else v.get("margin")), verdict])
         if kind in THRESHOLDS:
             lim = (f"{v['keep']:g}" + (" or more" if fail is None else "") if v["keep"] is not None
                    else f"below {f(min(v['tested']))}")
-            rec = (f"{v['margin']:g}" if v.get("margin") is not None else f"below {f(min(v['tested']))}")
+            pick = recommended(v, floor[kind])
+            rec = (f"{pick:g}" if pick is not None else f"below {f(min(v['tested']))}")
+            if pick is not None and pick != v.get("margin"):
+                rec += (f" (the margin step {f(v.get('margin'))} would fire on the fly-throughs, whose frames step "
+                        f"up to {f(floor[kind])})")
             saving = (f" (there Embree's reused frame saves {v['saving_at_keep']:.0%} of a keyframe's time)"
                       if v.get("saving_at_keep") is not None else "")
             say.append(f"- {kind}: error and cost pass up to {f(v['keep'])}{saving}"
@@ -443,7 +485,7 @@ def write_report(out: Path, args: argparse.Namespace, info: dict, data: dict, se
               summary_table(cs, scenes, tracers, base), "", "![MAE and time against the step](" +
               f"{out.name}_mae.png)", ""]
     lines += ["## Every cell", "", detail_table(cs), ""]
-    lines += reading(vd, policy)
+    lines += reading(vd, policy, path_floor(scenes))
     if data.get("notes"):
         lines += data["notes"]
     write_text(out.with_suffix(".md"), "\n".join(lines))

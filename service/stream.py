@@ -59,7 +59,7 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 from gl_passes.cluster_tracer import ClusterTracer
 from gl_passes.reprojection import ReflectionReuser, ReuseSettings
 from reference.reflection_tracer import EmbreeTracer
-from scenes.camera import Camera, framing_distance, look_at_scene
+from scenes.camera import Camera, camera_step, framing_distance, look_at_scene
 from scenes.model import Scene
 from service import errors, image_io
 from service.budget import check_budget, frame_bytes, stream_reuser_bytes
@@ -74,15 +74,18 @@ from service.worker import GLState
 #: Reflection methods whose stream frames go through the stream's ReflectionReuser.
 REUSED_METHODS = ("cluster", "raytrace")
 #: A stream's reflective frame is a keyframe when its camera jumped since the last one
-#: (`camera_jump`): its view direction turned by more than JUMP_TURN_DEG (a roll about
-#: it does not count: near the vertical a look-at camera spins on smooth paths), its
-#: eye moved by more than JUMP_MOVE of its distance to the target, or tan(fov/2)
-#: changed by more than JUMP_ZOOM either way. The benchmarked fly-throughs never step
-#: that far (bench.temporal's paths at 250 frames and more: at most 7.1° and 0.10 a
-#: frame; tests/test_service_stream.py), so on them the stream reuses as measured.
-JUMP_TURN_DEG = 15.0
+#: (`camera_jump`): its view direction turned by more than JUMP_TURN_DEG, its eye moved
+#: by more than JUMP_MOVE of its distance to the target, or tan(fov/2) changed by more
+#: than JUMP_ZOOM either way. A roll about the view direction does not count: it costs
+#: the reuse nothing measurable, and near the vertical a look-at camera spins on smooth
+#: paths. From bench/results/stream_jumps.md: the reuse's error stays at its steady
+#: level at every tested step; the turn and zoom are where Embree's reused frame costs
+#: at most 0.8 of a keyframe; the move is the largest step whose reused frame still
+#: costs less than a keyframe (a margin would fire on the benchmarked fly-throughs,
+#: whose frames step up to 0.10: tests/test_service_stream.py).
+JUMP_TURN_DEG = 30.0
 JUMP_MOVE = 0.25
-JUMP_ZOOM = 1.1
+JUMP_ZOOM = 1.25
 
 log = logging.getLogger("depthview.stream")
 T = TypeVar("T")
@@ -181,11 +184,9 @@ def camera_jump(prev: Camera | None, cam: Camera) -> bool:
     a jump was answered from the old keyframe, smeared, before the policy reacted."""
     if prev is None:
         return True
-    turn = np.degrees(np.arccos(np.clip(np.dot(prev.basis()[2], cam.basis()[2]), -1.0, 1.0)))
-    reach = float(np.linalg.norm(np.subtract(prev.target, prev.eye)))
-    move = float(np.linalg.norm(np.subtract(cam.eye, prev.eye))) / reach
-    zoom = np.tan(np.radians(cam.fov) / 2) / np.tan(np.radians(prev.fov) / 2)
-    return bool(turn > JUMP_TURN_DEG or move > JUMP_MOVE or not 1 / JUMP_ZOOM <= zoom <= JUMP_ZOOM)
+    step = camera_step(prev, cam)
+    return bool(step.turn_deg > JUMP_TURN_DEG or step.move > JUMP_MOVE
+                or not 1 / JUMP_ZOOM <= step.zoom <= JUMP_ZOOM)
 
 
 class _Reuse:

@@ -224,8 +224,8 @@ def test_bad_messages_get_an_error_and_the_stream_goes_on(client, message, statu
 
 
 def test_camera_jump_hand_cases():
-    """stream.camera_jump: the view direction turning past 15°, the eye moving past a
-    quarter of its distance to the target, or tan(fov/2) changing by more than 10 %;
+    """stream.camera_jump: the view direction turning past 30°, the eye moving past a
+    quarter of its distance to the target, or tan(fov/2) changing by more than 25 %;
     a roll about the view direction does not count."""
     from service.stream import camera_jump
 
@@ -236,11 +236,11 @@ def test_camera_jump_hand_cases():
         return Camera(cam.eye, (4 * np.sin(a), 0.0, 4 - 4 * np.cos(a)), fov=45.0)
 
     assert camera_jump(None, cam) and not camera_jump(cam, cam)
-    assert not camera_jump(cam, turned(14.9)) and camera_jump(cam, turned(15.1))
+    assert not camera_jump(cam, turned(29.9)) and camera_jump(cam, turned(30.1))
     assert not camera_jump(cam, Camera((0.99, 0.0, 4.0), (0.99, 0.0, 0.0))) \
         and camera_jump(cam, Camera((1.01, 0.0, 4.0), (1.01, 0.0, 0.0)))  # 4 · 0.25 = 1
     tan = np.tan(np.radians(22.5))
-    for ratio, jumped in ((1.099, False), (1.101, True), (1 / 1.099, False), (1 / 1.101, True)):
+    for ratio, jumped in ((1.249, False), (1.251, True), (1 / 1.249, False), (1 / 1.251, True)):
         fov = float(2 * np.degrees(np.arctan(tan * ratio)))
         assert camera_jump(cam, Camera(cam.eye, cam.target, fov=fov)) is jumped, ratio
     assert not camera_jump(cam, Camera(cam.eye, cam.target, up=(1.0, 1.0, 0.0)))  # a 45° roll
