@@ -2,7 +2,7 @@
 
 Recorded by ``service.middleware.RequestGuard`` for every request (validation errors,
 413s and 401s included): latency histograms per route and method, responses by route
-and status, 4xx/5xx totals (the health probes left out). Recorded by the routes: per-step times (scene load, queue
+and status, 4xx/5xx totals (/readyz's 503 left out). Recorded by the routes: per-step times (scene load, queue
 wait and GL job, CPU work, encoding), frames by format. Read from the worker at
 scrape time: queue depth, workers alive, job outcomes. ``frames_streamed`` is counted
 by the stream (``Metrics.streamed()``, one per frame sent on /scenes/{id}/stream).
@@ -49,8 +49,8 @@ class Histogram:
 
 #: Request methods counted under their own name; any other is counted as "other".
 METHODS = frozenset({"GET", "HEAD", "POST", "PUT", "DELETE", "PATCH", "OPTIONS"})
-#: Health-probe routes, left out of the 4xx/5xx totals (their 503 answers the probe).
-PROBES = frozenset({"/healthz", "/readyz"})
+#: Responses left out of the 4xx/5xx totals: /readyz's 503 answers the probe (not ready).
+PROBE_ANSWERS = frozenset({("/readyz", 503)})
 
 
 def label(value: object) -> str:
@@ -127,7 +127,7 @@ class Metrics:
             streamed, uploads = self.frames_streamed, self.uploads
         by_class = {"4xx": 0, "5xx": 0}
         for (_, route, status), n in responses:
-            if status >= 400 and route not in PROBES:
+            if status >= 400 and (route, status) not in PROBE_ANSWERS:
                 by_class[f"{status // 100}xx"] = by_class.get(f"{status // 100}xx", 0) + n
 
         metric("depthview_request_seconds", "histogram", "Request latency by route (template) and method.",
@@ -135,8 +135,8 @@ class Metrics:
         metric("depthview_responses_total", "counter", "Responses by route, method and status (validation "
                "errors, limits and auth refusals included).",
                [(f'{{method="{label(m)}",route="{label(r)}",status="{s}"}}', n) for (m, r, s), n in responses])
-        metric("depthview_http_errors_total", "counter", "Error responses by class (not the health probes': "
-               "/readyz's 503 is its answer, not ready).",
+        metric("depthview_http_errors_total", "counter", "Error responses by class (not /readyz's 503, which "
+               "answers the probe: not ready).",
                [(f'{{class="{k}"}}', v) for k, v in sorted(by_class.items())])
         metric("depthview_step_seconds", "histogram", "Time per step of render requests: scene_load (parse or "
                "cache), job (queue wait + GL and Embree on the worker), cpu (shading), encode.",

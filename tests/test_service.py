@@ -92,8 +92,10 @@ def test_readyz_is_503_until_the_gl_context_exists(tmp_path, monkeypatch):
         assert "no render worker is ready yet" in r.json()["error"]
         gate.set()
         assert wait_ready(c)["ready"] is True
-        # the probe's 503 is its answer, not an error of the service
+        # the probe's 503 is its answer, not an error of the service; other refusals there are
+        assert c.post("/readyz").status_code == 405
         metrics = c.get("/metrics").text
+        assert 'depthview_http_errors_total{class="4xx"} 1' in metrics
         assert re.search(r'depthview_responses_total\{method="GET",route="/readyz",status="503"\} [1-9]', metrics)
         assert 'depthview_http_errors_total{class="5xx"} 0' in metrics
 
