@@ -503,10 +503,13 @@ def keep_pieces(triangles: np.ndarray, simplified: np.ndarray) -> np.ndarray:
     if len(tri) == 0:
         return out
     piece = triangle_pieces(tri)
-    label = np.full(int(tri.max()) + 1, -1, np.int64)
+    label = np.full(int(max(tri.max(), out.max(initial=0))) + 1, -1, np.int64)
     label[tri.ravel()] = np.repeat(piece, 3)
     alive = np.zeros(int(piece.max()) + 1, bool)
-    alive[label[out[:, 0]]] = True
+    kept = label[out[:, 0]]
+    if (kept < 0).any():
+        raise ValueError("the simplified triangles use a vertex no input triangle does")
+    alive[kept] = True
     return np.concatenate([out, tri[~alive[piece]]])
 
 

@@ -21,11 +21,13 @@ from gl_passes.reconstruction import (
     canonical_order,
     export_glb,
     fetch_order,
+    image_space,
     keep_pieces,
     mesh_arrays,
     offset_camera,
     reconstruct_set,
     render_set,
+    simplify,
 )
 from gl_passes.upload import SceneGPU
 from reference.raycast import RayCaster
@@ -444,6 +446,9 @@ def test_compact_keeps_every_piece_the_simplifier_would_drop(gl):
     z[14:26, 4:36] = depth
     image = DepthImage(FRONT, np.zeros((H, W, 3), np.float32), z, np.zeros((H, W, 3), np.float32),
                        np.zeros((H, W, 3), np.float32), np.where(np.isfinite(z), 1, 0).astype(np.uint32))
+    # the premise: the simplifier alone drops the strips whole
+    alone = simplify(image_space(unique, FRONT, depth), tri, ReconstructionSettings().compact_error)
+    assert not np.isin(alone, tri[:8]).any()
     r = Reconstructor(gl)
     hybrid = mesh_gpu.MeshGPU.from_records(gl, records, tri)
     try:
@@ -465,6 +470,8 @@ def test_keep_pieces_puts_back_the_pieces_lost_whole():
     assert keep_pieces(tri, tri).tolist() == tri.tolist()
     assert keep_pieces(tri, np.zeros((0, 3), np.uint32)).tolist() == tri.tolist()
     assert keep_pieces(np.zeros((0, 3), np.uint32), np.zeros((0, 3), np.uint32)).shape == (0, 3)
+    with pytest.raises(ValueError, match="no input triangle"):
+        keep_pieces(tri, np.array([[11, 0, 1]], np.uint32))
 
 
 def test_canonical_order_depends_on_the_mesh_alone():
