@@ -269,6 +269,8 @@ def flythrough_path(bounds: tuple[np.ndarray, np.ndarray], frames: int, seed: in
 def _rotation(axis: Sequence[float], degrees: float) -> np.ndarray:
     """(3,3) right-handed rotation by `degrees` about `axis` (Rodrigues)."""
     k = np.asarray(axis, np.float64)
+    if not np.linalg.norm(k) > 0:
+        raise ValueError(f"a rotation needs a nonzero axis, got {tuple(k)}")
     k = k / np.linalg.norm(k)
     a = np.radians(degrees)
     kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
@@ -305,6 +307,8 @@ def moved(camera: Camera, fraction: float, direction: Sequence[float]) -> Camera
     target along the world-space `direction` (normalised): the view direction and the
     field of view stay. near/far are dropped."""
     d = np.asarray(direction, np.float64)
+    if not np.linalg.norm(d) > 0:
+        raise ValueError(f"a move needs a nonzero direction, got {tuple(d)}")
     shift = fraction * float(np.linalg.norm(np.subtract(camera.target, camera.eye))) * d / np.linalg.norm(d)
     return replace(camera, eye=tuple(np.asarray(camera.eye) + shift),
                    target=tuple(np.asarray(camera.target) + shift), near=None, far=None)
@@ -340,6 +344,7 @@ def camera_step(a: Camera, b: Camera) -> CameraStep:
     turn = float(np.degrees(np.arccos(cos)))
     u = _rotation(axis, turn) @ ua if np.linalg.norm(axis) > 1e-12 else ua
     roll = float(np.degrees(np.arctan2(np.dot(fb, np.cross(u, ub)), np.dot(u, ub))))
+    roll = 180.0 if roll <= -180.0 else roll  # (-180, 180]
     reach = float(np.linalg.norm(np.subtract(a.target, a.eye)))
     move = float(np.linalg.norm(np.subtract(b.eye, a.eye))) / reach
     zoom = float(np.tan(np.radians(b.fov) / 2) / np.tan(np.radians(a.fov) / 2))

@@ -468,6 +468,8 @@ def temporal_sweeps_scenario() -> dict:
         main(["--scenes", "mirror", "--frames", "8", "--res", "32", "--thresholds", "0.0", "1.0",
               "--speeds", "4", "8", "--no-progress", "--out", str(out)])
         return {"json": json.loads(out.with_suffix(".json").read_text()), "md": out.with_suffix(".md").read_text()}
+
+
 def stream_jumps_scenario() -> dict:
     """Scenario (own process): bench.stream_jumps on the bathroom, one keyframe camera
     on a 40-frame path at 32², one step of each kind, both tracers."""
@@ -484,5 +486,3 @@ def stream_jumps_scenario() -> dict:
               "--no-progress", "--out", str(out)])
         return {"json": json.loads(out.with_suffix(".json").read_text()), "md": out.with_suffix(".md").read_text(),
                 "files": sorted(p.name for p in Path(tmp).iterdir())}
-
-

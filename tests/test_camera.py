@@ -16,6 +16,7 @@ from scenes.camera import (
     moved,
     orbit_path,
     rolled,
+    rotated,
     turned,
     zoomed,
 )
@@ -129,4 +130,9 @@ def test_camera_steps_by_hand():
         np.testing.assert_allclose([step.turn_deg, step.move, step.zoom, step.roll_deg], [turn, move, zoom, roll_deg],
                                    atol=1e-6)
         assert target.near is None and target.far is None  # a new view: its clip planes are fitted again
-    assert abs(camera_step(tilted, rolled(tilted, 180.0)).roll_deg) == pytest.approx(180.0)
+    for deg in (180.0, -180.0):  # either way round reads +180: the range is (-180, 180]
+        assert camera_step(tilted, rolled(tilted, deg)).roll_deg == pytest.approx(180.0)
+    with pytest.raises(ValueError, match="nonzero axis"):
+        rotated(tilted, 10.0, (0.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match="nonzero direction"):
+        moved(tilted, 0.1, (0.0, 0.0, 0.0))
