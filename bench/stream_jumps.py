@@ -56,9 +56,10 @@ from scenes.camera import Camera, camera_step, flythrough_path, moved, rolled, t
 
 #: Step sizes per kind: turn (degrees), move (of the eye's distance to its target),
 #: zoom (factor on tan(fov/2), out and in), roll (degrees), path (frames later).
-TURNS = (2.0, 5.0, 10.0, 15.0, 20.0, 30.0, 45.0)
-MOVES = (0.05, 0.1, 0.25, 0.5)
-ZOOMS = (1.05, 1.1, 1.25, 1.5)
+TURNS = (2.0, 5.0, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0, 90.0)
+#: 0.125-0.2: the fly-throughs step up to 0.101 per frame, so JUMP_MOVE must lie above that.
+MOVES = (0.05, 0.1, 0.125, 0.15, 0.2, 0.25, 0.5)
+ZOOMS = (1.05, 1.1, 1.25, 1.5, 2.0)
 ROLLS = (10.0, 45.0, 90.0, 180.0)
 PATH_STEPS = (0, 1, 5, 10)
 KINDS = ("path", "turn", "move", "zoom_out", "zoom_in", "roll")
