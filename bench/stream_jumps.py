@@ -28,6 +28,7 @@ bench/results/stream_jumps.md (+ .json, + _mae.png).
 from __future__ import annotations
 
 import argparse
+import functools
 import itertools
 import json
 import time
@@ -196,10 +197,16 @@ def baselines(cs: list[dict], key: str = "mae_reflective") -> dict[tuple[str, st
 PATH_LENGTHS = (250, 500, 1000)
 
 
-def path_floor(scenes: list[str]) -> dict[str, float]:
+def path_floor(scenes) -> dict[str, float]:
     """The largest step between consecutive frames of bench.temporal's fly-throughs
-    (PATH_SEEDS, PATH_LENGTHS) in the built-in `scenes`, per threshold kind: turn
-    (degrees), move, zoom (≥ 1, either way). A threshold at or below it fires on them."""
+    (PATH_SEEDS, PATH_LENGTHS) in the built-in `scenes` (any iterable of names; computed
+    once per set of names), per threshold kind: turn (degrees), move, zoom (≥ 1, either
+    way). A threshold at or below it fires on them."""
+    return dict(_path_floor(tuple(scenes)))
+
+
+@functools.cache
+def _path_floor(scenes: tuple[str, ...]) -> tuple[tuple[str, float], ...]:
     out = {"turn": 0.0, "move": 0.0, "zoom": 1.0}
     for name in scenes:
         bounds = load_named_scene(name).bounds
@@ -210,7 +217,7 @@ def path_floor(scenes: list[str]) -> dict[str, float]:
                     st = camera_step(a, b)
                     out = {"turn": max(out["turn"], st.turn_deg), "move": max(out["move"], st.move),
                            "zoom": max(out["zoom"], st.zoom, 1 / st.zoom)}
-    return out
+    return tuple(out.items())
 
 
 def recommended(v: dict, floor: float) -> float | None:

@@ -326,6 +326,26 @@ def test_stream_jumps_cells_baselines_and_verdicts_by_hand():
     assert vd["roll"]["keep"] == 90.0 and vd["roll"]["error_at"] is None  # clusters 0.7 < 2 × 0.4
 
 
+def test_stream_jumps_path_floor_once_per_scene_set():
+    """path_floor: the largest step between consecutive frames of the fly-throughs (the
+    shortest paths are the fastest), no zoom; computed once per set of scenes."""
+    import itertools
+
+    from bench.common import load_named_scene
+    from bench.stream_jumps import PATH_LENGTHS, _path_floor, path_floor
+    from bench.temporal import PATH_SEEDS
+    from scenes.camera import camera_step, flythrough_path
+
+    fl = path_floor(["cornell"])
+    before = _path_floor.cache_info().hits
+    assert path_floor(("cornell",)) == fl and _path_floor.cache_info().hits == before + 1
+    bounds = load_named_scene("cornell").bounds
+    fastest = [camera_step(a, b) for seed in PATH_SEEDS
+               for a, b in itertools.pairwise(flythrough_path(bounds, min(PATH_LENGTHS), seed=seed))]
+    assert fl["move"] == pytest.approx(max(st.move for st in fastest))
+    assert fl["turn"] == pytest.approx(max(st.turn_deg for st in fastest)) and fl["zoom"] == 1.0
+
+
 def test_stream_jumps_smoke_writes_its_tables():
     """bench.stream_jumps end to end: a sample per target and tracer, the targets a
     known step from their keyframe camera, the report's tables and plot."""
