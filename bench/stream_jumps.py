@@ -220,13 +220,21 @@ def _path_floor(scenes: tuple[str, ...]) -> tuple[tuple[str, float], ...]:
     return tuple(out.items())
 
 
+def first_failure(v: dict) -> float | None:
+    """The first tested step that fails error (a) or cost (b) (`verdicts`)."""
+    return min((s for s in (v["error_at"], v["cost_at"]) if s is not None), default=None)
+
+
 def recommended(v: dict, floor: float) -> float | None:
     """The threshold to use: the margin step (`verdicts`) where it lets the fly-throughs'
-    steps through (above `floor`), else the smallest tested step above the floor that
-    error and cost pass (up to `keep`); None where none does."""
+    steps through (above `floor`), else the smallest tested step above the floor below
+    the first error (a) or cost (b) failure whose reused frame costs at most
+    MARGIN_RATIO of a keyframe in every scene (`worst_ratio`); None where none does."""
     if v.get("margin") is not None and v["margin"] > floor:
         return v["margin"]
-    passing = [x for x in v["tested"] if floor < x and v["keep"] is not None and x <= v["keep"]]
+    fail = first_failure(v)
+    passing = [x for x in v["tested"] if floor < x and (fail is None or x < fail)
+               and (v["worst_ratio"].get(x) is None or v["worst_ratio"][x] <= MARGIN_RATIO)]
     return min(passing) if passing else None
 
 
@@ -243,6 +251,7 @@ def verdicts(cs: list[dict], base: dict[tuple[str, str], float], policy: float) 
     `policy_keep`: the largest below the first failure of any of the three;
     `margin`: the largest below the first error failure and the first step at which
     Embree's reused frame costs over MARGIN_RATIO of a keyframe (the recommendation);
+    `worst_ratio`: per step, the largest reused / keyframe time over the scenes;
     `saving_at_keep`: the share of a keyframe's time Embree's reused frame saves there
     (the least over the scenes); `exact`: per step, whether Embree's reused frames
     equal its keyframes (MAE < 0.001, under 0.1 % recomputed)."""
@@ -272,6 +281,7 @@ def verdicts(cs: list[dict], base: dict[tuple[str, str], float], policy: float) 
         over = [x for x in steps if worst[x] > MARGIN_RATIO]
         margin = largest_below(at["error_at"], at["cost_at"], min(over, default=None))
         out[kind] = {**at, "keep": keep, "saving_at_keep": 1 - max(ratios) if ratios else None, "margin": margin,
+                     "worst_ratio": worst,
                      "policy_keep": largest_below(at["error_at"], at["cost_at"], at["policy_at"]), "tested": steps,
                      "exact": {x: bool(em) and all(c["mae"] < 1e-3 and c["recomputed"] < 1e-3 for c in em)
                                for x in steps for em in [[c for c in mine
@@ -377,7 +387,8 @@ def reading(vd: dict, policy: float, floor: dict[str, float]) -> list[str]:
              "fly-throughs (their largest step between frames: "
              f"{floor['turn']:.2f}°, move {floor['move']:.4f}, zoom ×{floor['zoom']:.4f}; paths of "
              f"{', '.join(map(str, PATH_LENGTHS))} frames), where the stream would then stop reusing as "
-             "bench.temporal measures: then the smallest tested step above them that (a) and (b) pass.", ""]
+             "bench.temporal measures: then the smallest tested step above them that passes (a) and (b) and at "
+             f"which Embree's reused frame costs at most {MARGIN_RATIO:g} of a keyframe, or none.", ""]
     rows, say = [], []
     for kind, v in vd.items():
         fmt = UNITS["zoom_out"] if kind == "zoom" else UNITS[kind]
@@ -401,10 +412,16 @@ def reading(vd: dict, policy: float, floor: dict[str, float]) -> list[str]:
             lim = (f"{v['keep']:g}" + (" or more" if fail is None else "") if v["keep"] is not None
                    else f"below {f(min(v['tested']))}")
             pick = recommended(v, floor[kind])
-            rec = (f"{pick:g}" if pick is not None else f"below {f(min(v['tested']))}")
+            above = [x for x in v["tested"] if x > floor[kind] and (fail is None or x < fail)]
+            rec = (f"{pick:g}" if pick is not None
+                   else f"none (between the fly-throughs' {f(floor[kind])} and the first failing step {f(fail)} "
+                   + ("no tested step costs at most the margin: "
+                      + ", ".join(f"{f(x)}: {v['worst_ratio'][x]:.2f} of a keyframe" for x in above)
+                      if above else "nothing is tested") + ")")
             if pick is not None and pick != v.get("margin"):
                 rec += (f" (the margin step {f(v.get('margin'))} would fire on the fly-throughs, whose frames step "
-                        f"up to {f(floor[kind])})")
+                        f"up to {f(floor[kind])}; {f(pick)} is the smallest tested step above them within the "
+                        "margin)")
             saving = (f" (there Embree's reused frame saves {v['saving_at_keep']:.0%} of a keyframe's time)"
                       if v.get("saving_at_keep") is not None else "")
             say.append(f"- {kind}: error and cost pass up to {f(v['keep'])}{saving}"

@@ -318,12 +318,38 @@ def test_stream_jumps_cells_baselines_and_verdicts_by_hand():
     vd = verdicts(cs, base, policy=0.2)
     assert vd["turn"] == {"error_at": 30.0, "cost_at": None, "policy_at": 15.0, "keep": 15.0, "policy_keep": 5.0,
                           "saving_at_keep": pytest.approx(0.5), "margin": 15.0, "tested": [5.0, 15.0, 30.0],
-                          "exact": {5.0: False, 15.0: False, 30.0: False}}
+                          "exact": {5.0: False, 15.0: False, 30.0: False},
+                          "worst_ratio": {5.0: pytest.approx(0.25), 15.0: 0.5, 30.0: 0.5}}
     assert vd["zoom"]["cost_at"] == 1.1 and vd["zoom"]["keep"] == 1.05 and vd["zoom"]["error_at"] is None
     # the recommendation keeps a margin: Embree's reused frame at most MARGIN_RATIO of a keyframe
     margin = verdicts(cells([*samples, _jump("roll", 10.0, "embree", 0.2, ratio=0.85)]), base, policy=0.2)["roll"]
     assert margin["keep"] == 90.0 and margin["margin"] is None  # 10° already costs 0.85 of a keyframe
     assert vd["roll"]["keep"] == 90.0 and vd["roll"]["error_at"] is None  # clusters 0.7 < 2 × 0.4
+
+
+def _rec_v(worst, margin=0.1, error_at=None, cost_at=None):
+    tested = [0.05, 0.1, 0.125, 0.15, 0.2, 0.25, 0.5]
+    return {"margin": margin, "error_at": error_at, "cost_at": cost_at, "tested": tested,
+            "worst_ratio": dict(zip(tested, worst, strict=True))}
+
+
+def test_stream_jumps_recommended_keeps_the_margin_above_the_floor():
+    """recommended: the margin step where it lies above the fly-throughs' largest step;
+    else the smallest tested step above it that passes (a) and (b) and whose reused
+    frame costs at most MARGIN_RATIO of a keyframe — never one costing more (the old
+    fallback took move 0.25 at 0.98 of a keyframe); None where no step does."""
+    from bench.stream_jumps import recommended
+
+    floor = 0.101
+    assert recommended(_rec_v([0.4, 0.5, 0.6, 0.7, 0.75, 0.85, 1.1], margin=0.2, cost_at=0.5), floor) == 0.2
+    # the margin step 0.1 fires on the fly-throughs: 0.125 costs 0.85, 0.15 0.78
+    assert recommended(_rec_v([0.4, 0.5, 0.85, 0.78, 0.9, 0.98, 1.1], cost_at=0.5), floor) == 0.15
+    assert recommended(_rec_v([0.4, 0.5, 0.7, 0.85, 0.9, 0.98, 1.1], cost_at=0.5), floor) == 0.125
+    # nothing above the floor keeps the margin: None (not 0.25 at 0.98)
+    assert recommended(_rec_v([0.4, 0.5, 0.85, 0.9, 0.95, 0.98, 1.1], cost_at=0.5), floor) is None
+    # 0.15 keeps the margin but fails the error, as every larger step then counts as failing
+    assert recommended(_rec_v([0.4, 0.5, 0.85, 0.78, 0.7, 0.7, 0.7], error_at=0.15), floor) is None
+    assert recommended(_rec_v([0.9] * 7, margin=None), floor) is None
 
 
 def test_stream_jumps_path_floor_once_per_scene_set():
