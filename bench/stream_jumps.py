@@ -10,14 +10,18 @@ by a fraction of the eye's distance to its target, a zoom of
 tan(fov/2) out (× z) and in (÷ z), a pure roll about the view direction (rolled), and,
 for the steady state, the path's own camera 0, 1, 5 and 10 frames later. Per target
 and tracer (Embree's sparse rays, "raytrace", and the cluster tracer, "cluster", as
-the stream makes them): a keyframe at the start camera, `next_frame` at the target
-(reused, no forced keyframe), then a keyframe at the target — full tracing by the
-same tracer, the reference (so a fresh keyframe's own error is 0 by construction;
-for the cluster tracer its error against Embree's keyframe is reported too).
+the stream makes them, with the stream's ReuseSettings: no timing syncs, no search
+statistics): a keyframe at the start camera, `next_frame` at the target (reused, no
+forced keyframe), and a keyframe at the target — full tracing by the same tracer, the
+reference (so a fresh keyframe's own error is 0 by construction; for the cluster
+tracer its error against Embree's keyframe is reported too). The order alternates
+between targets (start keyframe, reused frame, target keyframe; or the target
+keyframe first), so neither timed frame always runs after the other.
 Reported per kind and step: mean absolute error of the reused frame (0-255, mean
 over pixels and channels, as bench.temporal), the recomputed share of its reflective
-pixels, and its time against the keyframe's at the target (each frame's own wall
-time, ReuseSettings' defaults as bench.temporal). Results:
+pixels, and its time against the keyframe's at the target (wall time of each
+`next_frame` call, which returns the read-back colour; views under MIN_REFLECTIVE
+reflective are left out of the time ratio). Results:
 bench/results/stream_jumps.md (+ .json, + _mae.png).
 
     python -m bench.stream_jumps [--scenes living_room bathroom] [--res 256]
@@ -73,6 +77,9 @@ XLABELS = {"turn": "turn (degrees)", "move": "move (of the distance to the targe
 #: "Clearly above the steady state": the reused frame's MAE over this many times the
 #: mean MAE of the path steps 1-10 (same scene, tracer and keyframe cameras).
 CLEARLY = 2.0
+#: Views with less than this share of reflective pixels are left out of the time ratio:
+#: there both frames cost next to nothing and their ratio is noise.
+MIN_REFLECTIVE = 0.01
 #: The recommended thresholds keep a margin below the cost crossing: the largest step
 #: at which (and below which) Embree's reused frame costs at most this share of a
 #: keyframe in every scene. Past it a keyframe forced at a single jump is the cheaper
@@ -114,23 +121,36 @@ def mae(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.abs(a - b).mean() * 255)
 
 
+def timed(ru: ReflectionReuser, cam: Camera, keyframe: bool = False):
+    """(frame, wall ms) of one `next_frame` call (it returns the read-back colour, so the
+    time includes the GPU work even without the reuser's timing syncs)."""
+    t = time.perf_counter()
+    frame = ru.next_frame(cam, keyframe=keyframe)
+    return frame, 1000 * (time.perf_counter() - t)
+
+
 def measure_keyframe(reusers: dict, cams: list[Camera], i: int, bounds, steps: dict, sign: float,
-                     desc: str, show: bool) -> list[dict]:
+                     desc: str, show: bool, parity: int = 0) -> list[dict]:
     """Every target of keyframe camera cams[i] with every tracer's reuser: keyframe at
-    the start, the reused frame at the target, the keyframe at the target."""
+    the start, the reused frame at the target, the keyframe at the target; on every
+    other target (by `parity` + its index) the keyframe at the target first."""
     start = cams[i]
     first: dict[str, np.ndarray] = {}
     rows = []
-    for kind, step, cam in progress(targets(cams, i, bounds, steps, sign), show, desc=desc, unit="target",
-                                    leave=False):
+    for j, (kind, step, cam) in enumerate(progress(targets(cams, i, bounds, steps, sign), show, desc=desc,
+                                                   unit="target", leave=False)):
         cam = cam.fit_clip(bounds)
         st = camera_step(start, cam)
+        key_first = (parity + j) % 2 == 1
         keys: dict[str, np.ndarray] = {}
         for tname, ru in reusers.items():
+            if key_first:
+                key, key_ms = timed(ru, cam, keyframe=True)
             k0 = ru.next_frame(start, keyframe=True)
+            reused, reused_ms = timed(ru, cam)
+            if not key_first:
+                key, key_ms = timed(ru, cam, keyframe=True)
             first.setdefault(tname, k0.color)
-            reused = ru.next_frame(cam)
-            key = ru.next_frame(cam, keyframe=True)
             assert not reused.stats.keyframe and key.stats.keyframe
             keys[tname] = key.color
             s = reused.stats
@@ -139,7 +159,7 @@ def measure_keyframe(reusers: dict, cams: list[Camera], i: int, bounds, steps: d
                    "recomputed": s.recomputed_fraction, "disoccluded": s.disoccluded / max(s.reflective, 1),
                    "unreliable": s.unreliable / max(s.reflective, 1),
                    "reflective": s.reflective / reused.reflective.size,
-                   "reused_ms": s.timings_ms["total"], "keyframe_ms": key.stats.timings_ms["total"],
+                   "reused_ms": reused_ms, "keyframe_ms": key_ms, "key_first": key_first,
                    "start_repeat_mae": mae(k0.color, first[tname]),
                    "eye_room": room(np.asarray(cam.eye), bounds)}
             if tname != "embree" and "embree" in keys:
@@ -158,8 +178,9 @@ def cells(samples: list[dict]) -> list[dict]:
     whole frame's MAE also falls when a step turns the view away from reflectors; the
     ratio of means weighs each camera by its reflective pixels, so a view left with a
     few badly reused ones does not dominate), recomputed share, times (and their
-    ratio: mean reused / mean keyframe ms), the cluster tracer's MAE against
-    Embree, the measured step. Samples whose eye left the scene box (a long move) are
+    ratio: mean reused / mean keyframe ms, over the samples at least MIN_REFLECTIVE
+    reflective, `n_timed` of them; None where none is), the cluster tracer's MAE
+    against Embree, the measured step. Samples whose eye left the scene box (a long move) are
     left out."""
     groups: dict[tuple, list[dict]] = {}
     for s in samples:
@@ -171,12 +192,14 @@ def cells(samples: list[dict]) -> list[dict]:
         def mean(k: str, ss=ss) -> float | None:
             vals = [s[k] for s in ss if k in s]
             return float(np.mean(vals)) if vals else None
-        c = {"scene": scene, "tracer": tracer, "kind": kind, "step": step, "n": len(ss),
+        timed = [s for s in ss if s["reflective"] >= MIN_REFLECTIVE]
+        c = {"scene": scene, "tracer": tracer, "kind": kind, "step": step, "n": len(ss), "n_timed": len(timed),
              **{k: mean(k) for k in ("mae", "recomputed", "disoccluded", "unreliable",
-                                     "reflective", "reused_ms", "keyframe_ms", "turn_deg", "move", "zoom",
+                                     "reflective", "turn_deg", "move", "zoom",
                                      "roll_deg", "mae_vs_embree", "keyframe_mae_vs_embree")},
+             **{k: mean(k, timed) for k in ("reused_ms", "keyframe_ms")},
              "mae_max": float(max(s["mae"] for s in ss))}
-        c["time_ratio"] = c["reused_ms"] / c["keyframe_ms"]
+        c["time_ratio"] = c["reused_ms"] / c["keyframe_ms"] if timed else None
         c["mae_reflective"] = c["mae"] / c["reflective"] if c["reflective"] else 0.0
         out.append(c)
     return out
@@ -251,7 +274,8 @@ def verdicts(cs: list[dict], base: dict[tuple[str, str], float], policy: float) 
     `policy_keep`: the largest below the first failure of any of the three;
     `margin`: the largest below the first error failure and the first step at which
     Embree's reused frame costs over MARGIN_RATIO of a keyframe (the recommendation);
-    `worst_ratio`: per step, the largest reused / keyframe time over the scenes;
+    `worst_ratio`: per step, the largest reused / keyframe time over the scenes (None:
+    no timed sample);
     `saving_at_keep`: the share of a keyframe's time Embree's reused frame saves there
     (the least over the scenes); `exact`: per step, whether Embree's reused frames
     equal its keyframes (MAE < 0.001, under 0.1 % recomputed)."""
@@ -265,7 +289,8 @@ def verdicts(cs: list[dict], base: dict[tuple[str, str], float], policy: float) 
             here = [c for c in mine if c["step"] == step]
             fails = {"error_at": any(c["mae_reflective"] > CLEARLY * base.get((c["scene"], c["tracer"]), np.inf)
                                      for c in here),
-                     "cost_at": any(c["time_ratio"] >= 1.0 for c in here if c["tracer"] == "embree"),
+                     "cost_at": any(c["time_ratio"] is not None and c["time_ratio"] >= 1.0
+                                    for c in here if c["tracer"] == "embree"),
                      "policy_at": any(c["recomputed"] > policy for c in here)}
             for k, failed in fails.items():
                 if failed and at[k] is None:
@@ -275,10 +300,11 @@ def verdicts(cs: list[dict], base: dict[tuple[str, str], float], policy: float) 
             below = [s for s in steps if first is None or s < first]
             return max(below) if below else None
         keep = largest_below(at["error_at"], at["cost_at"])
-        ratios = [c["time_ratio"] for c in mine if c["step"] == keep and c["tracer"] == "embree"]
-        worst = {x: max((c["time_ratio"] for c in mine if c["step"] == x and c["tracer"] == "embree"), default=0.0)
-                 for x in steps}
-        over = [x for x in steps if worst[x] > MARGIN_RATIO]
+        ratios = [c["time_ratio"] for c in mine if c["step"] == keep and c["tracer"] == "embree"
+                  and c["time_ratio"] is not None]
+        worst = {x: max((c["time_ratio"] for c in mine if c["step"] == x and c["tracer"] == "embree"
+                         and c["time_ratio"] is not None), default=None) for x in steps}
+        over = [x for x in steps if worst[x] is not None and worst[x] > MARGIN_RATIO]
         margin = largest_below(at["error_at"], at["cost_at"], min(over, default=None))
         out[kind] = {**at, "keep": keep, "saving_at_keep": 1 - max(ratios) if ratios else None, "margin": margin,
                      "worst_ratio": worst,
@@ -329,13 +355,24 @@ def detail_table(cs: list[dict]) -> str:
     rows = [[c["scene"], c["tracer"], c["kind"], UNITS[c["kind"]].format(c["step"]), c["n"], f"{c['mae']:.3f}",
              f"{c['mae_max']:.3f}", f"{c['mae_reflective']:.2f}",
              f"{100 * c['recomputed']:.1f} ({100 * c['disoccluded']:.1f} + {100 * c['unreliable']:.1f})",
-             f"{100 * c['reflective']:.0f}", f"{c['reused_ms']:.0f}", f"{c['keyframe_ms']:.0f}",
-             f"{c['time_ratio']:.2f}", _fmt(c, "mae_vs_embree", ".3f"),
+             f"{100 * c['reflective']:.0f}", c.get("n_timed", c["n"]), _fmt(c, "reused_ms", ".0f"),
+             _fmt(c, "keyframe_ms", ".0f"), _fmt(c, "time_ratio", ".2f"), _fmt(c, "mae_vs_embree", ".3f"),
              _fmt(c, "keyframe_mae_vs_embree", ".3f")]
             for c in sorted(cs, key=lambda c: (c["scene"], c["tracer"], order[c["kind"]], c["step"]))]
     return md_table(["scene", "tracer", "kind", "step", "keyframe cameras", "MAE mean", "MAE max", "MAE reflective px",
-                     "recomputed % (disoccluded + unreliable)", "reflective %", "reused ms", "keyframe ms",
+                     "recomputed % (disoccluded + unreliable)", "reflective %", "timed", "reused ms", "keyframe ms",
                      "reused / keyframe", "MAE vs Embree's keyframe", "keyframe's MAE vs Embree's"], rows)
+
+
+def untimed(samples: list[dict]) -> dict[str, int]:
+    """Samples left out of the time ratios (under MIN_REFLECTIVE reflective; eye inside
+    the scene box), per scene, kind and step (every tracer's sample counts)."""
+    out: dict[str, int] = {}
+    for s in samples:
+        if s.get("eye_room", 0.0) >= 0 and s["reflective"] < MIN_REFLECTIVE:
+            k = f"{s['scene']} {s['kind']} {UNITS[s['kind']].format(s['step'])}"
+            out[k] = out.get(k, 0) + 1
+    return out
 
 
 def outside(samples: list[dict]) -> dict[str, int]:
@@ -416,7 +453,7 @@ def reading(vd: dict, policy: float, floor: dict[str, float]) -> list[str]:
             rec = (f"{pick:g}" if pick is not None
                    else f"none (between the fly-throughs' {f(floor[kind])} and the first failing step {f(fail)} "
                    + ("no tested step costs at most the margin: "
-                      + ", ".join(f"{f(x)}: {v['worst_ratio'][x]:.2f} of a keyframe" for x in above)
+                      + ", ".join(f"{f(x)}: {_fmt(v['worst_ratio'], x, '.2f')} of a keyframe" for x in above)
                       if above else "nothing is tested") + ")")
             if pick is not None and pick != v.get("margin"):
                 rec += (f" (the margin step {f(v.get('margin'))} would fire on the fly-throughs, whose frames step "
@@ -462,7 +499,13 @@ def write_report(out: Path, args: argparse.Namespace, info: dict, data: dict, se
              f"{n_keys} keyframe cameras: frames {', '.join(map(str, data['frames']))} of the "
              f"{args.frames}-frame fly-through paths {', '.join(map(str, args.seeds))} per scene; per target "
              "and tracer a keyframe at the start, the reused frame at the target, a keyframe at the target "
-             "(the reference: full tracing by the same tracer; each frame's own wall time).",
+             "(the reference: full tracing by the same tracer), on every other target the keyframe at the "
+             "target first; the stream's ReuseSettings (no timing syncs, no search statistics); times: wall "
+             "time of each `next_frame` call, which returns the read-back colour.",
+             f"Views under {100 * MIN_REFLECTIVE:g} % reflective are left out of the time ratios (both frames "
+             f"cost next to nothing there): {sum(untimed(samples).values())} samples"
+             + (f" ({', '.join(f'{k} × {n}' for k, n in untimed(samples).items())})" if untimed(samples) else "")
+             + ".",
              "Turns alternate left and right between keyframe cameras; moves shift eye and target across the view, "
              "in the one of 8 image-plane directions that leaves the eye the most room in the scene box; a move "
              "that still takes the eye out of the box is left out of the means "
@@ -505,7 +548,8 @@ def write_report(out: Path, args: argparse.Namespace, info: dict, data: dict, se
               "(bench.temporal's) and over the target's reflective pixels (the frames differ only there; the "
               "whole frame's MAE falls where a step turns the view away from reflectors), × its steady state; "
               "recomputed: share of the reflective pixels "
-              "traced in the reused frame; time: the reused frame's over the keyframe's at the target. "
+              "traced in the reused frame; time: the reused frame's over the keyframe's at the target "
+              f"(views under {100 * MIN_REFLECTIVE:g} % reflective left out). "
               "'measured' (path steps): the mean turn, move, zoom and roll of the path's step.", "",
               summary_table(cs, scenes, tracers, base), "", "![MAE and time against the step](" +
               f"{out.name}_mae.png)", ""]
@@ -531,7 +575,8 @@ def plot(cs: list[dict], base: dict, path: Path) -> None:
     series = list(dict.fromkeys((c["scene"], c["tracer"]) for c in cs))
     for j, kind in enumerate(kinds):
         for n, (scene, tracer) in enumerate(series):
-            pts = sorted((c["step"], c["mae_reflective"], c["time_ratio"]) for c in cs
+            pts = sorted((c["step"], c["mae_reflective"], np.nan if c["time_ratio"] is None else c["time_ratio"])
+                         for c in cs
                          if c["kind"] == kind and c["scene"] == scene and c["tracer"] == tracer)
             if not pts:
                 continue
@@ -643,15 +688,17 @@ def main(argv: list[str] | None = None) -> None:
         with SceneGPU(gl, scene) as sg:
             tracers = {t: EmbreeTracer(scene, caster=caster) if t == "embree" else ClusterTracer(gl, sg)
                        for t in sorted(args.tracers, key=lambda t: t != "embree")}  # Embree first: the reference
-            reusers = {t: ReflectionReuser(gl, sg, tr, ReuseSettings()) for t, tr in tracers.items()}
+            # the stream's settings (service.stream): no timing syncs, no search statistics
+            reusers = {t: ReflectionReuser(gl, sg, tr, ReuseSettings(sync_timings=False, search_stats=False))
+                       for t, tr in tracers.items()}
             n = 0
             for seed in args.seeds:
                 cams = flythrough_path(scene.bounds, args.frames, seed=seed, width=args.res, height=args.res)
                 for i in frames:
                     sign = 1.0 if n % 2 == 0 else -1.0
-                    n += 1
                     rows = measure_keyframe(reusers, cams, i, scene.bounds, steps, sign,
-                                            f"{name} path {seed} frame {i}", show)
+                                            f"{name} path {seed} frame {i}", show, parity=n % 2)
+                    n += 1
                     new = [{"scene": name, "path": seed, "frame": i, **r} for r in rows]
                     again = {sample_key(r) for r in new}
                     data["samples"] = [r for r in data["samples"] if sample_key(r) not in again] + new

@@ -327,6 +327,23 @@ def test_stream_jumps_cells_baselines_and_verdicts_by_hand():
     assert vd["roll"]["keep"] == 90.0 and vd["roll"]["error_at"] is None  # clusters 0.7 < 2 × 0.4
 
 
+def test_stream_jumps_leaves_near_empty_views_out_of_the_time_ratio():
+    """Views under MIN_REFLECTIVE reflective stay out of the time ratio (counted by
+    untimed); a cell with none left has no ratio and fails no cost criterion."""
+    from bench.stream_jumps import MIN_REFLECTIVE, baselines, cells, untimed, verdicts
+
+    samples = [_jump("path", 1.0, "embree", 0.2), _jump("turn", 90.0, "embree", 0.0),
+               _jump("turn", 90.0, "embree", 0.0, reflective=MIN_REFLECTIVE / 2, ratio=3.0, frame=1),
+               _jump("turn", 60.0, "embree", 0.0, reflective=MIN_REFLECTIVE / 2, ratio=3.0)]
+    cs = cells(samples)
+    by = {c["step"]: c for c in cs if c["kind"] == "turn"}
+    assert by[90.0]["n"] == 2 and by[90.0]["n_timed"] == 1 and by[90.0]["time_ratio"] == pytest.approx(0.5)
+    assert by[60.0]["n_timed"] == 0 and by[60.0]["time_ratio"] is None
+    v = verdicts(cs, baselines(cs), policy=0.2)["turn"]
+    assert v["cost_at"] is None and v["worst_ratio"] == {60.0: None, 90.0: pytest.approx(0.5)}
+    assert untimed(samples) == {"a turn 90°": 1, "a turn 60°": 1}
+
+
 def _rec_v(worst, margin=0.1, error_at=None, cost_at=None):
     tested = [0.05, 0.1, 0.125, 0.15, 0.2, 0.25, 0.5]
     return {"margin": margin, "error_at": error_at, "cost_at": cost_at, "tested": tested,
@@ -393,6 +410,8 @@ def test_stream_jumps_smoke_writes_its_tables():
     md = res["md"]
     assert "## Steady state" in md and "## Every cell" in md and "## Reading" in md and "JUMP_TURN_DEG" in md
     assert "jumps_mae.png" in res["files"]
+    # the timed frames' order alternates between targets
+    assert {s["key_first"] for s in samples if s["tracer"] == "embree"} == {True, False}
 
 
 def test_service_load_smoke_writes_its_tables(tmp_path):
