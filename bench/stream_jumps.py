@@ -1,5 +1,5 @@
 """Reflection reuse against the size of one camera step (thesis Ch. 5; the thresholds
-of service.stream.camera_jump: JUMP_TURN_DEG, JUMP_MOVE, JUMP_ZOOM).
+of service.stream.camera_jump: JUMP_TURN_DEG, JUMP_MOVE, JUMP_ZOOM, per reflection method).
 
 From keyframe cameras on bench.temporal's fly-through paths (its scenes, seeds and
 500-frame paths; --per-path cameras spread along each), target cameras one step
@@ -17,11 +17,13 @@ reference (so a fresh keyframe's own error is 0 by construction; for the cluster
 tracer its error against Embree's keyframe is reported too). The order alternates
 between targets (start keyframe, reused frame, target keyframe; or the target
 keyframe first), so neither timed frame always runs after the other.
-Reported per kind and step: mean absolute error of the reused frame (0-255, mean
-over pixels and channels, as bench.temporal), the recomputed share of its reflective
-pixels, and its time against the keyframe's at the target (wall time of each
-`next_frame` call, which returns the read-back colour; views under MIN_REFLECTIVE
-reflective are left out of the time ratio). Results:
+Reported per kind and step: mean absolute error of the reused frame (0-255, as
+bench.temporal) over the whole frame, over its reflective pixels and over the pixels
+it reused (flags REUSED: recomputed pixels equal the reference, so only this one
+measures the reuse's own error at large steps), the recomputed share of its
+reflective pixels, and its time against the keyframe's at the target (wall time of
+each `next_frame` call, which returns the read-back colour; views under
+MIN_REFLECTIVE reflective are left out of the time ratio). Results:
 bench/results/stream_jumps.md (+ .json, + _mae.png).
 
     python -m bench.stream_jumps [--scenes living_room bathroom] [--res 256]
@@ -52,6 +54,7 @@ from bench.common import (
 )
 from bench.temporal import MAE_BOUND_255, PATH_SEEDS, THESIS_PATH_FRAMES
 from gl_passes.cluster_tracer import ClusterTracer
+from gl_passes.composition import REUSED
 from gl_passes.context import create_gl_context
 from gl_passes.reprojection import ReflectionReuser, ReuseSettings
 from gl_passes.upload import SceneGPU
@@ -68,14 +71,18 @@ ZOOMS = (1.05, 1.1, 1.25, 1.5, 2.0)
 ROLLS = (10.0, 45.0, 90.0, 180.0)
 PATH_STEPS = (0, 1, 5, 10)
 KINDS = ("path", "turn", "move", "zoom_out", "zoom_in", "roll")
-#: The kinds camera_jump limits, with the constant that does it and how a step reads.
+#: The kinds camera_jump limits, with the constant that does it (and its JumpLimits field).
 THRESHOLDS = {"turn": "JUMP_TURN_DEG", "move": "JUMP_MOVE", "zoom": "JUMP_ZOOM"}
+FIELDS = {"turn": "turn_deg", "move": "move", "zoom": "zoom"}
+#: The stream's reflection methods and the tracer each uses.
+METHODS = {"raytrace": "embree", "cluster": "clusters"}
 UNITS = {"path": "{:g} frames", "turn": "{:g}°", "move": "{:g}", "zoom_out": "×{:g}", "zoom_in": "÷{:g}",
          "roll": "{:g}°"}
 XLABELS = {"turn": "turn (degrees)", "move": "move (of the distance to the target)",
            "zoom_out": "tan(fov/2) × z", "zoom_in": "tan(fov/2) ÷ z", "roll": "roll (degrees)"}
-#: "Clearly above the steady state": the reused frame's MAE over this many times the
-#: mean MAE of the path steps 1-10 (same scene, tracer and keyframe cameras).
+#: "Clearly above the steady state": the reused frame's MAE over the pixels it reused
+#: over this many times that MAE's mean on the path steps 1-10 (same scene, tracer and
+#: keyframe cameras).
 CLEARLY = 2.0
 #: Views with less than this share of reflective pixels are left out of the time ratio:
 #: there both frames cost next to nothing and their ratio is noise.
@@ -86,6 +93,12 @@ MIN_REFLECTIVE = 0.01
 #: choice: the reused jump frame costs nearly a keyframe and, recomputing more than the
 #: keyframe policy's share, makes the next frame a keyframe anyway.
 MARGIN_RATIO = 0.8
+#: Where a method's reused frame costs over MARGIN_RATIO of a keyframe at every tested
+#: step above the fly-throughs' (the cluster tracer), a forced keyframe costs about
+#: nothing and removes the error: the threshold is then the smallest tested step at
+#: least FLOOR_MARGIN times the fly-throughs' largest step (for the zoom: its logarithm),
+#: so that the stream still reuses on paths up to that much faster than bench.temporal's.
+FLOOR_MARGIN = 1.5
 
 
 def room(point: np.ndarray, bounds: tuple[np.ndarray, np.ndarray]) -> float:
@@ -121,6 +134,14 @@ def mae(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.abs(a - b).mean() * 255)
 
 
+def reused_error(reused, key: np.ndarray) -> tuple[float, int]:
+    """(sum of the absolute error on the 0-255 scale, number of pixel-channels) over the
+    pixels `reused` (a ReuseFrame) reused (flags REUSED) against the colour `key`."""
+    m = reused.flags == REUSED
+    d = np.abs(reused.color[m] - key[m])
+    return float(d.sum() * 255), int(d.size)
+
+
 def timed(ru: ReflectionReuser, cam: Camera, keyframe: bool = False):
     """(frame, wall ms) of one `next_frame` call (it returns the read-back colour, so the
     time includes the GPU work even without the reuser's timing syncs)."""
@@ -154,8 +175,10 @@ def measure_keyframe(reusers: dict, cams: list[Camera], i: int, bounds, steps: d
             assert not reused.stats.keyframe and key.stats.keyframe
             keys[tname] = key.color
             s = reused.stats
+            err, n = reused_error(reused, key.color)
             row = {"kind": kind, "step": step, "tracer": tname, "turn_deg": st.turn_deg, "move": st.move,
                    "zoom": st.zoom, "roll_deg": st.roll_deg, "mae": mae(reused.color, key.color),
+                   "reused_err_sum": err, "reused_n": n,
                    "recomputed": s.recomputed_fraction, "disoccluded": s.disoccluded / max(s.reflective, 1),
                    "unreliable": s.unreliable / max(s.reflective, 1),
                    "reflective": s.reflective / reused.reflective.size,
@@ -177,11 +200,13 @@ def cells(samples: list[dict]) -> list[dict]:
     reused frame and the keyframe share the G-buffer, so they differ only there; the
     whole frame's MAE also falls when a step turns the view away from reflectors; the
     ratio of means weighs each camera by its reflective pixels, so a view left with a
-    few badly reused ones does not dominate), recomputed share, times (and their
-    ratio: mean reused / mean keyframe ms, over the samples at least MIN_REFLECTIVE
-    reflective, `n_timed` of them; None where none is), the cluster tracer's MAE
-    against Embree, the measured step. Samples whose eye left the scene box (a long move) are
-    left out."""
+    few badly reused ones does not dominate), MAE over the pixels the reused frame
+    reused (`mae_reused`, mean error sum / mean pixel-channel count, None where none
+    was: recomputed pixels equal the reference, so the other two fall as a step
+    recomputes more), recomputed share, times (and their ratio: mean reused / mean
+    keyframe ms, over the samples at least MIN_REFLECTIVE reflective, `n_timed` of
+    them; None where none is), the cluster tracer's MAE against Embree, the measured
+    step. Samples whose eye left the scene box (a long move) are left out."""
     groups: dict[tuple, list[dict]] = {}
     for s in samples:
         if s.get("eye_room", 0.0) < 0:  # a move that left the scene box: its view is not the scene's
@@ -196,21 +221,23 @@ def cells(samples: list[dict]) -> list[dict]:
         c = {"scene": scene, "tracer": tracer, "kind": kind, "step": step, "n": len(ss), "n_timed": len(timed),
              **{k: mean(k) for k in ("mae", "recomputed", "disoccluded", "unreliable",
                                      "reflective", "turn_deg", "move", "zoom",
-                                     "roll_deg", "mae_vs_embree", "keyframe_mae_vs_embree")},
+                                     "roll_deg", "mae_vs_embree", "keyframe_mae_vs_embree", "reused_err_sum",
+                                     "reused_n")},
              **{k: mean(k, timed) for k in ("reused_ms", "keyframe_ms")},
              "mae_max": float(max(s["mae"] for s in ss))}
         c["time_ratio"] = c["reused_ms"] / c["keyframe_ms"] if timed else None
         c["mae_reflective"] = c["mae"] / c["reflective"] if c["reflective"] else 0.0
+        c["mae_reused"] = c["reused_err_sum"] / c["reused_n"] if c["reused_n"] else None
         out.append(c)
     return out
 
 
-def baselines(cs: list[dict], key: str = "mae_reflective") -> dict[tuple[str, str], float]:
+def baselines(cs: list[dict], key: str = "mae_reused") -> dict[tuple[str, str], float]:
     """(scene, tracer) → the steady state: mean `key` (an MAE) of the reused frames
     1 to 10 path frames after their keyframe (the path kind, step > 0)."""
     groups: dict[tuple[str, str], list[float]] = {}
     for c in cs:
-        if c["kind"] == "path" and c["step"] > 0:
+        if c["kind"] == "path" and c["step"] > 0 and c.get(key) is not None:
             groups.setdefault((c["scene"], c["tracer"]), []).append(c[key])
     return {k: float(np.mean(v)) for k, v in groups.items()}
 
@@ -261,57 +288,90 @@ def recommended(v: dict, floor: float) -> float | None:
     return min(passing) if passing else None
 
 
-def verdicts(cs: list[dict], base: dict[tuple[str, str], float], policy: float) -> dict[str, dict]:
+def above_floor(v: dict, floor: float, kind: str) -> float | None:
+    """The smallest tested step below the first error (a) failure at least FLOOR_MARGIN
+    times the fly-throughs' largest step `floor` (the zoom: its logarithm)."""
+    least = floor ** FLOOR_MARGIN if kind == "zoom" else floor * FLOOR_MARGIN
+    ok = [x for x in v["tested"] if x > floor and x >= least and (v["error_at"] is None or x < v["error_at"])]
+    return min(ok) if ok else None
+
+
+def never_cheap(v: dict, floor: float) -> bool:
+    """Whether the reused frame costs over MARGIN_RATIO of a keyframe (in some scene) at
+    every tested step above `floor`: a forced keyframe there costs about nothing."""
+    above = [x for x in v["tested"] if x > floor and v["worst_ratio"].get(x) is not None]
+    return bool(above) and all(v["worst_ratio"][x] > MARGIN_RATIO for x in above)
+
+
+def recommended_for(method: str, v: dict, floor: float, kind: str, cap: float | None = None) -> float | None:
+    """A method's threshold: `recommended`; for a method whose reuse is never cheap above
+    the fly-throughs (`never_cheap`, the cluster tracer), the smallest step with
+    FLOOR_MARGIN above them (`above_floor`), no looser than `cap` (raytrace's)."""
+    if method == "raytrace" or not never_cheap(v, floor):
+        return recommended(v, floor)
+    pick = above_floor(v, floor, kind)
+    return pick if cap is None or pick is None else min(pick, cap)
+
+
+def verdicts(cs: list[dict], base: dict[tuple[str, str], float], policy: float,
+             tracer: str = "embree") -> dict[str, dict]:
     """Per kind that camera_jump limits (turn, move, zoom: out and in together) and
-    roll, the first step at which, in some scene (mean over its keyframe cameras):
-    `error_at`, the reused frame's MAE over its reflective pixels exceeds CLEARLY ×
-    the steady state of its tracer (`base`, baselines of that MAE); `cost_at`, with
-    Embree (the sparse tracer: the cluster tracer renders whole frames, never cheaper)
-    it takes as long as the keyframe at the target; `policy_at`, more than `policy`
-    (the keyframe threshold) of its reflective pixels are recomputed (the next frame
-    is a keyframe anyway). `keep`: the largest step below the first
-    error or cost failure (reuse is fine up to there; None: not even the smallest);
-    `policy_keep`: the largest below the first failure of any of the three;
-    `margin`: the largest below the first error failure and the first step at which
-    Embree's reused frame costs over MARGIN_RATIO of a keyframe (the recommendation);
-    `worst_ratio`: per step, the largest reused / keyframe time over the scenes (None:
-    no timed sample);
-    `saving_at_keep`: the share of a keyframe's time Embree's reused frame saves there
-    (the least over the scenes); `exact`: per step, whether Embree's reused frames
-    equal its keyframes (MAE < 0.001, under 0.1 % recomputed)."""
+    roll, for `tracer`'s cells, the first step at which, in some scene (mean over its
+    keyframe cameras): `error_at`, the reused frame's MAE over the pixels it reused
+    exceeds CLEARLY × the steady state (`base`, baselines of that MAE); `cost_at`, it
+    takes as long as the keyframe at the target; `policy_at`, more than `policy` (the
+    keyframe threshold) of its reflective pixels are recomputed (the next frame is a
+    keyframe anyway). `keep`: the largest step below the first error or cost failure
+    (reuse is fine up to there; None: not even the smallest); `policy_keep`: the
+    largest below the first failure of any of the three; `margin`: the largest below
+    the first error failure and the first step at which the reused frame costs over
+    MARGIN_RATIO of a keyframe (the recommendation); `worst_ratio` / `least_ratio`:
+    per step, the largest / smallest reused / keyframe time over the scenes (None:
+    no timed sample); `worst_error`: per step, the largest reused-pixel MAE × steady;
+    `recomputed`: per step, the least and largest recomputed share; `saving_at_keep`:
+    the share of a keyframe's time the reused frame saves there (the least over the
+    scenes); `exact`: per step, whether the reused frames equal the
+    keyframes (MAE < 0.001, under 0.1 % recomputed)."""
     out = {}
     for kind, names in (("turn", ("turn",)), ("move", ("move",)), ("zoom", ("zoom_out", "zoom_in")),
                         ("roll", ("roll",))):
-        mine = [c for c in cs if c["kind"] in names]
+        mine = [c for c in cs if c["kind"] in names and c["tracer"] == tracer]
         steps = sorted({c["step"] for c in mine})
         at: dict[str, float | None] = {"error_at": None, "cost_at": None, "policy_at": None}
+        worst: dict[float, float | None] = {}
+        least: dict[float, float | None] = {}
+        error: dict[float, float | None] = {}
+        recomputed: dict[float, tuple[float, float]] = {}
         for step in steps:
             here = [c for c in mine if c["step"] == step]
-            fails = {"error_at": any(c["mae_reflective"] > CLEARLY * base.get((c["scene"], c["tracer"]), np.inf)
-                                     for c in here),
-                     "cost_at": any(c["time_ratio"] is not None and c["time_ratio"] >= 1.0
-                                    for c in here if c["tracer"] == "embree"),
+            recomputed[step] = (min(c["recomputed"] for c in here), max(c["recomputed"] for c in here))
+            ratios = [c["time_ratio"] for c in here if c["time_ratio"] is not None]
+            worst[step] = max(ratios) if ratios else None
+            least[step] = min(ratios) if ratios else None
+            rel = [c["mae_reused"] / base[(c["scene"], c["tracer"])] for c in here
+                   if c["mae_reused"] is not None and base.get((c["scene"], c["tracer"]))]
+            error[step] = max(rel) if rel else None
+            fails = {"error_at": error[step] is not None and error[step] > CLEARLY,
+                     "cost_at": worst[step] is not None and worst[step] >= 1.0,
                      "policy_at": any(c["recomputed"] > policy for c in here)}
             for k, failed in fails.items():
                 if failed and at[k] is None:
                     at[k] = step
+
         def largest_below(*limits: float | None, steps=steps) -> float | None:
             first = min((s for s in limits if s is not None), default=None)
             below = [s for s in steps if first is None or s < first]
             return max(below) if below else None
         keep = largest_below(at["error_at"], at["cost_at"])
-        ratios = [c["time_ratio"] for c in mine if c["step"] == keep and c["tracer"] == "embree"
-                  and c["time_ratio"] is not None]
-        worst = {x: max((c["time_ratio"] for c in mine if c["step"] == x and c["tracer"] == "embree"
-                         and c["time_ratio"] is not None), default=None) for x in steps}
         over = [x for x in steps if worst[x] is not None and worst[x] > MARGIN_RATIO]
         margin = largest_below(at["error_at"], at["cost_at"], min(over, default=None))
-        out[kind] = {**at, "keep": keep, "saving_at_keep": 1 - max(ratios) if ratios else None, "margin": margin,
-                     "worst_ratio": worst,
-                     "policy_keep": largest_below(at["error_at"], at["cost_at"], at["policy_at"]), "tested": steps,
+        out[kind] = {**at, "keep": keep,
+                     "saving_at_keep": 1 - worst[keep] if keep is not None and worst[keep] is not None else None,
+                     "margin": margin, "policy_keep": largest_below(at["error_at"], at["cost_at"], at["policy_at"]),
+                     "tested": steps, "worst_ratio": worst, "least_ratio": least, "worst_error": error,
+                     "recomputed": recomputed,
                      "exact": {x: bool(em) and all(c["mae"] < 1e-3 and c["recomputed"] < 1e-3 for c in em)
-                               for x in steps for em in [[c for c in mine
-                                                          if c["step"] == x and c["tracer"] == "embree"]]}}
+                               for x in steps for em in [[c for c in mine if c["step"] == x]]}}
     return out
 
 
@@ -321,14 +381,24 @@ def _fmt(c: dict | None, key: str, fmt: str) -> str:
     return "—" if c is None or c.get(key) is None else format(c[key], fmt)
 
 
-def summary_table(cs: list[dict], scenes: list[str], tracers: list[str], base: dict) -> str:
+def _times(c: dict | None, base: dict, key: str) -> str:
+    """A cell's MAE `key` with its multiple of the steady state `base` (—: none)."""
+    if c is None or c.get(key) is None:
+        return "—"
+    b = base.get((c["scene"], c["tracer"]))
+    return f"{c[key]:.2f} ({c[key] / b:.1f}×)" if b else f"{c[key]:.2f}"
+
+
+def summary_table(cs: list[dict], scenes: list[str], tracers: list[str], bases: dict[str, dict]) -> str:
     """One row per kind and step; per tracer (cells: one per scene, ' / ' between) the
-    reused frame's MAE over the whole frame, over its reflective pixels (× that MAE's
-    steady state, `base`), its recomputed %, and reused / keyframe time."""
+    reused frame's MAE over the whole frame, over its reflective pixels and over the
+    pixels it reused (each × its steady state, `bases` by key), its recomputed %, and
+    reused / keyframe time."""
     idx = {(c["scene"], c["tracer"], c["kind"], c["step"]): c for c in cs}
     head = ["kind", "step", "measured"]
     for t in tracers:
-        head += [f"{t}: MAE", "MAE reflective px (× steady)", "recomputed %", "reused / keyframe time"]
+        head += [f"{t}: MAE", "MAE reflective px (× steady)", "MAE reused px (× steady)", "recomputed %",
+                 "reused / keyframe time"]
     rows = []
     for kind in KINDS:
         for step in sorted({c["step"] for c in cs if c["kind"] == kind}):
@@ -338,13 +408,12 @@ def summary_table(cs: list[dict], scenes: list[str], tracers: list[str], base: d
                         f"{np.mean([abs(c['roll_deg']) for c in same]):.0f}°" if kind == "path" else "")
             row = [kind, UNITS[kind].format(step), measured]
             for t in tracers:
-                cc = [(s, idx.get((s, t, kind, step))) for s in scenes]
-                row.append(" / ".join(_fmt(c, "mae", ".2f") for _, c in cc))
-                row.append(" / ".join(f"{c['mae_reflective']:.2f} ({c['mae_reflective'] / base[(s, t)]:.1f}×)"
-                                      if c and base.get((s, t)) else _fmt(c, "mae_reflective", ".2f")
-                                      for s, c in cc))
-                row.append(" / ".join(_fmt(c, "recomputed", ".0%").rstrip("%") for _, c in cc))
-                row.append(" / ".join(_fmt(c, "time_ratio", ".2f") for _, c in cc))
+                cc = [idx.get((s, t, kind, step)) for s in scenes]
+                row.append(" / ".join(_fmt(c, "mae", ".2f") for c in cc))
+                row.append(" / ".join(_times(c, bases["mae_reflective"], "mae_reflective") for c in cc))
+                row.append(" / ".join(_times(c, bases["mae_reused"], "mae_reused") for c in cc))
+                row.append(" / ".join(_fmt(c, "recomputed", ".0%").rstrip("%") for c in cc))
+                row.append(" / ".join(_fmt(c, "time_ratio", ".2f") for c in cc))
             rows.append(row)
     return md_table(head, rows)
 
@@ -353,15 +422,16 @@ def detail_table(cs: list[dict]) -> str:
     """Every cell: times in ms, the recomputed share split, the cluster tracer against Embree."""
     order = {k: i for i, k in enumerate(KINDS)}
     rows = [[c["scene"], c["tracer"], c["kind"], UNITS[c["kind"]].format(c["step"]), c["n"], f"{c['mae']:.3f}",
-             f"{c['mae_max']:.3f}", f"{c['mae_reflective']:.2f}",
+             f"{c['mae_max']:.3f}", f"{c['mae_reflective']:.2f}", _fmt(c, "mae_reused", ".2f"),
              f"{100 * c['recomputed']:.1f} ({100 * c['disoccluded']:.1f} + {100 * c['unreliable']:.1f})",
              f"{100 * c['reflective']:.0f}", c.get("n_timed", c["n"]), _fmt(c, "reused_ms", ".0f"),
              _fmt(c, "keyframe_ms", ".0f"), _fmt(c, "time_ratio", ".2f"), _fmt(c, "mae_vs_embree", ".3f"),
              _fmt(c, "keyframe_mae_vs_embree", ".3f")]
             for c in sorted(cs, key=lambda c: (c["scene"], c["tracer"], order[c["kind"]], c["step"]))]
     return md_table(["scene", "tracer", "kind", "step", "keyframe cameras", "MAE mean", "MAE max", "MAE reflective px",
-                     "recomputed % (disoccluded + unreliable)", "reflective %", "timed", "reused ms", "keyframe ms",
-                     "reused / keyframe", "MAE vs Embree's keyframe", "keyframe's MAE vs Embree's"], rows)
+                     "MAE reused px", "recomputed % (disoccluded + unreliable)", "reflective %", "timed",
+                     "reused ms", "keyframe ms", "reused / keyframe", "MAE vs Embree's keyframe",
+                     "keyframe's MAE vs Embree's"], rows)
 
 
 def untimed(samples: list[dict]) -> dict[str, int]:
@@ -397,91 +467,219 @@ def temporal_steady(path: Path) -> list[list[str]]:
     return [[s, t, res, len(v), f"{np.mean(v):.3f}"] for (s, t, res), v in groups.items()]
 
 
-def reading(vd: dict, policy: float, floor: dict[str, float]) -> list[str]:
-    """The closing reading: where error or cost rise, what a roll does, the thresholds
-    (`floor`: the fly-throughs' largest steps, `path_floor`)."""
-    from service.stream import JUMP_MOVE, JUMP_TURN_DEG, JUMP_ZOOM
+def current_limits() -> dict[str, dict[str, float]]:
+    """service.stream's thresholds per method: its JUMP_LIMITS where it has them (per
+    method, JumpLimits' turn_deg, move, zoom), else its single JUMP_* constants."""
+    import service.stream as stream
 
-    current = {"turn": JUMP_TURN_DEG, "move": JUMP_MOVE, "zoom": JUMP_ZOOM}
+    limits = getattr(stream, "JUMP_LIMITS", None)
+    if limits:
+        return {m: {k: float(getattr(lim, f)) for k, f in FIELDS.items()} for m, lim in limits.items()}
+    one = {k: float(getattr(stream, name)) for k, name in THRESHOLDS.items()}
+    return {m: dict(one) for m in METHODS}
+
+
+def _step_fmt(kind: str):
+    fmt = UNITS["zoom_out"] if kind == "zoom" else UNITS[kind]
+    return lambda x: "—" if x is None else fmt.format(x)
+
+
+def _floor_fmt(kind: str, x: float) -> str:
+    """The fly-throughs' largest step of `kind`, to the digits that matter."""
+    return {"turn": f"{x:.2f}°", "move": f"{x:.3f}", "zoom": f"×{x:.4f}"}[kind]
+
+
+def _error_trend(v: dict, f) -> str:
+    """How the reused-pixel error (worst scene, × steady) runs over the tested steps."""
+    pts = [(x, e) for x, e in v["worst_error"].items() if e is not None]
+    if not pts:
+        return "no step reused a pixel"
+    peak = max(pts, key=lambda p: p[1])
+    none = [x for x, e in v["worst_error"].items() if e is None]
+    return (f"the error on reused pixels (worst scene) is {pts[0][1]:.1f}× its steady state at {f(pts[0][0])} and "
+            f"{pts[-1][1]:.1f}× at {f(pts[-1][0])}, at most {peak[1]:.1f}× (at {f(peak[0])})"
+            + (f"; nothing reused at {', '.join(map(f, none))}" if none else ""))
+
+
+def _ratios(v: dict, xs, f) -> str:
+    return ", ".join(f"{f(x)}: {v['worst_ratio'][x]:.2f}" if v["worst_ratio"].get(x) is not None else f"{f(x)}: —"
+                     for x in xs)
+
+
+def _span(xs: list[float]) -> str:
+    lo, hi = f"{min(xs):.2f}", f"{max(xs):.2f}"
+    return lo if lo == hi else f"{lo}-{hi}"
+
+
+def _why(method: str, v: dict, fl: float, kind: str, pick: float | None, cap: float | None) -> str:
+    """Why `pick` is the method's threshold for `kind` (`recommended_for`)."""
+    f = _step_fmt(kind)
+    fail = first_failure(v)
+    above = [x for x in v["tested"] if x > fl and (fail is None or x < fail)]
+    ff = _floor_fmt(kind, fl)
+    if method != "raytrace" and never_cheap(v, fl):
+        least = [v["least_ratio"][x] for x in v["tested"] if x > fl and v["least_ratio"].get(x) is not None]
+        return ("its reused frame costs over " f"{MARGIN_RATIO:g} of a keyframe at every tested step above the "
+                f"fly-throughs' (worst scene per step: {_ratios(v, [x for x in v['tested'] if x > fl], f)}; "
+                f"least scene {_span(least)}), so a keyframe forced at a jump costs about "
+                "what the reused frame would and removes its error: the threshold is the smallest tested step "
+                f"at least {FLOOR_MARGIN:g}× the fly-throughs' largest ({ff}"
+                + (", on the zoom's logarithm" if kind == "zoom" else "") + ")"
+                + (f", no looser than raytrace's {f(cap)}" if cap is not None and pick == cap else "")
+                + (" — none passes (a)" if pick is None else ""))
+    if pick is not None and pick == v.get("margin"):
+        return (f"the largest step passing (a) at which the reused frame costs at most {MARGIN_RATIO:g} of a "
+                f"keyframe in every scene (worst: {_ratios(v, [pick], f)})")
+    head = (f"the margin step {f(v.get('margin'))} would fire on the fly-throughs, whose frames step up to {ff}"
+            if v.get("margin") is not None else f"no tested step keeps the reused frame at {MARGIN_RATIO:g} of a "
+            f"keyframe or less from the smallest on (the fly-throughs step up to {ff})")
+    if pick is not None:
+        skipped = [x for x in above if x < pick]
+        return (f"{head}; {f(pick)} is the smallest tested step above {ff} that passes (a) and (b) and costs at "
+                f"most {MARGIN_RATIO:g} of a keyframe (worst: {_ratios(v, [pick], f)})"
+                + (f"; the steps between cost more ({_ratios(v, skipped, f)})" if skipped else ""))
+    upto = f"up to the first failing step {f(fail)}" if fail is not None else "up to the largest tested"
+    if not above:
+        return f"{head}; the range between {ff} and {f(fail)} is untested"
+    return (f"{head}; no tested step above {ff} {upto} costs at most {MARGIN_RATIO:g} of a keyframe "
+            f"(worst scene: {_ratios(v, above, f)}): the range from {ff} {upto} has no passing step — a "
+            f"threshold there gives up the margin (the smallest such step passing (a) and (b): {f(min(above))})")
+
+
+def _verdict(cur: float | None, pick: float | None, fail: float | None, fl: float) -> str:
+    """How the current threshold `cur` compares (`fail`: the first failing step that counts)."""
+    if cur is None:
+        return "— (none)"
+    word = ("too loose (lets steps through where the reuse fails)" if fail is not None and cur >= fail
+            else "fires on the fly-throughs" if cur <= fl
+            else "holds" if pick is not None and cur == pick
+            else "stricter than recommended" if pick is not None and cur < pick
+            else "looser than recommended" if pick is not None
+            else "no tested step recommends it (see below)")
+    return f"{cur:g}: {word}"
+
+
+def _roll(v: dict, f) -> str:
+    """The roll line: exact rolls (square frames only), what the others recompute and cost."""
+    fail = first_failure(v)
+    if fail is not None:
+        return (f"- roll: from {f(fail)} the reuse fails (error or cost); a roll threshold would catch it, but the "
+                "fly-through paths' look-at cameras spin that much near the vertical (service.stream), so it "
+                "would fire on them.")
+    exact = [x for x in v["tested"] if x in (90.0, 180.0) and v["exact"].get(x)]
+    rest = [x for x in v["tested"] if x not in exact]
+    parts = [f"- roll: error and cost pass at every tested roll (up to {f(max(v['tested']))})"]
+    if exact:
+        parts.append(f"a roll of {' or '.join(map(f, exact))} maps a square frame's pixels onto pixels (square "
+                     "frames only, as here: on a W ≠ H frame a quarter roll swaps the axes and no longer maps the "
+                     "frame onto itself), so there the reuse is exact (MAE < 0.001) and recomputes almost nothing "
+                     "(< 0.1 %)")
+    smallest = min(rest) if rest else None
+    for x in rest:
+        if x == smallest:
+            continue
+        lo, hi = (f"{100 * r:.0f}" for r in v["recomputed"][x])
+        err, r, r0 = v["worst_error"][x], v["worst_ratio"][x], v["worst_ratio"][smallest]
+        if err is None or r is None or r0 is None:
+            continue
+        what = (f"a {f(x)} roll recomputes {lo if lo == hi else f'{lo}-{hi}'} % of the reflective pixels"
+                + (" (the image corners)" if x % 90 else "")
+                + f" and costs {r:.2f} of a keyframe (worst scene; a {f(smallest)} roll {r0:.2f}): ")
+        what += ("the error on its reused pixels does not rise" if err <= 1.25
+                 else "the error on its reused pixels rises") + f" ({err:.1f}× steady)"
+        what += (" and the cost stays under a keyframe" if r < 1.0 else f" and the cost reaches {r:.2f} of a keyframe")
+        parts.append(what)
+    return "; ".join(parts) + ": no roll threshold is needed."
+
+
+def reading(vds: dict[str, dict], policy: float, floor: dict[str, float], untimed: dict[str, int]) -> list[str]:
+    """The closing reading per method (`vds`: method → `verdicts` for its tracer): where
+    error or cost rise, what a roll does, the thresholds (`floor`: the fly-throughs'
+    largest steps, `path_floor`; `untimed`: samples left out of the time ratios)."""
+    current = current_limits()
     pct = f"{100 * policy:.0f} %"
+    n_untimed = sum(untimed.values())
     lines = ["## Reading", "",
              f"Criteria, each failing when it fails in some scene (mean over its keyframe cameras): (a) error: "
-             f"the reused frame's MAE over its reflective pixels exceeds {CLEARLY:g}× its tracer's steady state "
-             "(the reused frames 1-10 path frames after their keyframe, above); (b) cost: with Embree (the "
-             "sparse tracer) the reused frame takes as long as a keyframe at the target — the cluster tracer "
-             "renders the whole frame whenever it recomputes a pixel, so its reused frames cost about what its "
-             "keyframes cost at every step and only its error counts. A threshold fits the data between the last "
-             "tested step that passes and the first that fails. For information, (c): more than "
-             f"{pct} of the reflective pixels recomputed (ReuseSettings.keyframe_threshold), where the keyframe "
-             "policy makes the *next* frame a keyframe anyway. Past (c) a keyframe forced at a single jump "
-             "followed by slow motion saves a little (the reused jump frame costs more than an ordinary reused "
-             "frame, and the policy's keyframe follows it), while on a camera moving that fast every frame, "
-             "forcing keyframes costs more (a keyframe every frame, against the policy's reused and keyframes in "
-             "turn); so (c) bounds nothing either way. Where the reused jump frame costs nearly a keyframe, "
-             "though, the single-jump saving is about an ordinary reused frame, so the recommended thresholds "
-             f"keep a margin: the largest step passing (a) at which Embree's reused frame costs at most "
+             f"the reused frame's MAE over the pixels it reused (flags REUSED) exceeds {CLEARLY:g}× its tracer's "
+             "steady state (the same MAE of the reused frames 1-10 path frames after their keyframe) — the "
+             "recomputed pixels equal the reference (the same tracer's keyframe), so the MAE over the whole frame "
+             "or its reflective pixels falls as a step recomputes more and says nothing about the reuse there; "
+             "(b) cost: the method's reused frame takes as long as a keyframe at the target. Times are the wall "
+             "time of each `next_frame` call (the stream's settings: no timing syncs, so the reuser's own step "
+             "timings could miss GPU work in flight); the reused frame and the keyframe at the target alternate in "
+             f"order between targets; views under {100 * MIN_REFLECTIVE:g} % reflective are left out of the time "
+             f"ratios (their frames cost next to nothing): {n_untimed} samples"
+             + (f" ({', '.join(f'{k} × {n}' for k, n in untimed.items())})" if untimed else "") + ". "
+             "A threshold fits the data between the last tested step that passes and the first that fails. For "
+             f"information, (c): more than {pct} of the reflective pixels recomputed "
+             "(ReuseSettings.keyframe_threshold), where the keyframe policy makes the *next* frame a keyframe "
+             "anyway; (c) bounds nothing either way (past it a keyframe forced at a single jump saves a little, "
+             "while on a camera moving that fast every frame forced keyframes cost more). Where the reused jump "
+             "frame costs nearly a keyframe the single-jump saving is small, so the recommended thresholds keep a "
+             f"margin: the largest step passing (a) at which the method's reused frame costs at most "
              f"{MARGIN_RATIO:g} of a keyframe in every scene, unless that step would fire on bench.temporal's "
              "fly-throughs (their largest step between frames: "
              f"{floor['turn']:.2f}°, move {floor['move']:.4f}, zoom ×{floor['zoom']:.4f}; paths of "
              f"{', '.join(map(str, PATH_LENGTHS))} frames), where the stream would then stop reusing as "
-             "bench.temporal measures: then the smallest tested step above them that passes (a) and (b) and at "
-             f"which Embree's reused frame costs at most {MARGIN_RATIO:g} of a keyframe, or none.", ""]
-    rows, say = [], []
-    for kind, v in vd.items():
-        fmt = UNITS["zoom_out"] if kind == "zoom" else UNITS[kind]
-
-        def f(x, fmt=fmt) -> str:
-            return "—" if x is None else fmt.format(x)
-        cur = current.get(kind)
-        fail = min((s for s in (v["error_at"], v["cost_at"]) if s is not None), default=None)
-        if cur is None:
-            verdict = "— (none)"
-        else:
-            lo = recommended(v, floor[kind])
-            word = ("too loose (lets steps through where the reuse fails)" if fail is not None and cur >= fail
-                    else "stricter than the data need (forces keyframes where the reuse is cheap and as good)"
-                    if lo is not None and cur < lo else "holds")
-            verdict = (f"{cur:g}: {word}; data: ≥ {f(lo)}"
-                       + (f", < {f(fail)}" if fail is not None else ", no tested step fails"))
-        rows.append([kind, f(v["error_at"]), f(v["cost_at"]), f(v["policy_at"]), f(v["keep"]),
-                     f(recommended(v, floor[kind]) if kind in THRESHOLDS else v.get("margin")), verdict])
-        if kind in THRESHOLDS:
-            lim = (f"{v['keep']:g}" + (" or more" if fail is None else "") if v["keep"] is not None
-                   else f"below {f(min(v['tested']))}")
-            pick = recommended(v, floor[kind])
-            above = [x for x in v["tested"] if x > floor[kind] and (fail is None or x < fail)]
-            rec = (f"{pick:g}" if pick is not None
-                   else f"none (between the fly-throughs' {f(floor[kind])} and the first failing step {f(fail)} "
-                   + ("no tested step costs at most the margin: "
-                      + ", ".join(f"{f(x)}: {_fmt(v['worst_ratio'], x, '.2f')} of a keyframe" for x in above)
-                      if above else "nothing is tested") + ")")
-            if pick is not None and pick != v.get("margin"):
-                rec += (f" (the margin step {f(v.get('margin'))} would fire on the fly-throughs, whose frames step "
-                        f"up to {f(floor[kind])}; {f(pick)} is the smallest tested step above them within the "
-                        "margin)")
-            saving = (f" (there Embree's reused frame saves {v['saving_at_keep']:.0%} of a keyframe's time)"
-                      if v.get("saving_at_keep") is not None else "")
-            say.append(f"- {kind}: error and cost pass up to {f(v['keep'])}{saving}"
-                       + (f" and fail from {f(fail)}" if fail is not None else " (every tested step)")
-                       + f"; recomputed > {pct} from {f(v['policy_at'])}. The data allow {THRESHOLDS[kind]} up to "
-                       + f"{lim}; recommended (margin: Embree's reused frame at most {MARGIN_RATIO:g} of a keyframe) "
-                       + f"{THRESHOLDS[kind]} = {rec}; now " + verdict + ".")
-        elif fail is None:
-            exact = [x for x in v["tested"] if x in (90.0, 180.0) and v.get("exact", {}).get(x)]
-            say.append(f"- roll: error and cost pass at every tested roll (up to {f(max(v['tested']))})"
-                       + (f"; a roll of {' or '.join(map(f, exact))} maps a square frame's pixels onto pixels, "
-                          "so there Embree's reuse is exact (MAE < 0.001) and recomputes almost nothing (< 0.1 %)"
-                          if exact else "")
-                       + (f"; recomputed > {pct} from {f(v['policy_at'])} (the image corners)"
-                          if v["policy_at"] is not None else "") + ": no roll threshold is needed.")
-        else:
-            say.append(f"- roll: from {f(fail)} the reuse fails (error or cost); a roll threshold would catch "
-                       "it, but the fly-through paths' look-at cameras spin that much near the vertical "
-                       "(service.stream), so it would fire on them.")
-    lines += [md_table(["kind", f"(a) MAE > {CLEARLY:g}× steady from", "(b) Embree reused ≥ keyframe time from",
-                        f"(c) recomputed > {pct} from", "largest step passing (a), (b)",
-                        f"recommended (reused ≤ {MARGIN_RATIO:g} keyframe)", "current threshold"],
-                       rows), "", *say, ""]
+             "bench.temporal measures: then the smallest tested step above them that passes (a) and (b) and "
+             f"costs at most {MARGIN_RATIO:g} of a keyframe, or none. A method whose reused frame costs over "
+             f"{MARGIN_RATIO:g} of a keyframe at every step above the fly-throughs' (the cluster tracer) gains "
+             "nothing by reusing across a jump, and a forced keyframe removes the error: its thresholds are the "
+             f"smallest tested steps at least {FLOOR_MARGIN:g}× the fly-throughs' largest, no looser than "
+             "raytrace's.", ""]
+    picks: dict[str, dict[str, float | None]] = {}
+    for method, vd in vds.items():
+        cur = current.get(method, {})
+        picks[method] = {}
+        rows, say = [], []
+        for kind, v in vd.items():
+            f = _step_fmt(kind)
+            fl = floor.get(kind)
+            if kind in THRESHOLDS:
+                cap = picks.get("raytrace", {}).get(kind) if method != "raytrace" else None
+                pick = recommended_for(method, v, fl, kind, cap)
+                picks[method][kind] = pick
+                # a method whose reuse is never cheap: its cost (b) is noise about 1, only the error counts
+                free = method != "raytrace" and never_cheap(v, fl)
+                fail = v["error_at"] if free else first_failure(v)
+                verdict = _verdict(cur.get(kind), pick, fail, fl)
+            else:
+                pick, verdict = v.get("margin"), "— (none)"
+            rows.append([kind, f(v["error_at"]), f(v["cost_at"]), f(v["policy_at"]), f(v["keep"]), f(pick), verdict])
+            if kind in THRESHOLDS and free:
+                ok = [x for x in v["tested"] if v["error_at"] is None or x < v["error_at"]]
+                say.append(f"- {kind}: {_error_trend(v, f)}. The error passes (a) up to {f(max(ok, default=None))}"
+                           + (f" and fails from {f(fail)}" if fail is not None else " (every tested step)")
+                           + f"; the reused frame costs over {MARGIN_RATIO:g} of a keyframe at every step above "
+                           + "the fly-throughs' in some scene"
+                           + (f" ((b), as long as a keyframe, from {f(v['cost_at'])})" if v["cost_at"] else "")
+                           + f"; recomputed > {pct} from {f(v['policy_at'])}. "
+                           + "Reused / keyframe time, worst scene: " + _ratios(v, v["tested"], f)
+                           + f". Recommended {FIELDS[kind]} ({THRESHOLDS[kind]}) = "
+                           + (f"{pick:g}" if pick is not None else "none") + ": "
+                           + _why(method, v, fl, kind, pick, cap) + f"; now {verdict}.")
+            elif kind in THRESHOLDS:
+                saving = (f" (there its reused frame saves {v['saving_at_keep']:.0%} of a keyframe's time, worst "
+                          "scene)" if v.get("saving_at_keep") is not None else "")
+                say.append(f"- {kind}: {_error_trend(v, f)}. Error and cost pass up to {f(v['keep'])}{saving}"
+                           + (f" and fail from {f(fail)}" if fail is not None else " (every tested step)")
+                           + f"; recomputed > {pct} from {f(v['policy_at'])}. Reused / keyframe time, worst scene: "
+                           + _ratios(v, v["tested"], f) + f". Recommended {FIELDS[kind]} ({THRESHOLDS[kind]}) = "
+                           + (f"{pick:g}" if pick is not None else "none") + ": "
+                           + _why(method, v, fl, kind, pick, cap) + f"; now {verdict}.")
+            else:
+                say.append(_roll(v, f))
+        title = ("raytrace (Embree's sparse rays: reuse saves tracing)" if method == "raytrace"
+                 else "cluster (the cluster tracer renders whole frames)" if method == "cluster" else method)
+        lines += [f"### {title}", "",
+                  md_table(["kind", f"(a) reused-px MAE > {CLEARLY:g}× steady from",
+                            "(b) reused ≥ keyframe time from", f"(c) recomputed > {pct} from",
+                            "largest step passing (a), (b)", "recommended", "current threshold"], rows),
+                  "", *say, ""]
+    lines += ["Thresholds per method (turn_deg, move, zoom; — : no tested step fits, see above): "
+              + "; ".join(f"{m} " + ", ".join(_step_fmt(k)(p.get(k)) for k in THRESHOLDS) for m, p in picks.items())
+              + ".", ""]
     return lines
 
 
@@ -490,9 +688,9 @@ def write_report(out: Path, args: argparse.Namespace, info: dict, data: dict, se
     cs = cells(samples)
     base = baselines(cs)
     policy = ReuseSettings().keyframe_threshold
-    vd = verdicts(cs, base, policy)
     scenes = list(dict.fromkeys(s["scene"] for s in samples))
     tracers = list(dict.fromkeys(s["tracer"] for s in samples))
+    vds = {m: verdicts(cs, base, policy, t) for m, t in METHODS.items() if t in tracers}
     tri = ", ".join(f"{s} {n:,}" for s, n in data["triangles"].items())
     n_keys = len({(s["scene"], s["path"], s["frame"]) for s in samples})
     facts = [f"Scenes (triangles): {tri}; {args.res}²; tracers {', '.join(tracers)}.",
@@ -502,10 +700,6 @@ def write_report(out: Path, args: argparse.Namespace, info: dict, data: dict, se
              "(the reference: full tracing by the same tracer), on every other target the keyframe at the "
              "target first; the stream's ReuseSettings (no timing syncs, no search statistics); times: wall "
              "time of each `next_frame` call, which returns the read-back colour.",
-             f"Views under {100 * MIN_REFLECTIVE:g} % reflective are left out of the time ratios (both frames "
-             f"cost next to nothing there): {sum(untimed(samples).values())} samples"
-             + (f" ({', '.join(f'{k} × {n}' for k, n in untimed(samples).items())})" if untimed(samples) else "")
-             + ".",
              "Turns alternate left and right between keyframe cameras; moves shift eye and target across the view, "
              "in the one of 8 image-plane directions that leaves the eye the most room in the scene box; a move "
              "that still takes the eye out of the box is left out of the means "
@@ -518,12 +712,14 @@ def write_report(out: Path, args: argparse.Namespace, info: dict, data: dict, se
     lines = report_head("Reflection reuse against one camera step (stream keyframe thresholds)", args.command,
                         facts, seconds, info)
     base_all = baselines(cs, "mae")
+    base_refl = baselines(cs, "mae_reflective")
     lines += ["## Steady state", "",
               "The reused frame 1-10 frames along the path after a keyframe camera (the path kind below, "
-              "steps 1, 5, 10; mean MAE, 0-255, over the whole frame and over its reflective pixels) — what a "
-              "stream's reused frames err on the benchmarked paths:", "",
-              md_table(["scene", "tracer", "steady MAE", "steady MAE reflective px"],
-                       [[s, t, f"{base_all[(s, t)]:.3f}", f"{v:.3f}"] for (s, t), v in base.items()]), ""]
+              "steps 1, 5, 10; mean MAE, 0-255, over the whole frame, over its reflective pixels and over the "
+              "pixels it reused) — what a stream's reused frames err on the benchmarked paths:", "",
+              md_table(["scene", "tracer", "steady MAE", "steady MAE reflective px", "steady MAE reused px"],
+                       [[s, t, f"{base_all[(s, t)]:.3f}", f"{base_refl[(s, t)]:.3f}",
+                         f"{base[(s, t)]:.3f}" if (s, t) in base else "—"] for (s, t) in base_all]), ""]
     steady = temporal_steady(RESULTS_DIR / "temporal.json")
     if steady:
         lines += ["bench.temporal's mean MAE of ours along its whole paths (keyframes, MAE 0, included; "
@@ -545,23 +741,24 @@ def write_report(out: Path, args: argparse.Namespace, info: dict, data: dict, se
     lines += ["## Error, recomputed share and time against the step", "",
               f"Means over the keyframe cameras of each scene; a cell per scene ({' / '.join(scenes)}). MAE of "
               "the reused frame against the keyframe at the target by the same tracer, over the whole frame "
-              "(bench.temporal's) and over the target's reflective pixels (the frames differ only there; the "
-              "whole frame's MAE falls where a step turns the view away from reflectors), × its steady state; "
-              "recomputed: share of the reflective pixels "
-              "traced in the reused frame; time: the reused frame's over the keyframe's at the target "
-              f"(views under {100 * MIN_REFLECTIVE:g} % reflective left out). "
+              "(bench.temporal's), over the target's reflective pixels (the frames differ only there; the "
+              "whole frame's MAE falls where a step turns the view away from reflectors) and over the pixels "
+              "the reused frame reused (the recomputed ones equal the reference: only this MAE measures the "
+              "reuse itself at large steps; —: none reused), each × its steady state; recomputed: share of "
+              "the reflective pixels traced in the reused frame; time: the reused frame's over the keyframe's "
+              f"at the target (views under {100 * MIN_REFLECTIVE:g} % reflective left out). "
               "'measured' (path steps): the mean turn, move, zoom and roll of the path's step.", "",
-              summary_table(cs, scenes, tracers, base), "", "![MAE and time against the step](" +
-              f"{out.name}_mae.png)", ""]
+              summary_table(cs, scenes, tracers, {"mae_reflective": base_refl, "mae_reused": base}), "",
+              f"![MAE on reused pixels and time against the step]({out.name}_mae.png)", ""]
     lines += ["## Every cell", "", detail_table(cs), ""]
-    lines += reading(vd, policy, path_floor(scenes))
+    lines += reading(vds, policy, path_floor(scenes), untimed(samples))
     if data.get("notes"):
         lines += data["notes"]
     write_text(out.with_suffix(".md"), "\n".join(lines))
 
 
 def plot(cs: list[dict], base: dict, path: Path) -> None:
-    """MAE over the reflective pixels (top) and reused / keyframe time (bottom) against
+    """MAE over the reused pixels (top) and reused / keyframe time (bottom) against
     the step, one panel per kind, a line per scene and tracer (dotted: its steady state)."""
     try:
         import matplotlib
@@ -575,8 +772,8 @@ def plot(cs: list[dict], base: dict, path: Path) -> None:
     series = list(dict.fromkeys((c["scene"], c["tracer"]) for c in cs))
     for j, kind in enumerate(kinds):
         for n, (scene, tracer) in enumerate(series):
-            pts = sorted((c["step"], c["mae_reflective"], np.nan if c["time_ratio"] is None else c["time_ratio"])
-                         for c in cs
+            pts = sorted((c["step"], np.nan if c["mae_reused"] is None else c["mae_reused"],
+                          np.nan if c["time_ratio"] is None else c["time_ratio"]) for c in cs
                          if c["kind"] == kind and c["scene"] == scene and c["tracer"] == tracer)
             if not pts:
                 continue
@@ -589,7 +786,7 @@ def plot(cs: list[dict], base: dict, path: Path) -> None:
         axes[0, j].set_title(kind)
         axes[1, j].axhline(1.0, color="k", lw=0.8)
         axes[1, j].set_xlabel(XLABELS[kind])
-    axes[0, 0].set_ylabel("MAE on reflective pixels (0-255)")
+    axes[0, 0].set_ylabel("MAE on reused pixels (0-255)")
     axes[1, 0].set_ylabel("reused / keyframe time")
     axes[0, 0].legend(fontsize=6)
     fig.tight_layout()

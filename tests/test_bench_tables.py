@@ -283,24 +283,29 @@ def test_temporal_sweeps_smoke_writes_its_tables():
 
 
 def _jump(kind, step, tracer, mae, ratio=0.5, recomputed=0.1, scene="a", **kw):
+    """A stream_jumps sample: MAE `mae` over the whole frame and (unless `reused_mae`)
+    over its 100 reused pixel-channels."""
+    reused_n = kw.pop("reused_n", 100)
     return {"scene": scene, "path": 0, "frame": kw.pop("frame", 0), "kind": kind, "step": step, "tracer": tracer,
-            "mae": mae, "recomputed": recomputed, "disoccluded": 0.0, "unreliable": recomputed, "reflective": 0.3,
+            "mae": mae, "reused_err_sum": kw.pop("reused_mae", mae) * reused_n, "reused_n": reused_n,
+            "recomputed": recomputed, "disoccluded": 0.0, "unreliable": recomputed, "reflective": 0.3,
             "reused_ms": kw.pop("reused_ms", 100.0 * ratio), "keyframe_ms": kw.pop("keyframe_ms", 100.0),
             "turn_deg": 0.0, "move": 0.0, "zoom": 1.0, "roll_deg": 0.0, "start_repeat_mae": 0.0, **kw}
 
 
 def test_stream_jumps_cells_baselines_and_verdicts_by_hand():
     """bench.stream_jumps: cells average over keyframe cameras (time ratio = mean over
-    mean), the steady state is the mean of the path steps after 0, and each kind fails
-    at its first step whose MAE exceeds 2× the steady state or whose Embree reused frame
-    takes as long as a keyframe (the cluster tracer's time does not count)."""
+    mean, reused-pixel MAE = mean error sum over mean count), the steady state is the
+    mean of the path steps after 0, and each kind fails, for the tracer asked, at its
+    first step whose reused-pixel MAE exceeds 2× the steady state or whose reused frame
+    takes as long as a keyframe."""
     from bench.stream_jumps import baselines, cells, verdicts
 
-    samples = [_jump("path", 0.0, "embree", 0.0), _jump("path", 1.0, "embree", 0.1),
+    samples = [_jump("path", 0.0, "embree", 0.0, reused_n=0), _jump("path", 1.0, "embree", 0.1),
                _jump("path", 5.0, "embree", 0.3), _jump("path", 1.0, "clusters", 0.4),
                _jump("turn", 5.0, "embree", 0.2, reused_ms=30.0, keyframe_ms=100.0),
-               _jump("turn", 5.0, "embree", 0.4, reused_ms=70.0, keyframe_ms=300.0, frame=1),
-               _jump("turn", 5.0, "clusters", 0.5, ratio=1.2),  # the cluster tracer: never cheaper, ignored
+               _jump("turn", 5.0, "embree", 0.4, reused_ms=70.0, keyframe_ms=300.0, frame=1, reused_n=300),
+               _jump("turn", 5.0, "clusters", 0.5, ratio=1.2),  # another tracer: not embree's verdict
                _jump("turn", 15.0, "embree", 0.39, recomputed=0.3), _jump("turn", 30.0, "embree", 0.41),
                _jump("zoom_out", 1.05, "embree", 0.1), _jump("zoom_in", 1.05, "embree", 0.1),
                _jump("zoom_out", 1.1, "embree", 0.1), _jump("zoom_in", 1.1, "embree", 0.1, ratio=1.0),
@@ -309,22 +314,30 @@ def test_stream_jumps_cells_baselines_and_verdicts_by_hand():
     turn5 = next(c for c in cs if (c["kind"], c["step"], c["tracer"]) == ("turn", 5.0, "embree"))
     assert turn5["n"] == 2 and turn5["mae"] == pytest.approx(0.3) and turn5["time_ratio"] == pytest.approx(0.25)
     assert turn5["mae_reflective"] == pytest.approx(0.3 / 0.3)  # over the 30 % of reflective pixels
+    assert turn5["mae_reused"] == pytest.approx((20 + 120) / (100 + 300))  # pooled: weighs by reused pixels
     # over all the cameras' reflective pixels: a view left with a few badly reused ones weighs little
     (few,) = cells([_jump("roll", 10.0, "embree", 0.3), _jump("roll", 10.0, "embree", 0.1, reflective=0.01, frame=1)])
     assert few["mae_reflective"] == pytest.approx(0.2 / 0.155)
     assert baselines(cs, "mae") == {("a", "embree"): pytest.approx(0.2), ("a", "clusters"): pytest.approx(0.4)}
-    base = baselines(cs)
-    assert base == {("a", "embree"): pytest.approx(0.2 / 0.3), ("a", "clusters"): pytest.approx(0.4 / 0.3)}
+    assert baselines(cs, "mae_reflective") == {("a", "embree"): pytest.approx(0.2 / 0.3),
+                                               ("a", "clusters"): pytest.approx(0.4 / 0.3)}
+    base = baselines(cs)  # over the reused pixels
+    assert base == {("a", "embree"): pytest.approx(0.2), ("a", "clusters"): pytest.approx(0.4)}
     vd = verdicts(cs, base, policy=0.2)
-    assert vd["turn"] == {"error_at": 30.0, "cost_at": None, "policy_at": 15.0, "keep": 15.0, "policy_keep": 5.0,
-                          "saving_at_keep": pytest.approx(0.5), "margin": 15.0, "tested": [5.0, 15.0, 30.0],
-                          "exact": {5.0: False, 15.0: False, 30.0: False},
-                          "worst_ratio": {5.0: pytest.approx(0.25), 15.0: 0.5, 30.0: 0.5}}
+    assert {k: vd["turn"][k] for k in ("error_at", "cost_at", "policy_at", "keep", "policy_keep", "margin",
+                                       "tested", "exact")} == {
+        "error_at": 30.0, "cost_at": None, "policy_at": 15.0, "keep": 15.0, "policy_keep": 5.0, "margin": 15.0,
+        "tested": [5.0, 15.0, 30.0], "exact": {5.0: False, 15.0: False, 30.0: False}}
+    assert vd["turn"]["saving_at_keep"] == pytest.approx(0.5) and vd["turn"]["worst_ratio"][5.0] == pytest.approx(0.25)
+    assert vd["turn"]["worst_error"][30.0] == pytest.approx(0.41 / 0.2)
     assert vd["zoom"]["cost_at"] == 1.1 and vd["zoom"]["keep"] == 1.05 and vd["zoom"]["error_at"] is None
-    # the recommendation keeps a margin: Embree's reused frame at most MARGIN_RATIO of a keyframe
+    # the recommendation keeps a margin: the reused frame at most MARGIN_RATIO of a keyframe
     margin = verdicts(cells([*samples, _jump("roll", 10.0, "embree", 0.2, ratio=0.85)]), base, policy=0.2)["roll"]
     assert margin["keep"] == 90.0 and margin["margin"] is None  # 10° already costs 0.85 of a keyframe
-    assert vd["roll"]["keep"] == 90.0 and vd["roll"]["error_at"] is None  # clusters 0.7 < 2 × 0.4
+    assert vd["roll"]["keep"] == 90.0 and vd["roll"]["error_at"] is None
+    cluster = verdicts(cs, base, policy=0.2, tracer="clusters")
+    assert cluster["turn"]["cost_at"] == 5.0 and cluster["turn"]["tested"] == [5.0]  # its own cells only
+    assert cluster["roll"]["error_at"] is None  # 0.7 < 2 × 0.4
 
 
 def test_stream_jumps_leaves_near_empty_views_out_of_the_time_ratio():
@@ -342,6 +355,21 @@ def test_stream_jumps_leaves_near_empty_views_out_of_the_time_ratio():
     v = verdicts(cs, baselines(cs), policy=0.2)["turn"]
     assert v["cost_at"] is None and v["worst_ratio"] == {60.0: None, 90.0: pytest.approx(0.5)}
     assert untimed(samples) == {"a turn 90°": 1, "a turn 60°": 1}
+
+
+def test_stream_jumps_error_on_reused_pixels():
+    """A step that recomputes everything it got wrong has a whole-frame MAE near 0 but
+    fails (a) on the pixels it did reuse; a cell reusing nothing has no reused-pixel
+    MAE and fails nothing."""
+    from bench.stream_jumps import baselines, cells, verdicts
+
+    samples = [_jump("path", 1.0, "embree", 0.2), _jump("turn", 45.0, "embree", 0.01, reused_mae=0.5, reused_n=10),
+               _jump("turn", 90.0, "embree", 0.0, reused_n=0)]
+    cs = cells(samples)
+    by = {c["step"]: c for c in cs if c["kind"] == "turn"}
+    assert by[45.0]["mae_reused"] == pytest.approx(0.5) and by[90.0]["mae_reused"] is None
+    v = verdicts(cs, baselines(cs), policy=0.2)["turn"]
+    assert v["error_at"] == 45.0 and v["worst_error"] == {45.0: pytest.approx(2.5), 90.0: None}
 
 
 def _rec_v(worst, margin=0.1, error_at=None, cost_at=None):
@@ -367,6 +395,27 @@ def test_stream_jumps_recommended_keeps_the_margin_above_the_floor():
     # 0.15 keeps the margin but fails the error, as every larger step then counts as failing
     assert recommended(_rec_v([0.4, 0.5, 0.85, 0.78, 0.7, 0.7, 0.7], error_at=0.15), floor) is None
     assert recommended(_rec_v([0.9] * 7, margin=None), floor) is None
+
+
+def test_stream_jumps_cluster_thresholds_when_reuse_is_never_cheap():
+    """recommended_for: a method whose reused frame costs over MARGIN_RATIO of a
+    keyframe at every step above the fly-throughs takes the smallest tested step at
+    least FLOOR_MARGIN × their largest (the zoom: on its logarithm) below its error
+    failure, no looser than raytrace's; otherwise the raytrace rule."""
+    from bench.stream_jumps import recommended_for
+
+    turns = [2.0, 5.0, 10.0, 15.0, 20.0, 30.0, 45.0]
+    v = {"margin": None, "error_at": None, "cost_at": 30.0, "tested": turns,
+         "worst_ratio": dict.fromkeys(turns, 0.95)}
+    assert recommended_for("cluster", v, 7.13, "turn", cap=30.0) == 15.0  # ≥ 1.5 × 7.13
+    assert recommended_for("cluster", v, 7.13, "turn", cap=10.0) == 10.0
+    assert recommended_for("cluster", {**v, "error_at": 15.0}, 7.13, "turn") is None
+    assert recommended_for("raytrace", v, 7.13, "turn") is None
+    zooms = [1.05, 1.1, 1.25]
+    z = {"margin": None, "error_at": None, "cost_at": None, "tested": zooms, "worst_ratio": dict.fromkeys(zooms, 1.0)}
+    assert recommended_for("cluster", z, 1.0, "zoom") == 1.05
+    cheap = {**v, "margin": 20.0, "worst_ratio": {**v["worst_ratio"], 10.0: 0.5, 15.0: 0.6, 20.0: 0.7}}
+    assert recommended_for("cluster", cheap, 7.13, "turn") == 20.0  # reuse is cheap there: the margin rule
 
 
 def test_stream_jumps_path_floor_once_per_scene_set():
@@ -409,8 +458,10 @@ def test_stream_jumps_smoke_writes_its_tables():
     assert all("keyframe_mae_vs_embree" in s for s in samples if s["tracer"] == "clusters")
     md = res["md"]
     assert "## Steady state" in md and "## Every cell" in md and "## Reading" in md and "JUMP_TURN_DEG" in md
+    assert "### raytrace" in md and "### cluster" in md and "MAE reused px" in md
     assert "jumps_mae.png" in res["files"]
-    # the timed frames' order alternates between targets
+    # the reused pixels' error, and the order of the timed frames alternating between targets
+    assert all(s["reused_n"] % 3 == 0 and s["reused_err_sum"] >= 0 for s in samples)
     assert {s["key_first"] for s in samples if s["tracer"] == "embree"} == {True, False}
 
 
