@@ -418,6 +418,27 @@ def test_stream_jumps_cluster_thresholds_when_reuse_is_never_cheap():
     assert recommended_for("cluster", cheap, 7.13, "turn") == 20.0  # reuse is cheap there: the margin rule
 
 
+def test_stream_jumps_current_limits_per_method(monkeypatch):
+    """The report reads service.stream's thresholds per method: JUMP_LIMITS (JumpLimits'
+    turn_deg, move, zoom) where it has them, else the single JUMP_* constants for both."""
+    from types import SimpleNamespace
+
+    import service.stream as stream
+    from bench.stream_jumps import current_limits
+
+    monkeypatch.delattr(stream, "JUMP_LIMITS", raising=False)
+    monkeypatch.setattr(stream, "JUMP_TURN_DEG", 30.0, raising=False)
+    monkeypatch.setattr(stream, "JUMP_MOVE", 0.25, raising=False)
+    monkeypatch.setattr(stream, "JUMP_ZOOM", 1.25, raising=False)
+    one = {"turn": 30.0, "move": 0.25, "zoom": 1.25}
+    assert current_limits() == {"raytrace": one, "cluster": one}
+    monkeypatch.setattr(stream, "JUMP_LIMITS", {"raytrace": SimpleNamespace(turn_deg=30.0, move=0.2, zoom=1.5),
+                                                "cluster": SimpleNamespace(turn_deg=15.0, move=0.15, zoom=1.1)},
+                        raising=False)
+    assert current_limits() == {"raytrace": {"turn": 30.0, "move": 0.2, "zoom": 1.5},
+                                "cluster": {"turn": 15.0, "move": 0.15, "zoom": 1.1}}
+
+
 def test_stream_jumps_path_floor_once_per_scene_set():
     """path_floor: the largest step between consecutive frames of the fly-throughs (the
     shortest paths are the fastest), no zoom; computed once per set of scenes."""
