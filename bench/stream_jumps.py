@@ -559,16 +559,20 @@ def _verdict(cur: float | None, pick: float | None, fail: float | None, fl: floa
     return f"{cur:g}: {word}"
 
 
-def _roll(v: dict, f) -> str:
-    """The roll line: exact rolls (square frames only), what the others recompute and cost."""
-    fail = first_failure(v)
+def _roll(v: dict, f, fail: float | None) -> str:
+    """The roll line (`fail`: the first failing roll that counts): exact rolls (square
+    frames only), what the others recompute and cost."""
     if fail is not None:
-        return (f"- roll: from {f(fail)} the reuse fails (error or cost); a roll threshold would catch it, but the "
+        return (f"- roll: from {f(fail)} the reuse fails; a roll threshold would catch it, but the "
                 "fly-through paths' look-at cameras spin that much near the vertical (service.stream), so it "
                 "would fire on them.")
     exact = [x for x in v["tested"] if x in (90.0, 180.0) and v["exact"].get(x)]
     rest = [x for x in v["tested"] if x not in exact]
-    parts = [f"- roll: error and cost pass at every tested roll (up to {f(max(v['tested']))})"]
+    parts = [f"- roll: the error passes at every tested roll (up to {f(max(v['tested']))})"
+             + (" and so does the cost" if v["cost_at"] is None
+                else f"; the reused frame costs as long as a keyframe from {f(v['cost_at'])}, so a keyframe there "
+                "would cost no more, but the error stays within (a) and a roll threshold would fire on the "
+                "fly-throughs, whose look-at cameras spin near the vertical (service.stream)")]
     if exact:
         parts.append(f"a roll of {' or '.join(map(f, exact))} maps a square frame's pixels onto pixels (square "
                      "frames only, as here: on a W ≠ H frame a quarter roll swaps the axes and no longer maps the "
@@ -669,7 +673,8 @@ def reading(vds: dict[str, dict], policy: float, floor: dict[str, float], untime
                            + (f"{pick:g}" if pick is not None else "none") + ": "
                            + _why(method, v, fl, kind, pick, cap) + f"; now {verdict}.")
             else:
-                say.append(_roll(v, f))
+                # the cluster tracer's cost (b) is noise about 1 wherever it recomputes a pixel: only its error counts
+                say.append(_roll(v, f, first_failure(v) if method == "raytrace" else v["error_at"]))
         title = ("raytrace (Embree's sparse rays: reuse saves tracing)" if method == "raytrace"
                  else "cluster (the cluster tracer renders whole frames)" if method == "cluster" else method)
         lines += [f"### {title}", "",
