@@ -73,19 +73,31 @@ from service.worker import GLState
 
 #: Reflection methods whose stream frames go through the stream's ReflectionReuser.
 REUSED_METHODS = ("cluster", "raytrace")
-#: A stream's reflective frame is a keyframe when its camera jumped since the last one
-#: (`camera_jump`): its view direction turned by more than JUMP_TURN_DEG, its eye moved
-#: by more than JUMP_MOVE of its distance to the target, or tan(fov/2) changed by more
-#: than JUMP_ZOOM either way. A roll about the view direction does not count: it costs
-#: the reuse nothing measurable, and near the vertical a look-at camera spins on smooth
-#: paths. From bench/results/stream_jumps.md: the reuse's error stays at its steady
-#: level at every tested step; the turn and zoom are where Embree's reused frame costs
-#: at most 0.8 of a keyframe; the move is the largest step whose reused frame still
-#: costs less than a keyframe (a margin would fire on the benchmarked fly-throughs,
-#: whose frames step up to 0.10: tests/test_service_stream.py).
-JUMP_TURN_DEG = 30.0
-JUMP_MOVE = 0.25
-JUMP_ZOOM = 1.25
+
+
+@dataclass(frozen=True)
+class JumpLimits:
+    """How far a stream's camera may step between reflective frames before the next one
+    is a keyframe (`camera_jump`): turn_deg, the turn of the view direction (degrees);
+    move, the eye's displacement over its distance to the target; zoom, the factor on
+    tan(fov/2), either way. A roll about the view direction does not count: near the
+    vertical a look-at camera spins on smooth paths, and with a roll the reuse's error
+    does not rise and its cost stays under a keyframe (bench/results/stream_jumps.md)."""
+
+    turn_deg: float
+    move: float
+    zoom: float
+
+
+#: JumpLimits per reused method, as bench/results/stream_jumps.md recommends them (its
+#: reading says how; the limits let the benchmarked fly-throughs' steps through:
+#: tests/test_service_stream.py). "raytrace": the largest tested steps at which Embree's
+#: sparse reuse errs on the pixels it reuses no more than clearly above its error on the
+#: paths and costs at most 0.8 of a keyframe. "cluster": the cluster tracer renders whole
+#: frames, so its reused frame costs about a keyframe and a forced keyframe costs nothing
+#: more: the smallest tested steps clear of the fly-throughs'.
+JUMP_LIMITS: dict[str, JumpLimits] = {"raytrace": JumpLimits(turn_deg=30.0, move=0.15, zoom=1.5),
+                                      "cluster": JumpLimits(turn_deg=15.0, move=0.15, zoom=1.05)}
 
 log = logging.getLogger("depthview.stream")
 T = TypeVar("T")
@@ -177,16 +189,16 @@ class _CachedEmbreeTracer(EmbreeTracer):
             return super().trace(camera, pixels)
 
 
-def camera_jump(prev: Camera | None, cam: Camera) -> bool:
-    """Whether `cam` jumped from `prev` (None: no reused frame before) past what the
-    reuse is measured on (JUMP_TURN_DEG, JUMP_MOVE, JUMP_ZOOM): beyond the thesis,
-    whose keyframe policy (§5.4.4) looks only at the share of pixels recomputed, so
-    a jump was answered from the old keyframe, smeared, before the policy reacted."""
+def camera_jump(prev: Camera | None, cam: Camera, limits: JumpLimits) -> bool:
+    """Whether `cam` jumped from `prev` (None: no reused frame before) past `limits`
+    (JUMP_LIMITS of the stream's method): beyond the thesis, whose keyframe policy
+    (§5.4.4) looks only at the share of pixels recomputed, so a jump was answered from
+    the old keyframe, smeared, before the policy reacted."""
     if prev is None:
         return True
     step = camera_step(prev, cam)
-    return bool(step.turn_deg > JUMP_TURN_DEG or step.move > JUMP_MOVE
-                or not 1 / JUMP_ZOOM <= step.zoom <= JUMP_ZOOM)
+    return bool(step.turn_deg > limits.turn_deg or step.move > limits.move
+                or not 1 / limits.zoom <= step.zoom <= limits.zoom)
 
 
 class _Reuse:
@@ -317,7 +329,8 @@ class ReuseFrameSource(JobFrameSource):
         settings = self.r.settings
         method = req.effects.reflections
         job = StreamReflectionJob(self.scene_id, scene, camera, method, req.effects.glossy_rays, self._key,
-                                  settings.stream_reflection_mode, camera_jump(self._last, camera),
+                                  settings.stream_reflection_mode,
+                                  camera_jump(self._last, camera, JUMP_LIMITS[method]),
                                   stream_reuser_bytes(method, camera.width, camera.height),
                                   settings.stream_reuse_bytes)
         self._last = None  # until this frame is answered: a failed one leaves no keyframe to trust

@@ -223,27 +223,34 @@ def test_bad_messages_get_an_error_and_the_stream_goes_on(client, message, statu
         assert stats["id"] == 99
 
 
-def test_camera_jump_hand_cases():
-    """stream.camera_jump: the view direction turning past 30°, the eye moving past a
-    quarter of its distance to the target, or tan(fov/2) changing by more than 25 %;
-    a roll about the view direction does not count."""
-    from service.stream import camera_jump
+@pytest.mark.parametrize("method", ["raytrace", "cluster"])
+def test_camera_jump_hand_cases(method):
+    """stream.camera_jump: the view direction turning past the method's limit (30° for
+    raytrace, 15° for cluster), the eye moving past 0.15 of its distance to the target,
+    or tan(fov/2) changing by more than the zoom limit (× 1.5, × 1.05) either way; a roll
+    about the view direction does not count."""
+    from service.stream import JUMP_LIMITS, REUSED_METHODS, camera_jump
 
+    assert set(JUMP_LIMITS) == set(REUSED_METHODS)
+    limits = JUMP_LIMITS[method]
+    turn, zoom = {"raytrace": (30.0, 1.5), "cluster": (15.0, 1.05)}[method]
+    assert (limits.turn_deg, limits.move, limits.zoom) == (turn, 0.15, zoom)
     cam = Camera((0.0, 0.0, 4.0), (0.0, 0.0, 0.0), fov=45.0)
 
     def turned(deg: float) -> Camera:
         a = np.radians(deg)
         return Camera(cam.eye, (4 * np.sin(a), 0.0, 4 - 4 * np.cos(a)), fov=45.0)
 
-    assert camera_jump(None, cam) and not camera_jump(cam, cam)
-    assert not camera_jump(cam, turned(29.9)) and camera_jump(cam, turned(30.1))
-    assert not camera_jump(cam, Camera((0.99, 0.0, 4.0), (0.99, 0.0, 0.0))) \
-        and camera_jump(cam, Camera((1.01, 0.0, 4.0), (1.01, 0.0, 0.0)))  # 4 · 0.25 = 1
+    assert camera_jump(None, cam, limits) and not camera_jump(cam, cam, limits)
+    assert not camera_jump(cam, turned(turn - 0.1), limits) and camera_jump(cam, turned(turn + 0.1), limits)
+    assert not camera_jump(cam, Camera((0.59, 0.0, 4.0), (0.59, 0.0, 0.0)), limits) \
+        and camera_jump(cam, Camera((0.61, 0.0, 4.0), (0.61, 0.0, 0.0)), limits)  # 4 · 0.15 = 0.6
     tan = np.tan(np.radians(22.5))
-    for ratio, jumped in ((1.249, False), (1.251, True), (1 / 1.249, False), (1 / 1.251, True)):
+    for ratio, jumped in ((zoom - 0.001, False), (zoom + 0.001, True), (1 / (zoom - 0.001), False),
+                          (1 / (zoom + 0.001), True)):
         fov = float(2 * np.degrees(np.arctan(tan * ratio)))
-        assert camera_jump(cam, Camera(cam.eye, cam.target, fov=fov)) is jumped, ratio
-    assert not camera_jump(cam, Camera(cam.eye, cam.target, up=(1.0, 1.0, 0.0)))  # a 45° roll
+        assert camera_jump(cam, Camera(cam.eye, cam.target, fov=fov), limits) is jumped, ratio
+    assert not camera_jump(cam, Camera(cam.eye, cam.target, up=(1.0, 1.0, 0.0)), limits)  # a 45° roll
 
 
 @pytest.mark.parametrize("frames", [250, 500, 1000])
@@ -254,14 +261,15 @@ def test_the_benchmarked_paths_never_jump(frames):
     from bench.temporal import PATH_SEEDS
     from scenes.builtin import make_builtin
     from scenes.camera import flythrough_path
-    from service.stream import camera_jump
+    from service.stream import JUMP_LIMITS, camera_jump
 
     for name in ("living_room", "bathroom"):
         bounds = make_builtin(name).bounds
         for seed in PATH_SEEDS:
             cams = flythrough_path(bounds, frames, seed=seed)
-            jumps = [i for i, (a, b) in enumerate(pairwise(cams)) if camera_jump(a, b)]
-            assert jumps == [], (name, seed, jumps)
+            for method, limits in JUMP_LIMITS.items():
+                jumps = [i for i, (a, b) in enumerate(pairwise(cams)) if camera_jump(a, b, limits)]
+                assert jumps == [], (name, seed, method, jumps)
 
 
 def test_unknown_scene_gets_an_error_and_a_close(client):
