@@ -1,5 +1,5 @@
 """Reflection reuse against the size of one camera step (thesis Ch. 5; the thresholds
-of service.stream.camera_jump: JUMP_TURN_DEG, JUMP_MOVE, JUMP_ZOOM, per reflection method).
+of service.stream.camera_jump: service.stream.JUMP_LIMITS, per reflection method).
 
 From keyframe cameras on bench.temporal's fly-through paths (its scenes, seeds and
 500-frame paths; --per-path cameras spread along each), target cameras one step
@@ -65,14 +65,14 @@ from scenes.camera import Camera, camera_step, flythrough_path, moved, rolled, t
 #: Step sizes per kind: turn (degrees), move (of the eye's distance to its target),
 #: zoom (factor on tan(fov/2), out and in), roll (degrees), path (frames later).
 TURNS = (2.0, 5.0, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0, 90.0)
-#: 0.125-0.2: the fly-throughs step up to 0.101 per frame, so JUMP_MOVE must lie above that.
+#: 0.125-0.2: the fly-throughs step up to 0.101 per frame, so JumpLimits.move must lie above that.
 MOVES = (0.05, 0.1, 0.125, 0.15, 0.2, 0.25, 0.5)
 ZOOMS = (1.05, 1.1, 1.25, 1.5, 2.0)
 ROLLS = (10.0, 45.0, 90.0, 180.0)
 PATH_STEPS = (0, 1, 5, 10)
 KINDS = ("path", "turn", "move", "zoom_out", "zoom_in", "roll")
-#: The kinds camera_jump limits, with the constant that does it (and its JumpLimits field).
-THRESHOLDS = {"turn": "JUMP_TURN_DEG", "move": "JUMP_MOVE", "zoom": "JUMP_ZOOM"}
+#: The kinds camera_jump limits, with the JumpLimits field that does it (and its name).
+THRESHOLDS = {"turn": "JumpLimits.turn_deg", "move": "JumpLimits.move", "zoom": "JumpLimits.zoom"}
 FIELDS = {"turn": "turn_deg", "move": "move", "zoom": "zoom"}
 #: The stream's reflection methods and the tracer each uses.
 METHODS = {"raytrace": "embree", "cluster": "clusters"}
@@ -468,15 +468,10 @@ def temporal_steady(path: Path) -> list[list[str]]:
 
 
 def current_limits() -> dict[str, dict[str, float]]:
-    """service.stream's thresholds per method: its JUMP_LIMITS where it has them (per
-    method, JumpLimits' turn_deg, move, zoom), else its single JUMP_* constants."""
-    import service.stream as stream
+    """service.stream's thresholds per method (JUMP_LIMITS: JumpLimits' turn_deg, move, zoom)."""
+    from service.stream import JUMP_LIMITS
 
-    limits = getattr(stream, "JUMP_LIMITS", None)
-    if limits:
-        return {m: {k: float(getattr(lim, f)) for k, f in FIELDS.items()} for m, lim in limits.items()}
-    one = {k: float(getattr(stream, name)) for k, name in THRESHOLDS.items()}
-    return {m: dict(one) for m in METHODS}
+    return {m: {k: float(getattr(lim, f)) for k, f in FIELDS.items()} for m, lim in JUMP_LIMITS.items()}
 
 
 def _step_fmt(kind: str):
@@ -660,7 +655,7 @@ def reading(vds: dict[str, dict], policy: float, floor: dict[str, float], untime
                            + (f" ((b), as long as a keyframe, from {f(v['cost_at'])})" if v["cost_at"] else "")
                            + f"; recomputed > {pct} from {f(v['policy_at'])}. "
                            + "Reused / keyframe time, worst scene: " + _ratios(v, v["tested"], f)
-                           + f". Recommended {FIELDS[kind]} ({THRESHOLDS[kind]}) = "
+                           + f". Recommended {THRESHOLDS[kind]} = "
                            + (f"{pick:g}" if pick is not None else "none") + ": "
                            + _why(method, v, fl, kind, pick, cap) + f"; now {verdict}.")
             elif kind in THRESHOLDS:
@@ -669,7 +664,7 @@ def reading(vds: dict[str, dict], policy: float, floor: dict[str, float], untime
                 say.append(f"- {kind}: {_error_trend(v, f)}. Error and cost pass up to {f(v['keep'])}{saving}"
                            + (f" and fail from {f(fail)}" if fail is not None else " (every tested step)")
                            + f"; recomputed > {pct} from {f(v['policy_at'])}. Reused / keyframe time, worst scene: "
-                           + _ratios(v, v["tested"], f) + f". Recommended {FIELDS[kind]} ({THRESHOLDS[kind]}) = "
+                           + _ratios(v, v["tested"], f) + f". Recommended {THRESHOLDS[kind]} = "
                            + (f"{pick:g}" if pick is not None else "none") + ": "
                            + _why(method, v, fl, kind, pick, cap) + f"; now {verdict}.")
             else:

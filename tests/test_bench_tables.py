@@ -419,22 +419,12 @@ def test_stream_jumps_cluster_thresholds_when_reuse_is_never_cheap():
 
 
 def test_stream_jumps_current_limits_per_method(monkeypatch):
-    """The report reads service.stream's thresholds per method: JUMP_LIMITS (JumpLimits'
-    turn_deg, move, zoom) where it has them, else the single JUMP_* constants for both."""
-    from types import SimpleNamespace
-
+    """The report reads service.stream's thresholds per method (JUMP_LIMITS)."""
     import service.stream as stream
     from bench.stream_jumps import current_limits
 
-    monkeypatch.delattr(stream, "JUMP_LIMITS", raising=False)
-    monkeypatch.setattr(stream, "JUMP_TURN_DEG", 30.0, raising=False)
-    monkeypatch.setattr(stream, "JUMP_MOVE", 0.25, raising=False)
-    monkeypatch.setattr(stream, "JUMP_ZOOM", 1.25, raising=False)
-    one = {"turn": 30.0, "move": 0.25, "zoom": 1.25}
-    assert current_limits() == {"raytrace": one, "cluster": one}
-    monkeypatch.setattr(stream, "JUMP_LIMITS", {"raytrace": SimpleNamespace(turn_deg=30.0, move=0.2, zoom=1.5),
-                                                "cluster": SimpleNamespace(turn_deg=15.0, move=0.15, zoom=1.1)},
-                        raising=False)
+    monkeypatch.setattr(stream, "JUMP_LIMITS", {"raytrace": stream.JumpLimits(turn_deg=30.0, move=0.2, zoom=1.5),
+                                                "cluster": stream.JumpLimits(turn_deg=15.0, move=0.15, zoom=1.1)})
     assert current_limits() == {"raytrace": {"turn": 30.0, "move": 0.2, "zoom": 1.5},
                                 "cluster": {"turn": 15.0, "move": 0.15, "zoom": 1.1}}
 
@@ -478,7 +468,7 @@ def test_stream_jumps_smoke_writes_its_tables():
     assert next(s for s in samples if s["kind"] == "roll" and s["tracer"] == "embree")["mae"] < 1e-3
     assert all("keyframe_mae_vs_embree" in s for s in samples if s["tracer"] == "clusters")
     md = res["md"]
-    assert "## Steady state" in md and "## Every cell" in md and "## Reading" in md and "JUMP_TURN_DEG" in md
+    assert "## Steady state" in md and "## Every cell" in md and "## Reading" in md and "JumpLimits.turn_deg" in md
     assert "### raytrace" in md and "### cluster" in md and "MAE reused px" in md
     assert "jumps_mae.png" in res["files"]
     # the reused pixels' error, and the order of the timed frames alternating between targets
