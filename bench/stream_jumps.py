@@ -52,7 +52,7 @@ from bench.common import (
     write_json,
     write_text,
 )
-from bench.temporal import MAE_BOUND_255, PATH_SEEDS, THESIS_PATH_FRAMES
+from bench.temporal import MAE_BOUND_255, PATH_SEEDS, THESIS_PATH_FRAMES, add_run_args, mae
 from gl_passes.cluster_tracer import ClusterTracer
 from gl_passes.composition import REUSED
 from gl_passes.context import create_gl_context
@@ -127,11 +127,6 @@ def targets(cams: list[Camera], i: int, bounds, steps: dict[str, tuple],
     out += [("zoom_in", z, zoomed(cam, 1 / z)) for z in steps["zoom"]]
     out += [("roll", r, rolled(cam, r)) for r in steps["roll"]]
     return out
-
-
-def mae(a: np.ndarray, b: np.ndarray) -> float:
-    """Mean absolute error on the 0-255 scale, over pixels and channels (bench.temporal's)."""
-    return float(np.abs(a - b).mean() * 255)
 
 
 def reused_error(reused, key: np.ndarray) -> tuple[float, int]:
@@ -839,10 +834,9 @@ def key_frames(frames: int, per_path: int) -> list[int]:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scenes", nargs="+", default=["living_room", "bathroom"])
+    add_run_args(ap, "stream_jumps", "add these samples to the existing .json's (e.g. larger steps measured later, "
+                                     "from the same keyframe cameras; a sample measured again replaces its row)")
     ap.add_argument("--res", type=int, default=256)
-    ap.add_argument("--tracers", nargs="+", default=["embree", "clusters"], choices=["embree", "clusters"])
-    ap.add_argument("--seeds", type=int, nargs="+", default=list(PATH_SEEDS), help="fly-through path seeds")
     ap.add_argument("--frames", type=int, default=THESIS_PATH_FRAMES, help="frames of each path (its speed)")
     ap.add_argument("--per-path", type=int, default=3, help="keyframe cameras per path")
     ap.add_argument("--turns", type=float, nargs="*", default=list(TURNS), help="degrees")
@@ -850,12 +844,6 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--zooms", type=float, nargs="*", default=list(ZOOMS), help="factors on tan(fov/2), out and in")
     ap.add_argument("--rolls", type=float, nargs="*", default=list(ROLLS), help="degrees")
     ap.add_argument("--path-steps", type=int, nargs="*", default=list(PATH_STEPS), help="frames along the path")
-    ap.add_argument("--out", default=str(RESULTS_DIR / "stream_jumps"))
-    ap.add_argument("--no-progress", action="store_true")
-    ap.add_argument("--report-only", action="store_true", help="rewrite the .md (and plot) from the existing .json")
-    ap.add_argument("--append", action="store_true",
-                    help="add these samples to the existing .json's (e.g. larger steps measured later, from the "
-                         "same keyframe cameras; a sample measured again replaces its row)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     if args.report_only:

@@ -77,6 +77,11 @@ RECOMPUTED_BOUND = 0.25    # issue 14: recomputed share of the reflective pixels
 SPEEDUP_BOUND = 2.5        # issue 14: over full Embree tracing every frame
 
 
+def mae(a: np.ndarray, b: np.ndarray) -> float:
+    """Mean absolute error of two colour images on the 0-255 scale, over pixels and channels."""
+    return float(np.abs(a - b).mean() * 255)
+
+
 def intervals(keys: list[bool]) -> list[int]:
     """Frames between consecutive keyframes (the last run counts up to the end)."""
     idx = [i for i, k in enumerate(keys) if k] + [len(keys)]
@@ -104,8 +109,8 @@ def run_path(gl, sg, make_tracer, cams, stem: str, out_dir: Path, overrides: dic
         per["full_ms"].append(full.stats.timings_ms["total"])
         per["full_diffuse_ms"].append(full.stats.timings_ms["diffuse"])
         per["ours_ms"].append(st.timings_ms["total"])
-        per["mae_ours"].append(float(np.abs(ours.color - full.color).mean() * 255))
-        per["mae_direct"].append(float(np.abs(direct.color - full.color).mean() * 255))
+        per["mae_ours"].append(mae(ours.color, full.color))
+        per["mae_direct"].append(mae(direct.color, full.color))
         per["recomputed"].append(st.recomputed_fraction if st.reflective else 0.0)
         per["keyframe"].append(bool(st.keyframe))
         per["reflective"].append(st.reflective / ours.reflective.size)
@@ -207,10 +212,10 @@ def criteria_lines(rows: list[dict]) -> list[str]:
     for scene in dict.fromkeys(r["scene"] for r in emb):
         rs = [r for r in emb if r["scene"] == scene]
         rec = float(np.mean([r["recomputed_mean"] for r in rs]))
-        mae = float(np.mean([r["mae_ours_mean"] for r in rs]))
+        mean_mae = float(np.mean([r["mae_ours_mean"] for r in rs]))
         sp = float(np.mean([r["full_ms_mean"] for r in rs]) / np.mean([r["ours_ms_mean"] for r in rs]))
         table.append([scene, len(rs), f"{100 * rec:.1f} % ({'holds' if rec <= RECOMPUTED_BOUND else 'fails'})",
-                      f"{mae:.3f} ({'holds' if mae <= MAE_BOUND_255 else 'fails'})",
+                      f"{mean_mae:.3f} ({'holds' if mean_mae <= MAE_BOUND_255 else 'fails'})",
                       f"{sp:.2f}× ({'holds' if sp >= SPEEDUP_BOUND else 'fails'})", f"{1 / rec:.2f}×" if rec else "—"])
     if table:
         lines += [md_table(["scene", "paths", f"recomputed ≤ {100 * RECOMPUTED_BOUND:.0f} %",
@@ -314,6 +319,19 @@ def run_key(row: dict) -> tuple:
     return row["scene"], row["path"], row["tracer"], row.get("res"), row.get("path_frames"), row["frames"]
 
 
+def add_run_args(ap: argparse.ArgumentParser, out: str, append_help: str) -> None:
+    """The options of the Ch. 5 stream benchmarks (this one and bench.stream_jumps):
+    scenes, tracers, path seeds, output stem (under RESULTS_DIR), progress, rewriting
+    the report from the JSON, and adding to the JSON (`append_help`)."""
+    ap.add_argument("--scenes", nargs="+", default=["living_room", "bathroom"])
+    ap.add_argument("--tracers", nargs="+", default=["embree", "clusters"], choices=["embree", "clusters"])
+    ap.add_argument("--seeds", type=int, nargs="+", default=list(PATH_SEEDS), help="fly-through path seeds")
+    ap.add_argument("--out", default=str(RESULTS_DIR / out))
+    ap.add_argument("--no-progress", action="store_true")
+    ap.add_argument("--report-only", action="store_true", help="rewrite the .md (and plot) from the existing .json")
+    ap.add_argument("--append", action="store_true", help=append_help)
+
+
 def command_line(args: argparse.Namespace) -> str:
     """The invocation that measured these runs (its measuring arguments)."""
     return "python -m bench.temporal " + " ".join(
@@ -333,21 +351,14 @@ def save(out: Path, args: argparse.Namespace, info: dict, rows: list[dict], seco
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scenes", nargs="+", default=["living_room", "bathroom"])
+    add_run_args(ap, "temporal", "add these runs to the existing .json's (e.g. a scene or path measured later; "
+                                 "a run measured again replaces its row)")
     ap.add_argument("--frames", type=int, default=12, help="frames of each path (its speed: it spans the scene)")
     ap.add_argument("--first", type=int, default=0,
                     help="measure only the first N frames of each path (same path and speed; 0 = all)")
     ap.add_argument("--res", type=int, default=128)
-    ap.add_argument("--tracers", nargs="+", default=["embree", "clusters"], choices=["embree", "clusters"])
-    ap.add_argument("--seeds", type=int, nargs="+", default=list(PATH_SEEDS), help="fly-through path seeds")
     ap.add_argument("--setting", nargs="*", default=[], metavar="NAME=VALUE",
                     help="ReuseSettings fields for the reuse and direct streams (e.g. keyframe_threshold=0.2)")
-    ap.add_argument("--out", default=str(RESULTS_DIR / "temporal"))
-    ap.add_argument("--no-progress", action="store_true")
-    ap.add_argument("--report-only", action="store_true", help="rewrite the .md (and plot) from the existing .json")
-    ap.add_argument("--append", action="store_true",
-                    help="add these runs to the existing .json's (e.g. a scene or path measured later; "
-                         "a run measured again replaces its row)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     if args.report_only:

@@ -36,7 +36,7 @@ from bench.common import (
     write_json,
     write_text,
 )
-from bench.temporal import intervals
+from bench.temporal import intervals, mae
 from gl_passes.context import create_gl_context
 from gl_passes.reprojection import ReflectionReuser, ReuseSettings
 from gl_passes.upload import SceneGPU
@@ -67,7 +67,7 @@ def sweep_thresholds(gl, sg, caster: RayCaster, cams: list, thresholds: list[flo
             p["ms"].append(f.stats.timings_ms["total"])
             p["rec"].append(f.stats.recomputed_fraction if f.stats.reflective else 0.0)
             p["keys"].append(bool(f.stats.keyframe))
-            p["mae"].append(float(np.abs(f.color - ref.color).mean() * 255))
+            p["mae"].append(mae(f.color, ref.color))
     for ru in (full, *reusers):
         ru.release()
     fm = float(np.mean(full_ms))
