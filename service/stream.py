@@ -71,9 +71,6 @@ from service.jobs import Job, SceneJob
 from service.schemas import StreamRequest
 from service.worker import GLState
 
-#: Reflection methods whose stream frames go through the stream's ReflectionReuser.
-REUSED_METHODS = ("cluster", "raytrace")
-
 
 @dataclass(frozen=True)
 class JumpLimits:
@@ -98,6 +95,8 @@ class JumpLimits:
 #: more: the smallest tested steps clear of the fly-throughs'.
 JUMP_LIMITS: dict[str, JumpLimits] = {"raytrace": JumpLimits(turn_deg=30.0, move=0.15, zoom=1.5),
                                       "cluster": JumpLimits(turn_deg=15.0, move=0.15, zoom=1.05)}
+#: Reflection methods whose stream frames go through the stream's ReflectionReuser.
+REUSED_METHODS = tuple(JUMP_LIMITS)
 
 log = logging.getLogger("depthview.stream")
 T = TypeVar("T")
