@@ -357,8 +357,8 @@ def write_report(out: Path, data: dict[str, Any]) -> None:
     lines += ["## Stream", "",
               "Input-to-frame latency: camera message sent → the frame answering it received (superseded messages "
               "get no frame: latest wins). Frames/s: frames received in the window, at-rest PNG re-sends excluded. "
-              "Render: the frame's `render_ms` (queue wait included); reused: the mean share of reflective pixels "
-              "reused (0 on keyframes).", ""]
+              "Render: the frame's `render_ms` (queue wait excluded: its own column); reused: the mean share of "
+              "reflective pixels reused (0 on keyframes).", ""]
     rows = [[s["label"], s["frames"], f"{s['fps']:.2f} ({span(s['fps_runs'], '.2f', '–')})",
              ms(s["latency"]["p50_ms"]), ms(s["latency"]["p99_ms"]),
              ms(s["render_ms_median"]), ms(s["queue_wait_ms_median"]),

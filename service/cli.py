@@ -175,9 +175,10 @@ def serve_settings(args: argparse.Namespace, environ: Mapping[str, str] | None =
 
 
 def server_config(settings: Settings, log_level: str = "info") -> Any:
-    """The uvicorn configuration of the service: one process (the GL context lives on
-    the app's render worker thread), the h11 protocol with a header read timeout,
-    uvicorn's keep-alive timeout for idle connections, and a bounded graceful shutdown."""
+    """The uvicorn configuration of the service: one process (GL contexts live in the
+    render worker processes, or on the app's render worker thread with WORKERS=0), the
+    h11 protocol with a header read timeout, uvicorn's keep-alive timeout for idle
+    connections, and a bounded graceful shutdown."""
     import uvicorn
 
     from service.app import create_app

@@ -79,7 +79,8 @@ class JumpLimits:
     move, the eye's displacement over its distance to the target; zoom, the factor on
     tan(fov/2), either way. A roll about the view direction does not count: near the
     vertical a look-at camera spins on smooth paths, and with a roll the reuse's error
-    does not rise and its cost stays under a keyframe (bench/results/stream_jumps.md)."""
+    does not rise (its cost stays under a keyframe's for raytrace; cluster's reused frames
+    cost about a keyframe at every step: bench/results/stream_jumps.md)."""
 
     turn_deg: float
     move: float
