@@ -4,7 +4,8 @@ or chromium, driven by Playwright from PyPI with `executable_path`: never
 uvicorn server that wants a token (the page passes `?token=` on), orbited with the mouse;
 streamed frames must arrive and change, the canvases must not be blank (pixels read back),
 local mode must render the reconstruction at once on orbit, fetch a new set when the view
-leaves the region, and swap the server's frame in; frames must show in the order they came
+leaves the region, and swap the server's frame in, and drop a set that arrives after a switch to
+another scene; frames must show in the order they came
 even when a decode finishes late; the soft-shadow toggle must switch the stream to soft
 shadows that answer an orbit; a reconnect must keep the orbited view; the page must log no errors. A failure
 names a screenshot (failure.png in the test's tmp dir) and the page's state."""
@@ -278,3 +279,37 @@ def test_soft_shadows_stream_while_orbiting(page, server, tmp_path):
         assert sent_effects[0].get("soft_shadows") is None and "soft_shadows" in sent_effects[-1], sent_effects
         assert sent_effects[-1]["soft_shadows"]["sides"] == "both"  # the rooms' walls occlude too
         assert state(page)["errors"] == [] and page.problems == []
+
+
+def test_a_scene_switch_while_a_local_set_loads_never_shows_the_old_scenes_set(page, server, tmp_path):
+    """Local mode: the user picks another scene while the set of the first one is still
+    loading; when that set arrives it belongs to a scene no longer shown and is dropped,
+    and the new scene's set is fetched and shown (one set in all)."""
+    from service.store import builtin_id
+
+    cornell, mirror = builtin_id("cornell"), builtin_id("mirror")
+    held, finished = [], []
+    page.route("**/reconstruction", lambda route: held.append(route) if cornell in route.request.url
+               else route.continue_())
+    page.on("requestfinished", lambda r: finished.append(r.url) if r.url.endswith("/reconstruction") else None)
+    with reported(page, tmp_path):
+        page.goto(f"{server}/client?scene=cornell&mode=local&token={TOKEN}")
+        page.wait_for_function("() => window.depthview && window.depthview.local.loading", timeout=30_000)
+        for _ in range(200):
+            if held:
+                break
+            page.wait_for_timeout(50)
+        assert len(held) == 1
+        page.select_option("#scene", mirror)
+        page.wait_for_function(f"() => window.depthview.hello?.scene === '{mirror}'", timeout=30_000)
+        held[0].continue_()  # the old scene's set arrives now
+        for _ in range(1200):
+            done = any(mirror in u for u in finished) and not state(page)["local"]["loading"]
+            if done:
+                break
+            page.wait_for_timeout(50)
+        assert done, finished
+        page.wait_for_timeout(300)
+        s = state(page)
+        assert s["local"]["sets"] == 1 and s["local"]["meshes"] >= 1, s["local"]
+        assert page.problems == []

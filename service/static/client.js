@@ -265,6 +265,7 @@ function clearLocalSet() {
 let setRequest = 0;
 async function ensureLocalSet(force) {
   if (state.mode !== 'local' || !state.hello || state.local.loading || (!force && !leftRegion())) return;
+  const scene = state.scene;  // a set that arrives after a switch to another scene is dropped
   const eye = camera.position.clone(), target = controls.target.clone();
   const d = eye.distanceTo(target);
   const { dir, u, v } = viewBasis(eye, target);
@@ -283,12 +284,12 @@ async function ensureLocalSet(force) {
   showStats();
   try {
     const t0 = performance.now();
-    const r = await fetch(`/scenes/${state.scene}/reconstruction`, {
+    const r = await fetch(`/scenes/${scene}/reconstruction`, {
       method: 'POST', headers: { 'content-type': 'application/json', ...auth }, body: JSON.stringify(body),
     });
     if (!r.ok) throw new Error(`reconstruction: ${r.status} ${(await r.text()).slice(0, 200)}`);
     const gltf = await loader.parseAsync(await r.arrayBuffer(), '');
-    if (ticket !== setRequest || state.mode !== 'local') return;
+    if (ticket !== setRequest || state.mode !== 'local' || scene !== state.scene) return;
     clearLocalSet();
     let meshes = 0, triangles = 0;
     gltf.scene.traverse((o) => {
