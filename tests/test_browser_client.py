@@ -313,3 +313,16 @@ def test_a_scene_switch_while_a_local_set_loads_never_shows_the_old_scenes_set(p
         s = state(page)
         assert s["local"]["sets"] == 1 and s["local"]["meshes"] >= 1, s["local"]
         assert page.problems == []
+
+
+def test_a_failed_scene_list_is_shown_not_an_unhandled_rejection(page, server, tmp_path):
+    """GET /scenes failing at the network level (the service restarting just after the
+    page loaded): the page says so in its status line instead of throwing an unhandled
+    promise rejection and staying blank."""
+    page.route("**/scenes", lambda route: route.abort())
+    with reported(page, tmp_path):
+        page.goto(f"{server}/client?scene=cornell&token={TOKEN}")
+        page.wait_for_function("() => document.getElementById('status').textContent !== ''", timeout=10_000)
+        assert "/scenes" in page.text_content("#status") and "error" in page.get_attribute("#status", "class")
+        assert [p for p in page.problems if not p.startswith(("request failed", "console.error: Failed to load"))] \
+            == [], page.problems

@@ -345,9 +345,15 @@ $('shadows').addEventListener('change', () => {
 });
 
 async function loadScenes() {
-  const r = await fetch('/scenes', { headers: auth });
-  if (!r.ok) { status(`GET /scenes: ${r.status}`, true); return; }
-  const { scenes } = await r.json();
+  let scenes;
+  try {
+    const r = await fetch('/scenes', { headers: auth });
+    if (!r.ok) { status(`GET /scenes: ${r.status}`, true); return; }
+    ({ scenes } = await r.json());
+  } catch (err) {  // the network failed (the service restarting): say so, not an unhandled rejection
+    status(`GET /scenes: ${err.message || err}`, true);
+    return;
+  }
   const select = $('scene');
   for (const s of scenes) {
     const o = document.createElement('option');
