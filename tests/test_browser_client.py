@@ -326,3 +326,24 @@ def test_a_failed_scene_list_is_shown_not_an_unhandled_rejection(page, server, t
         assert "/scenes" in page.text_content("#status") and "error" in page.get_attribute("#status", "class")
         assert [p for p in page.problems if not p.startswith(("request failed", "console.error: Failed to load"))] \
             == [], page.problems
+
+
+def test_a_failed_local_set_is_not_asked_for_again_and_again(page, server, tmp_path):
+    """Local mode: a reconstruction request that fails (here 503; a 422 for a scene over
+    the budget fails every time) is asked again when the view moves, not re-sent
+    at once in a loop that hammers the service while the view stands still."""
+    asked = []
+
+    def busy(route):
+        asked.append(route.request.url)
+        route.fulfill(status=503, body='{"detail": "render queue is full"}', content_type="application/json")
+
+    page.route("**/reconstruction", busy)
+    with reported(page, tmp_path):
+        page.goto(f"{server}/client?scene=cornell&mode=local&token={TOKEN}")
+        page.wait_for_function("() => window.depthview && window.depthview.hello", timeout=30_000)
+        page.wait_for_timeout(2000)
+        assert len(asked) == 1, len(asked)
+        drag(page, 60, 0)  # the view moved: asked again
+        page.wait_for_timeout(500)
+        assert len(asked) >= 2

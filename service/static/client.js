@@ -280,6 +280,7 @@ async function ensureLocalSet(force) {
     cameras: eyes.map((e) => ({ eye: e.toArray(), target: target.toArray(), up: [0, 1, 0], fov })),
   };
   const ticket = ++setRequest;
+  let failed = false;
   state.local.loading = true;
   showStats();
   try {
@@ -304,12 +305,13 @@ async function ensureLocalSet(force) {
     Object.assign(state.local, { sets: state.local.sets + 1, meshes, triangles, ms: performance.now() - t0 });
     requestLocalRender();
   } catch (err) {
+    failed = true;  // asked again when the view moves, not at once (a 422 fails every time)
     console.warn(err);
     status(String(err.message || err), true);
   } finally {
     state.local.loading = false;
     showStats();
-    if (ticket === setRequest && state.mode === 'local' && leftRegion()) ensureLocalSet(false);
+    if (!failed && ticket === setRequest && state.mode === 'local' && leftRegion()) ensureLocalSet(false);
   }
 }
 
