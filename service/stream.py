@@ -107,6 +107,12 @@ CLOSE_TRY_LATER = 1013
 CLOSE_NO_SCENE = 4404
 
 
+def close_reason(detail: Any) -> str:
+    """A close frame's reason: the error's detail within the protocol's 123 bytes (a
+    browser's close event shows it; the error message before it has the whole detail)."""
+    return str(detail).encode("utf-8")[:123].decode("utf-8", "ignore")
+
+
 @dataclass(frozen=True)
 class SourceFrame:
     """A rendered frame of a stream: linear colour (H,W,3) and how it was made
@@ -519,7 +525,7 @@ class StreamSession:
                         log.exception("stream frame failed", exc_info=exc)
                 await self.error(status, detail, req.id)
                 if status == 404:  # the scene was deleted while streaming: as for an unknown one, final
-                    await self.ws.close(CLOSE_NO_SCENE)
+                    await self.ws.close(CLOSE_NO_SCENE, close_reason(detail))
                     return
                 continue
             await self._send(frame, req, "jpeg", superseded=superseded, rest=False)
@@ -555,17 +561,16 @@ async def serve_stream(ws: WebSocket, r: Render, scene_id: str, slots: StreamSlo
     refusal = slots.acquire(client)
     if refusal is not None:
         await ws.send_text(json.dumps({"type": "error", "status": 429, "detail": refusal, "id": None}))
-        await ws.close(CLOSE_TRY_LATER)
+        await ws.close(CLOSE_TRY_LATER, close_reason(refusal))
         return
     source: FrameSource | None = None
     try:
         try:
             scene = await r.scene(scene_id)
         except Exception as exc:  # noqa: BLE001 - the store's errors (unknown id, malformed file)
-            status = errors.store_status(exc)
-            await ws.send_text(json.dumps({"type": "error", "status": status, "detail": errors.short(str(exc)),
-                                           "id": None}))
-            await ws.close(CLOSE_NO_SCENE if status == 404 else 1011)
+            status, detail = errors.store_status(exc), errors.short(str(exc))
+            await ws.send_text(json.dumps({"type": "error", "status": status, "detail": detail, "id": None}))
+            await ws.close(CLOSE_NO_SCENE if status == 404 else 1011, close_reason(detail))
             return
         await ws.send_text(json.dumps(hello(scene_id, scene.bounds, r.settings)))
         source = factory(r, scene_id)

@@ -279,6 +279,8 @@ def test_unknown_scene_gets_an_error_and_a_close(client):
         with pytest.raises(WebSocketDisconnect) as exc:
             ws.receive_json()
         assert exc.value.code == CLOSE_NO_SCENE
+        # the close says why (the thin client shows the reason of a final close, else only the code)
+        assert "not found" in exc.value.reason and len(exc.value.reason.encode()) <= 123, exc.value.reason
 
 
 def test_a_scene_deleted_while_streaming_ends_the_stream(tmp_path):
@@ -301,7 +303,7 @@ def test_a_scene_deleted_while_streaming_ends_the_stream(tmp_path):
             assert msg["type"] == "error" and msg["status"] == 404 and msg["id"] == 2, msg
             with pytest.raises(WebSocketDisconnect) as exc:
                 ws.receive_json()
-            assert exc.value.code == CLOSE_NO_SCENE
+            assert exc.value.code == CLOSE_NO_SCENE and "not found" in exc.value.reason, exc.value.reason
 
 
 def test_stream_limits_per_client_and_in_total(tmp_path):
@@ -314,7 +316,7 @@ def test_stream_limits_per_client_and_in_total(tmp_path):
                 assert err["status"] == 429 and "DEPTHVIEW_STREAM_MAX_PER_CLIENT" in err["detail"]
                 with pytest.raises(WebSocketDisconnect) as exc:
                     third.receive_json()
-                assert exc.value.code == CLOSE_TRY_LATER
+                assert exc.value.code == CLOSE_TRY_LATER and "too many streams" in exc.value.reason, exc.value.reason
             slots = c.app.state.stream_slots
             assert slots.open == 2
             assert slots.acquire("elsewhere") is None  # another client: the third stream in total
