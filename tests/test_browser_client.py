@@ -347,3 +347,20 @@ def test_a_failed_local_set_is_not_asked_for_again_and_again(page, server, tmp_p
         drag(page, 60, 0)  # the view moved: asked again
         page.wait_for_timeout(500)
         assert len(asked) >= 2
+
+
+def test_the_page_keeps_only_the_newest_errors(page, server, tmp_path):
+    """A stream that answers with errors for hours (a busy service: about one a second)
+    must not grow the page's error list without bound: the newest ERRORS_KEPT stay."""
+    def errors(ws):
+        for n in range(150):
+            ws.send(json.dumps({"type": "error", "status": 422, "detail": f"bad camera {n}", "id": None}))
+
+    page.route_web_socket("**/stream*", errors)
+    with reported(page, tmp_path):
+        page.goto(f"{server}/client?scene=cornell&token={TOKEN}")
+        page.wait_for_function("() => window.depthview && window.depthview.errors.length >= 100", timeout=30_000)
+        page.wait_for_timeout(500)  # the rest of the 150 arrive
+        kept = state(page)["errors"]
+        assert len(kept) == 100 and kept[-1]["detail"] == "bad camera 149" and kept[0]["detail"] == "bad camera 50"
+        assert "bad camera 149" in page.text_content("#status")

@@ -11,6 +11,8 @@ import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 // target; a new set is fetched when the eye moves farther than LEAVE·d from the set's eye
 // or the view direction turns more than LEAVE_DEG from the set's.
 const RING = 0.1, LEAVE = 0.3, LEAVE_DEG = 20, SET_RESOLUTION = 256, SET_FOV_MARGIN = 1.25;
+// The newest errors kept in state.errors (one may come each second while the service is busy).
+const ERRORS_KEPT = 100;
 
 const params = new URLSearchParams(location.search);
 const token = params.get('token');
@@ -144,7 +146,7 @@ function onText(msg) {
     pendingStats = msg;
   } else if (msg.type === 'error') {
     const detail = typeof msg.detail === 'string' ? msg.detail : JSON.stringify(msg.detail);
-    state.errors.push(msg);
+    noteError(msg);
     status(`server: ${msg.status} ${detail}`, true);
     // The service was busy (503) for the newest camera: ask again once it says to, unless the view moved on
     if (msg.status === 503 && msg.id !== null && msg.id === lastSentId) {
@@ -152,6 +154,11 @@ function onText(msg) {
       setTimeout(() => { if (lastSentId === failed) sendCamera(); }, 1000 * (state.hello?.limits?.retry_after_s ?? 1));
     }
   }
+}
+
+function noteError(err) {
+  state.errors.push(err);
+  if (state.errors.length > ERRORS_KEPT) state.errors.splice(0, state.errors.length - ERRORS_KEPT);
 }
 
 function onFrame(blob) {
@@ -165,7 +172,7 @@ function onFrame(blob) {
     if (socket === socketNo) showFrame(stats, bitmap);
     else bitmap.close();
   }).catch((err) => {  // this frame is lost, the next ones still show
-    state.errors.push({ type: 'frame', seq: stats.seq, detail: String(err) });
+    noteError({ type: 'frame', seq: stats.seq, detail: String(err) });
     console.error(`frame ${stats.seq}:`, err);
   });
 }
