@@ -275,6 +275,22 @@ def test_tiny_fov_and_huge_coordinates_name_the_real_problem(client):
     assert r.status_code == 422 and "light center coordinate" in json.dumps(r.json())
 
 
+@pytest.mark.parametrize(("body", "says"), [
+    ('{"camera": {"eye": [%s, 1, 3], "target": [0, 1, 0]}, "width": 32, "height": 32}', "camera eye coordinate"),
+    ('{"camera": {"eye": [0, 1, 3], "target": [0, 1, 0], "up": [0, -%s, 0]}, "width": 32, "height": 32}',
+     "camera up coordinate"),
+    ('{"camera": {"eye": [0, 1, 3], "target": [0, 1, 0]}, "width": 32, "height": 32, "effects": {"soft_shadows": '
+     '{"light": {"center": [0, 1, 0], "u": [%s, 0, 0], "v": [0, 0, 1]}}}}', "light u coordinate"),
+])
+def test_an_integer_too_large_for_a_float_is_an_out_of_range_coordinate(client, body, says):
+    """An integer coordinate of hundreds of digits is valid JSON, but no float holds it:
+    422 naming the vector, not a 500 (OverflowError converting it)."""
+    r = post_text(client, f"/scenes/{CORNELL}/frames", body % ("1" + "0" * 400))
+    text = json.dumps(r.json())
+    assert r.status_code == 422 and says in text and "out of range" in text, r.text
+    assert len(r.content) < 2000
+
+
 def test_a_long_format_name_is_not_echoed(client):
     r = client.post("/scenes?format=" + "q" * 5000, content=b"v 0 0 0\n",
                     headers={"content-type": "application/octet-stream"})

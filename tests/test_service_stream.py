@@ -207,6 +207,8 @@ def test_reusers_over_the_workers_budget_are_released_least_recently_used_first(
     (json.dumps(camera_msg(10, width=2000, height=2000)), 422, "DEPTHVIEW_STREAM_MAX_PIXELS"),
     (json.dumps({**camera_msg(11), "pad": "x" * 20_000}), 413, "DEPTHVIEW_STREAM_MAX_MESSAGE_BYTES"),
     ("[1, 2]", 422, "FrameRequest"),
+    (json.dumps(camera_msg(12)).replace('"up": [0.0, 1.0, 0.0]', '"up": [0, 1' + "0" * 400 + ", 0]"), 422,
+     "camera up coordinate"),
 ])
 def test_bad_messages_get_an_error_and_the_stream_goes_on(client, message, status, words):
     with client.websocket_connect(f"/scenes/{CORNELL}/stream") as ws:
