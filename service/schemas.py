@@ -51,12 +51,20 @@ def _finite_vec3(name: str, v: Any, what: str = "camera") -> Any:
     if isinstance(v, (list, tuple)) and len(v) == 3:
         for x in v:
             if isinstance(x, (int, float)) and not isinstance(x, bool):
-                if not math.isfinite(x):
+                if isinstance(x, float) and not math.isfinite(x):
                     raise ValueError(f"{what} {name} must be finite numbers (got NaN or infinity)")
                 if abs(x) > MAX_COORDINATE:
-                    raise ValueError(f"{what} {name} coordinate {x:.6g} is out of range: coordinates must be "
-                                     f"within ±{MAX_COORDINATE:.0e}")
+                    raise ValueError(f"{what} {name} coordinate {_magnitude(x)} is out of range: coordinates must "
+                                     f"be within ±{MAX_COORDINATE:.0e}")
     return v
+
+
+def _magnitude(x: int | float) -> str:
+    """`x` as ``.6g``; an integer too large for a float (valid JSON) by its digit count."""
+    try:
+        return f"{x:.6g}"
+    except OverflowError:
+        return f"(an integer of {len(str(abs(x))):,} digits)"
 
 
 class CameraSpec(BaseModel):
