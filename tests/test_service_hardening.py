@@ -291,6 +291,20 @@ def test_an_integer_too_large_for_a_float_is_an_out_of_range_coordinate(client, 
     assert len(r.content) < 2000
 
 
+@pytest.mark.parametrize(("path", "body", "says"), [
+    ("frames", '{"camera": %s, "width": %s, "height": 32}', "DEPTHVIEW_MAX_WIDTH"),
+    ("frames", '{"camera": %s, "width": 32, "height": %s}', "DEPTHVIEW_MAX_HEIGHT"),
+    ("depth-images", '{"cameras": [%s], "width": %s}', "DEPTHVIEW_MAX_WIDTH"),
+])
+def test_a_huge_size_is_named_by_an_excerpt_and_its_limit(client, path, body, says):
+    """A width of thousands of digits (an int to JSON and pydantic) is over the limit:
+    the 422 names the limit's variable and repeats only an excerpt of the number (the
+    whole of it filled the message, cut before the limit was named)."""
+    r = post_text(client, f"/scenes/{CORNELL}/{path}", body % (json.dumps(CAMERA), "9" * 4000))
+    detail = r.json()["detail"]
+    assert r.status_code == 422 and says in detail and len(detail) < 300, r.text
+
+
 def test_a_long_format_name_is_not_echoed(client):
     r = client.post("/scenes?format=" + "q" * 5000, content=b"v 0 0 0\n",
                     headers={"content-type": "application/octet-stream"})
