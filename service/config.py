@@ -117,6 +117,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from scenes.excerpts import cut
+
 ENV_PREFIX = "DEPTHVIEW_"
 #: The repository (or, installed, site-packages) root: package.json and node_modules live here.
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -330,8 +332,8 @@ class Settings:
         for name, value, limit, field_ in ((f"{what} width", width, self.max_width, "max_width"),
                                            (f"{what} height", height, self.max_height, "max_height"),
                                            (f"{what} width × height", width * height, self.max_pixels, "max_pixels")):
-            if value > limit:
-                return f"{name} {value} exceeds the limit {limit} ({ENV_PREFIX}{field_.upper()})"
+            if value > limit:  # a value of thousands of digits is named by an excerpt
+                return f"{name} {cut(str(value), 24)} exceeds the limit {limit} ({ENV_PREFIX}{field_.upper()})"
         return None
 
     @classmethod
