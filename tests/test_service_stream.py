@@ -473,6 +473,20 @@ def test_client_serves_the_page_its_files_and_three_js_only(client, tmp_path):
     assert r.status_code == 404 and "npm ci" in r.json()["detail"]
 
 
+def test_client_file_names_the_file_system_refuses_are_404(tmp_path):
+    """A NUL byte (%00) or a name longer than the file system allows is a 404 like any
+    other file the client routes do not serve, not a 500 (the path's ValueError or
+    ENAMETOOLONG)."""
+    (tmp_path / "nm" / "three" / "build").mkdir(parents=True)
+    (tmp_path / "nm" / "three" / "build" / "three.module.js").write_text("export default 1;\n")
+    with service(tmp_path / "data", ready=False, node_modules=tmp_path / "nm") as c:
+        assert c.get("/client/three/build/three.module.js").status_code == 200
+        for bad in ("/client/three/build/a%00.js", "/client/three/build/" + "a" * 5000 + ".js",
+                    "/client/static/a%00.js", "/client/static/" + "a" * 5000 + ".js"):
+            r = c.get(bad)
+            assert r.status_code == 404 and len(r.content) < 300, (bad[:40], r.status_code)
+
+
 def test_stream_settings_come_from_the_environment_and_are_checked():
     from service.config import Settings
 
