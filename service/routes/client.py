@@ -30,6 +30,15 @@ MEDIA = {".js": "text/javascript", ".css": "text/css", ".html": "text/html"}
 router = APIRouter(prefix="/client", tags=["client"])
 
 
+def _is_file(path: Path) -> bool:
+    """Whether `path` is a file; False for a name the file system refuses (too long:
+    ``Path.is_file`` raises ENAMETOOLONG rather than answering False)."""
+    try:
+        return path.is_file()
+    except (OSError, ValueError):
+        return False
+
+
 def not_installed(what: str, settings: Settings) -> HTTPException:
     """404 naming the npm package missing from the node_modules the service uses."""
     return HTTPException(404, f"{what} is not installed in {settings.node_modules}: run `npm ci` at the "
@@ -48,7 +57,7 @@ async def page(request: Request) -> HTMLResponse:
 @router.get("/static/{name}", summary="The page's script and style sheet", include_in_schema=False)
 async def static(name: str) -> FileResponse:
     path = STATIC / name
-    if "/" in name or path.suffix not in (".js", ".css") or not path.is_file():
+    if "/" in name or path.suffix not in (".js", ".css") or not _is_file(path):
         raise HTTPException(404, "no such client file")
     return FileResponse(path, media_type=MEDIA[path.suffix], headers={"Cache-Control": "no-cache"})
 
@@ -59,8 +68,11 @@ async def three(path: str, settings: SettingsDep) -> FileResponse:
     root = settings.node_modules / "three"
     if not root.is_dir():
         raise not_installed("three.js", settings)
-    target = (root / path).resolve()
+    try:
+        target = (root / path).resolve()
+    except (OSError, ValueError):  # a NUL byte, a name too long: no such module
+        raise HTTPException(404, "not a three.js module") from None
     allowed = [(root / d).resolve() for d in THREE_DIRS]
-    if target.suffix != ".js" or not any(target.is_relative_to(a) for a in allowed) or not target.is_file():
+    if target.suffix != ".js" or not any(target.is_relative_to(a) for a in allowed) or not _is_file(target):
         raise HTTPException(404, "not a three.js module")
     return FileResponse(target, media_type="text/javascript", headers={"Cache-Control": "max-age=3600"})
