@@ -209,6 +209,7 @@ def test_reusers_over_the_workers_budget_are_released_least_recently_used_first(
     ("[1, 2]", 422, "FrameRequest"),
     (json.dumps(camera_msg(12)).replace('"up": [0.0, 1.0, 0.0]', '"up": [0, 1' + "0" * 400 + ", 0]"), 422,
      "camera up coordinate"),
+    (json.dumps(camera_msg()).replace("{", '{"id": ' + "9" * 4000 + ", ", 1), 422, "less than"),
 ])
 def test_bad_messages_get_an_error_and_the_stream_goes_on(client, message, status, words):
     with client.websocket_connect(f"/scenes/{CORNELL}/stream") as ws:
