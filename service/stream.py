@@ -424,7 +424,8 @@ def _message_id(text: str) -> int | None:
         value = json.loads(text).get("id")
     except (ValueError, AttributeError):
         return None
-    return value if isinstance(value, int) and not isinstance(value, bool) else None
+    # only an id the schema accepts is echoed (one of thousands of digits is input to excerpt, not repeat)
+    return value if isinstance(value, int) and not isinstance(value, bool) and 0 <= value < 2**53 else None
 
 
 #: The hello view: direction and vertical field of view (degrees), and its distance
