@@ -193,3 +193,27 @@ def test_parses_wait_for_a_turn_at_most_the_time_limit() -> None:
     assert 0.25 < time.monotonic() - t0 < 5
     parser._slots.release()
     assert parser(sphere_glb(1), "glb", "ball", None).n_triangles == 80
+
+
+def test_uploads_waiting_for_a_parse_hold_no_thread_other_routes_need(tmp_path) -> None:
+    """Uploads queued behind a parse wait without a thread of the pool every route
+    shares: with 45 of them waiting (more than the pool's 40 threads) the scene list
+    still answers at once, and each upload is stored once the parse slot frees."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with service(tmp_path, ready=False) as c, ThreadPoolExecutor(46) as pool:
+        slots = c.app.state.store.parse._slots
+        assert slots.acquire(timeout=1)  # a parse in progress (one render worker: one at a time)
+        try:
+            uploads = [pool.submit(c.post, "/scenes", content=f"v 0 0 0\nv 1 0 0\nv 0 1 {k + 1}\nf 1 2 3\n".encode(),
+                                   headers={"content-type": "model/obj"}) for k in range(45)]
+            time.sleep(1.0)
+            listed = pool.submit(c.get, "/scenes")
+            try:
+                status = listed.result(timeout=5).status_code
+            except TimeoutError:
+                status = None
+        finally:
+            slots.release()
+        assert status == 200, "GET /scenes waited behind the queued uploads"
+        assert sorted(u.result(timeout=120).status_code for u in uploads) == [201] * 45
