@@ -45,6 +45,7 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
 
+import anyio
 from fastapi import FastAPI
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.openapi.utils import get_openapi
@@ -74,6 +75,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         parse = UploadParser(ParseLimits(settings.parse_timeout_s, settings.max_job_bytes), max(1, settings.workers))
+        app.state.upload_turns = anyio.CapacityLimiter(parse.concurrent)  # routes.scenes: uploads wait without a thread
         app.state.store = await run_in_threadpool(
             SceneStore, settings.data_dir, settings.scene_cache_size, settings.max_triangles, parse=parse)
         worker: Any

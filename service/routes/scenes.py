@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections.abc import AsyncIterator
 from pathlib import PurePath
 
+import anyio
 from fastapi import APIRouter, Depends, HTTPException, Request, Response
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
@@ -20,8 +21,9 @@ from service.config import Settings
 from service.deps import MetricsDep, SettingsDep, StoreDep, WorkerDep, require_token
 from service.errors import json_media_type, responses
 from service.middleware import MULTIPART_OVERHEAD
+from service.parsing import ParseUnavailable
 from service.schemas import BuiltinSceneRequest, SceneInfo, SceneList
-from service.store import SceneMeta
+from service.store import SceneMeta, SceneStore
 
 router = APIRouter(prefix="/scenes", tags=["scenes"], dependencies=[Depends(require_token)],
                    responses=responses({401: "missing or wrong bearer token"}))
@@ -134,6 +136,24 @@ async def _read_multipart(request: Request, settings: Settings, fmt: str | None,
         await form.close()
 
 
+async def _put_upload(request: Request, settings: Settings, store: SceneStore, data: bytes, fmt: str,
+                      display: str) -> tuple[SceneMeta, bool]:
+    """``store.put_upload`` once the upload has its turn (as many at once as are parsed at
+    once): a waiting upload holds no thread of the pool every route shares (a burst of
+    uploads stalled the scene list, scene loads and encoding), and after PARSE_TIMEOUT_S
+    of waiting it is 503, as the parser's own wait is."""
+    turns = request.app.state.upload_turns
+    with anyio.move_on_after(settings.parse_timeout_s) as waited:
+        await turns.acquire()
+    if waited.cancelled_caught:
+        raise ParseUnavailable(f"{turns.total_tokens:g} upload(s) are being parsed, as many as at once; waited "
+                               f"{settings.parse_timeout_s:g} s (PARSE_TIMEOUT_S): try again")
+    try:
+        return await run_in_threadpool(store.put_upload, data, fmt, display)
+    finally:
+        turns.release()
+
+
 @router.get("", response_model=SceneList, summary="List scenes")
 async def list_scenes(store: StoreDep) -> SceneList:
     metas = await run_in_threadpool(store.list)
@@ -190,7 +210,7 @@ async def create_scene(request: Request, settings: SettingsDep, store: StoreDep,
             raise HTTPException(415, f"unsupported content type {ctype[:60] or '(none)'!r}: send "
                                      "multipart/form-data with a 'file' field, a raw body with ?format=, or JSON "
                                      "{\"builtin\": ...}")
-        meta, created = await run_in_threadpool(store.put_upload, data, fmt, display)
+        meta, created = await _put_upload(request, settings, store, data, fmt, display)
         metrics.upload()
     return JSONResponse(jsonable_encoder(_info(meta)), status_code=201 if created else 200,
                         headers={"Location": f"/scenes/{meta.id}"})
