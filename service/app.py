@@ -102,6 +102,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.metrics = Metrics()
     app.state.stream_slots = StreamSlots(settings)
+    app.state.pending_uploads = scenes.PendingUploads()  # routes.scenes: the bytes uploads in progress hold
     #: Makes each stream's FrameSource (cluster reflections through a per-stream ReflectionReuser).
     app.state.frame_source = ReuseFrameSource
     errors.install(app)

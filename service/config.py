@@ -26,6 +26,11 @@ parse_timeout_s        60                           seconds an upload may take t
                                                     is held to max_job_bytes (→ 422); as many parses
                                                     run at once as workers, and an upload waiting
                                                     longer than this for its turn → 503
+max_pending_upload_     1 GiB (1073741824)           bytes of the uploads being received, waiting for
+bytes                                               their parse or parsed at once (each holds its
+                                                    body in memory): its Content-Length, else the
+                                                    largest upload; an upload past it → 503 before
+                                                    its body is read (one alone is always admitted)
 scene_cache_size       8                            parsed Scene objects kept in memory (LRU)
 gpu_cache_size         4                            scenes kept uploaded on the GPU (LRU, worker)
 reconstruction_cache_  1.25 GiB (1342177280)        GPU bytes of reconstructions (soft shadows'
@@ -233,6 +238,10 @@ class Settings:
     #: Seconds an upload may take to parse (``service.parsing``: a child process, killed
     #: past it → 422); its memory is held to max_job_bytes.
     parse_timeout_s: float = 60.0
+    #: Bytes the uploads in progress (received, waiting for their parse, parsed) may hold
+    #: at once, each counted by its Content-Length or else as the largest upload; one past
+    #: it → 503 + Retry-After before its body is read; one alone is always admitted.
+    max_pending_upload_bytes: int = 1024 * MIB
     #: Parsed Scene objects kept in memory (LRU).
     scene_cache_size: int = 8
     #: Scenes kept uploaded on the GPU by the render worker (LRU; released on eviction).
@@ -295,7 +304,8 @@ class Settings:
             if int(getattr(self, name)) > MAX_FRAME_SIDE:
                 raise ValueError(f"{_setting(name)} must be <= {MAX_FRAME_SIDE} (the largest framebuffer GL 4.5 "
                                  f"guarantees), got {getattr(self, name)!r}")
-        for name in ("max_upload_bytes", "max_triangles", "max_width", "max_height", "max_pixels",
+        for name in ("max_upload_bytes", "max_pending_upload_bytes", "max_triangles", "max_width", "max_height",
+                     "max_pixels",
                      "queue_size", "scene_cache_size", "gpu_cache_size", "max_json_bytes", "max_job_bytes",
                      "stream_max_per_client", "stream_max_total", "stream_max_message_bytes", "stream_max_pixels",
                      "stream_reuse_bytes"):
@@ -375,11 +385,11 @@ def _origins(raw: str) -> tuple[str, ...]:
     return tuple(o.strip().rstrip("/") for o in raw.split(",") if o.strip())
 
 
-_INT_FIELDS = {"port", "max_upload_bytes", "max_triangles", "max_width", "max_height", "max_pixels",
-               "queue_size", "retry_after_s", "scene_cache_size", "gpu_cache_size", "gl_device", "max_json_bytes",
-               "max_job_bytes", "stream_max_per_client", "stream_max_total", "stream_max_message_bytes",
-               "stream_max_pixels", "stream_jpeg_quality", "workers", "reconstruction_cache_bytes",
-               "stream_reuse_bytes"}
+_INT_FIELDS = {"port", "max_upload_bytes", "max_pending_upload_bytes", "max_triangles", "max_width", "max_height",
+               "max_pixels", "queue_size", "retry_after_s", "scene_cache_size", "gpu_cache_size", "gl_device",
+               "max_json_bytes", "max_job_bytes", "stream_max_per_client", "stream_max_total",
+               "stream_max_message_bytes", "stream_max_pixels", "stream_jpeg_quality", "workers",
+               "reconstruction_cache_bytes", "stream_reuse_bytes"}
 _FLOAT_FIELDS = {"job_timeout_s", "parse_timeout_s", "header_timeout_s", "body_timeout_s", "stream_rest_s"}
 
 

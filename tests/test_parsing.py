@@ -13,7 +13,7 @@ import trimesh
 from scenes import loaders
 from service.parsing import ParseLimits, ParseMemoryLimit, ParseTimeLimit, parse_scene
 from service.store import SceneStore
-from tests.helpers import ROOT, service
+from tests.helpers import ROOT, service, wait_until
 
 GIB = 1 << 30
 
@@ -217,3 +217,36 @@ def test_uploads_waiting_for_a_parse_hold_no_thread_other_routes_need(tmp_path) 
             slots.release()
         assert status == 200, "GET /scenes waited behind the queued uploads"
         assert sorted(u.result(timeout=120).status_code for u in uploads) == [201] * 45
+
+
+def test_uploads_past_the_pending_bytes_are_503_before_their_body_is_read(tmp_path) -> None:
+    """The bytes uploads in progress hold (received, waiting for a parse, parsed) are
+    capped: with one 200-byte upload waiting for its parse, a second that would take the
+    total past 300 bytes is 503 at once, naming the limit; once the first is stored the
+    second goes through, and an upload alone is admitted whatever its size."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    def obj(k: int, size: int) -> bytes:
+        body = f"v 0 0 0\nv 1 0 0\nv 0 1 {k + 1}\nf 1 2 3\n".encode()
+        return body + b"#" * (size - len(body) - 1) + b"\n"
+
+    def upload(c, body: bytes):
+        return c.post("/scenes", content=body, headers={"content-type": "model/obj"})
+
+    with service(tmp_path, ready=False, max_pending_upload_bytes=300, parse_timeout_s=10) as c, \
+            ThreadPoolExecutor(2) as pool:
+        assert upload(c, obj(0, 400)).status_code == 201  # alone: admitted past the budget
+        slots = c.app.state.store.parse._slots
+        assert slots.acquire(timeout=1)  # a parse in progress: the next upload waits for its turn
+        try:
+            first = pool.submit(upload, c, obj(1, 200))
+            wait_until(lambda: c.app.state.pending_uploads.count == 1, 10)
+            t0 = time.monotonic()
+            second = upload(c, obj(2, 200))
+            assert second.status_code == 503 and time.monotonic() - t0 < 5, second.text
+            assert "DEPTHVIEW_MAX_PENDING_UPLOAD_BYTES" in second.json()["detail"] and "Retry-After" in second.headers
+        finally:
+            slots.release()
+        assert first.result(timeout=60).status_code == 201
+        assert c.app.state.pending_uploads.bytes == 0 and c.app.state.pending_uploads.count == 0
+        assert upload(c, obj(2, 200)).status_code == 201

@@ -3,7 +3,8 @@ delete. Store and loader errors reach the one handler in ``service.errors``."""
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Iterator
+from contextlib import contextmanager
 from pathlib import PurePath
 
 import anyio
@@ -18,7 +19,7 @@ from starlette.datastructures import UploadFile
 from starlette.formparsers import MultiPartException, MultiPartParser
 
 from service.config import Settings
-from service.deps import MetricsDep, SettingsDep, StoreDep, WorkerDep, require_token
+from service.deps import MetricsDep, SettingsDep, StoreDep, WorkerDep, require_token, unavailable
 from service.errors import json_media_type, responses
 from service.middleware import MULTIPART_OVERHEAD
 from service.parsing import ParseUnavailable
@@ -136,6 +137,40 @@ async def _read_multipart(request: Request, settings: Settings, fmt: str | None,
         await form.close()
 
 
+class PendingUploads:
+    """Bytes held by the uploads in progress (``Settings.max_pending_upload_bytes``):
+    each is counted from before its body is read until it is stored or refused, by its
+    Content-Length, else as the largest upload the body limit lets through. Used on the
+    event loop only."""
+
+    def __init__(self) -> None:
+        self.bytes = 0
+        self.count = 0
+
+    @contextmanager
+    def hold(self, request: Request, settings: Settings) -> Iterator[None]:
+        """Count this upload while it is received, waits and is parsed; 503 (+ Retry-After)
+        when it would take the bytes held past the budget, unless it is the only one."""
+        try:
+            size = int(request.headers.get("content-length", ""))
+        except ValueError:  # none, or malformed (413/400 come from the body's own checks)
+            size = -1
+        if size < 0:
+            size = settings.max_upload_bytes + 2 * MULTIPART_OVERHEAD
+        budget = settings.max_pending_upload_bytes
+        if self.count and self.bytes + size > budget:
+            raise unavailable(f"{self.count} upload(s) of {self.bytes} bytes are being received or parsed; this one "
+                              f"({size} bytes) would pass the limit of {budget} bytes "
+                              "(DEPTHVIEW_MAX_PENDING_UPLOAD_BYTES): try again", settings)
+        self.bytes += size
+        self.count += 1
+        try:
+            yield
+        finally:
+            self.bytes -= size
+            self.count -= 1
+
+
 async def _put_upload(request: Request, settings: Settings, store: SceneStore, data: bytes, fmt: str,
                       display: str) -> tuple[SceneMeta, bool]:
     """``store.put_upload`` once the upload has its turn (as many at once as are parsed at
@@ -174,7 +209,9 @@ LOCATION = {"Location": {"description": "the scene's URL, /scenes/{id}", "schema
                             413: "upload or JSON body too large", 415: "unsupported format or content type",
                             422: "malformed scene file, too many triangles, unknown built-in, parse over its "
                                  "time or memory limit",
-                            500: "the store is corrupted", 503: "no process to parse the upload could start"})},
+                            500: "the store is corrupted",
+                            503: "no process to parse the upload could start, or the uploads in progress hold "
+                                 "DEPTHVIEW_MAX_PENDING_UPLOAD_BYTES"})},
     openapi_extra={"requestBody": {"required": True, "content": {
         "multipart/form-data": {"schema": {"type": "object", "required": ["file"], "properties": {
             "file": {"type": "string", "format": "binary", "description": "a .glb, .gltf, .obj or .ply file"},
@@ -197,20 +234,20 @@ async def create_scene(request: Request, settings: SettingsDep, store: StoreDep,
             raise RequestValidationError([{**e, "loc": ("body", *e["loc"])} for e in errors]) from None
         meta, created = await run_in_threadpool(store.put_builtin, req.builtin, req.params.model_dump())
     else:
-        if ctype == "multipart/form-data":
-            data, fmt, display = await _read_multipart(request, settings, format, name)
-        elif ctype in RAW_CONTENT_TYPES:
-            implied = format or RAW_CONTENT_TYPES[ctype]
-            if not implied:
-                raise HTTPException(415, "a raw upload needs its format: add ?format=glb|gltf|obj|ply")
-            data = await _read_limited(request, settings.max_upload_bytes, "upload")
-            fmt = _format_from(implied, None)
-            display = name or "upload"
-        else:
+        if ctype != "multipart/form-data" and ctype not in RAW_CONTENT_TYPES:
             raise HTTPException(415, f"unsupported content type {ctype[:60] or '(none)'!r}: send "
                                      "multipart/form-data with a 'file' field, a raw body with ?format=, or JSON "
                                      "{\"builtin\": ...}")
-        meta, created = await _put_upload(request, settings, store, data, fmt, display)
+        implied = format or RAW_CONTENT_TYPES.get(ctype)
+        if ctype != "multipart/form-data" and not implied:
+            raise HTTPException(415, "a raw upload needs its format: add ?format=glb|gltf|obj|ply")
+        with request.app.state.pending_uploads.hold(request, settings):
+            if ctype == "multipart/form-data":
+                data, fmt, display = await _read_multipart(request, settings, format, name)
+            else:
+                data = await _read_limited(request, settings.max_upload_bytes, "upload")
+                fmt, display = _format_from(implied, None), name or "upload"
+            meta, created = await _put_upload(request, settings, store, data, fmt, display)
         metrics.upload()
     return JSONResponse(jsonable_encoder(_info(meta)), status_code=201 if created else 200,
                         headers={"Location": f"/scenes/{meta.id}"})
