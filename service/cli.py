@@ -174,11 +174,20 @@ def serve_settings(args: argparse.Namespace, environ: Mapping[str, str] | None =
                              gl_backend=args.gl_backend)
 
 
+def ws_max_size(settings: Settings) -> int:
+    """Largest WebSocket message the server reads whole: a camera message past
+    STREAM_MAX_MESSAGE_BYTES but within MAX_JSON_BYTES gets the stream's 413 error
+    message (the stream goes on); a larger one closes the stream (1009)."""
+    return max(settings.max_json_bytes, settings.stream_max_message_bytes)
+
+
 def server_config(settings: Settings, log_level: str = "info") -> Any:
     """The uvicorn configuration of the service: one process (GL contexts live in the
     render worker processes, or on the app's render worker thread with WORKERS=0), the
     h11 protocol with a header read timeout, uvicorn's keep-alive timeout for idle
-    connections, and a bounded graceful shutdown."""
+    connections, a bounded graceful shutdown, and WebSocket messages of at most
+    `ws_max_size` (a stream's larger message closes it with 1009; uvicorn's own cap is
+    16 MiB)."""
     import uvicorn
 
     from service.app import create_app
@@ -186,6 +195,7 @@ def server_config(settings: Settings, log_level: str = "info") -> Any:
 
     return uvicorn.Config(create_app(settings), host=settings.host, port=settings.port, log_level=log_level,
                           workers=1, http=header_timeout_protocol(settings.header_timeout_s),
+                          ws_max_size=ws_max_size(settings),
                           timeout_keep_alive=KEEP_ALIVE_S, timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S)
 
 

@@ -22,7 +22,15 @@ from service import image_io
 from service.image_check import assert_images_close, compare_images
 from service.store import builtin_id
 from service.stream import CLOSE_NO_SCENE, CLOSE_TRY_LATER, SourceFrame
-from tests.helpers import MIRROR_CAMERA, MIRROR_CAMERA_MOVED, frame_camera, service, service_client, wait_until
+from tests.helpers import (
+    MIRROR_CAMERA,
+    MIRROR_CAMERA_MOVED,
+    frame_camera,
+    live_server,
+    service,
+    service_client,
+    wait_until,
+)
 
 CORNELL = builtin_id("cornell")
 W, H = 48, 32
@@ -533,3 +541,23 @@ def test_a_plain_get_of_the_stream_is_426_not_404(client):
     assert r.status_code == 426 and r.headers["upgrade"] == "websocket" and "WebSocket" in r.json()["detail"]
     with client.websocket_connect(f"/scenes/{CORNELL}/stream") as ws:  # the WebSocket route is unchanged
         assert ws.receive_json()["type"] == "hello"
+
+
+def test_the_server_reads_no_stream_message_past_its_cap(tmp_path):
+    """The real server (`depthview serve`'s uvicorn configuration): a camera message over
+    STREAM_MAX_MESSAGE_BYTES but within MAX_JSON_BYTES is the stream's 413 and the stream
+    goes on; a larger one is not read whole (uvicorn's own cap was 16 MiB): the socket
+    closes with 1009 (message too big)."""
+    from websockets.exceptions import ConnectionClosed
+    from websockets.sync.client import connect
+
+    with live_server(tmp_path, max_json_bytes=64 * 1024) as (host, port):
+        with connect(f"ws://{host}:{port}/scenes/{CORNELL}/stream", max_size=None) as ws:
+            assert json.loads(ws.recv(timeout=30))["type"] == "hello"
+            ws.send(json.dumps({**camera_msg(1), "pad": "x" * 32_000}))
+            err = json.loads(ws.recv(timeout=30))
+            assert err["status"] == 413 and "DEPTHVIEW_STREAM_MAX_MESSAGE_BYTES" in err["detail"], err
+            ws.send(json.dumps({**camera_msg(2), "pad": "x" * 200_000}))
+            with pytest.raises(ConnectionClosed) as info:
+                ws.recv(timeout=30)
+            assert info.value.rcvd is not None and info.value.rcvd.code == 1009, info.value
