@@ -126,7 +126,8 @@ function connect() {
   ws.onmessage = (ev) => (typeof ev.data === 'string' ? onText(JSON.parse(ev.data)) : onFrame(ev.data));
   ws.onclose = (ev) => {
     state.connected = false;
-    if (ev.code === 1008 || ev.code === 4404) { status(`stream closed: ${ev.reason || ev.code}`, true); return; }
+    // final: refused (1008), no such scene (4404), a scene the service cannot load (1011)
+    if ([1008, 1011, 4404].includes(ev.code)) { status(`stream closed: ${ev.reason || ev.code}`, true); return; }
     status(`stream closed (${ev.code}); reconnecting…`, true);
     retry = setTimeout(connect, 2000);
   };
@@ -314,11 +315,16 @@ async function ensureLocalSet(force) {
   } catch (err) {
     failed = true;  // asked again when the view moves, not at once (a 422 fails every time)
     console.warn(err);
-    status(String(err.message || err), true);
+    if (scene === state.scene) status(String(err.message || err), true);  // not the scene switched from
   } finally {
     state.local.loading = false;
     showStats();
-    if (!failed && ticket === setRequest && state.mode === 'local' && leftRegion()) ensureLocalSet(false);
+    // the scene switched while this loaded (its set is asked for now, whatever became of this one),
+    // or the view left the region of the set just made
+    const switched = scene !== state.scene;
+    if (ticket === setRequest && state.mode === 'local' && (switched || (!failed && leftRegion()))) {
+      ensureLocalSet(switched);
+    }
   }
 }
 
