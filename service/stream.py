@@ -102,8 +102,10 @@ REUSED_METHODS = tuple(JUMP_LIMITS)
 log = logging.getLogger("depthview.stream")
 T = TypeVar("T")
 
-#: Close codes: too many streams (try again later), unknown scene.
+#: Close codes: too many streams or no parse process now (try again later); a stored
+#: scene that does not load (the thin client does not reconnect); unknown scene.
 CLOSE_TRY_LATER = 1013
+CLOSE_SERVER_ERROR = 1011
 CLOSE_NO_SCENE = 4404
 
 
@@ -571,7 +573,9 @@ async def serve_stream(ws: WebSocket, r: Render, scene_id: str, slots: StreamSlo
         except Exception as exc:  # noqa: BLE001 - the store's errors (unknown id, malformed file)
             status, detail = errors.store_status(exc), errors.short(str(exc))
             await ws.send_text(json.dumps({"type": "error", "status": status, "detail": detail, "id": None}))
-            await ws.close(CLOSE_NO_SCENE if status == 404 else 1011, close_reason(detail))
+            # 404: final; 503 (no parse process now): try again; else the stored scene does not load
+            code = {404: CLOSE_NO_SCENE, 503: CLOSE_TRY_LATER}.get(status, CLOSE_SERVER_ERROR)
+            await ws.close(code, close_reason(detail))
             return
         await ws.send_text(json.dumps(hello(scene_id, scene.bounds, r.settings)))
         source = factory(r, scene_id)

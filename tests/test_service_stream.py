@@ -21,7 +21,7 @@ from scenes.camera import Camera, box_corners
 from service import image_io
 from service.image_check import assert_images_close, compare_images
 from service.store import builtin_id
-from service.stream import CLOSE_NO_SCENE, CLOSE_TRY_LATER, SourceFrame
+from service.stream import CLOSE_NO_SCENE, CLOSE_SERVER_ERROR, CLOSE_TRY_LATER, SourceFrame
 from tests.helpers import (
     MIRROR_CAMERA,
     MIRROR_CAMERA_MOVED,
@@ -294,6 +294,28 @@ def test_unknown_scene_gets_an_error_and_a_close(client):
         assert "not found" in exc.value.reason and len(exc.value.reason.encode()) <= 123, exc.value.reason
 
 
+@pytest.mark.parametrize(("error", "status", "code"), [
+    ("ParseUnavailable", 503, CLOSE_TRY_LATER), ("StoreCorrupted", 500, CLOSE_SERVER_ERROR)])
+def test_a_scene_that_does_not_load_closes_the_stream_saying_whether_to_try_again(tmp_path, error, status, code):
+    """No parse process now (503): close 1013, the thin client reconnects; a stored scene
+    that does not load: 1011, which it does not (each reconnect would parse it again)."""
+    from service import parsing, store
+
+    exc = {"ParseUnavailable": parsing.ParseUnavailable, "StoreCorrupted": store.StoreCorrupted}[error]
+
+    def fails(scene_id):
+        raise exc(f"scene {scene_id[:8]}: {error}")
+
+    with service(tmp_path) as c:
+        c.app.state.store.get_scene = fails
+        with c.websocket_connect(f"/scenes/{CORNELL}/stream") as ws:
+            err = ws.receive_json()
+            assert err["type"] == "error" and err["status"] == status, err
+            with pytest.raises(WebSocketDisconnect) as info:
+                ws.receive_json()
+        assert info.value.code == code and error in info.value.reason, (info.value.code, info.value.reason)
+
+
 def test_a_scene_deleted_while_streaming_ends_the_stream(tmp_path):
     """The next camera message after DELETE gets the 404 and the socket closes with
     the unknown scene's code, which the thin client treats as final (it kept the
@@ -557,7 +579,7 @@ def test_the_server_reads_no_stream_message_past_its_cap(tmp_path):
             ws.send(json.dumps({**camera_msg(1), "pad": "x" * 32_000}))
             err = json.loads(ws.recv(timeout=30))
             assert err["status"] == 413 and "DEPTHVIEW_STREAM_MAX_MESSAGE_BYTES" in err["detail"], err
-            ws.send(json.dumps({**camera_msg(2), "pad": "x" * 200_000}))
-            with pytest.raises(ConnectionClosed) as info:
+            with pytest.raises(ConnectionClosed) as info:  # the send itself may meet the close
+                ws.send(json.dumps({**camera_msg(2), "pad": "x" * 200_000}))
                 ws.recv(timeout=30)
             assert info.value.rcvd is not None and info.value.rcvd.code == 1009, info.value
