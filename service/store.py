@@ -399,6 +399,14 @@ class SceneStore:
         if self.max_triangles is not None and n > self.max_triangles:
             raise TriangleLimitExceeded(f"{what} has {n:,} triangles, limit is {self.max_triangles:,}")
 
+    def stored_upload(self, data: bytes, fmt: str) -> SceneMeta | None:
+        """The meta of `data` as a `fmt` upload when it is stored already (readable), else
+        None: `put_upload` answers it without a parse."""
+        try:
+            return self._read_meta(upload_id(fmt.lower().lstrip("."), data))
+        except Exception:  # noqa: BLE001 - not stored, or an entry put_upload re-creates
+            return None
+
     def put_upload(self, data: bytes, fmt: str, name: str | None = None) -> tuple[SceneMeta, bool]:
         """Parse and store an uploaded file. Returns (meta, created). Raises
         UnsupportedFormat, SceneLoadError (from the loader) or TriangleLimitExceeded."""

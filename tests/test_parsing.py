@@ -201,7 +201,8 @@ def test_uploads_waiting_for_a_parse_hold_no_thread_other_routes_need(tmp_path) 
     still answers at once, and each upload is stored once the parse slot frees."""
     from concurrent.futures import ThreadPoolExecutor
 
-    with service(tmp_path, ready=False) as c, ThreadPoolExecutor(46) as pool:
+    # a parse turn each, one after another: PARSE_TIMEOUT_S far above 45 parses on a slow host
+    with service(tmp_path, ready=False, parse_timeout_s=300) as c, ThreadPoolExecutor(46) as pool:
         slots = c.app.state.store.parse._slots
         assert slots.acquire(timeout=1)  # a parse in progress (one render worker: one at a time)
         try:
@@ -223,7 +224,8 @@ def test_uploads_past_the_pending_bytes_are_503_before_their_body_is_read(tmp_pa
     """The bytes uploads in progress hold (received, waiting for a parse, parsed) are
     capped: with one 200-byte upload waiting for its parse, a second that would take the
     total past 300 bytes is 503 at once, naming the limit; once the first is stored the
-    second goes through, and an upload alone is admitted whatever its size."""
+    second goes through, and an upload alone is admitted whatever its size. An upload
+    stored before is answered at once, without waiting for the parse turn."""
     from concurrent.futures import ThreadPoolExecutor
 
     def obj(k: int, size: int) -> bytes:
@@ -236,6 +238,7 @@ def test_uploads_past_the_pending_bytes_are_503_before_their_body_is_read(tmp_pa
     with service(tmp_path, ready=False, max_pending_upload_bytes=300, parse_timeout_s=10) as c, \
             ThreadPoolExecutor(2) as pool:
         assert upload(c, obj(0, 400)).status_code == 201  # alone: admitted past the budget
+        assert upload(c, obj(5, 90)).status_code == 201
         slots = c.app.state.store.parse._slots
         assert slots.acquire(timeout=1)  # a parse in progress: the next upload waits for its turn
         try:
@@ -247,6 +250,10 @@ def test_uploads_past_the_pending_bytes_are_503_before_their_body_is_read(tmp_pa
             assert "DEPTHVIEW_MAX_PENDING_UPLOAD_BYTES" in second.json()["detail"] and "Retry-After" in second.headers
         finally:
             slots.release()
+            # content stored before is answered at once, without waiting for a parse turn
+            t0 = time.monotonic()
+            again = upload(c, obj(5, 90))
+            assert again.status_code == 200 and time.monotonic() - t0 < 5, again.text
         assert first.result(timeout=60).status_code == 201
         assert c.app.state.pending_uploads.bytes == 0 and c.app.state.pending_uploads.count == 0
         assert upload(c, obj(2, 200)).status_code == 201

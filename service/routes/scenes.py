@@ -176,7 +176,12 @@ async def _put_upload(request: Request, settings: Settings, store: SceneStore, d
     """``store.put_upload`` once the upload has its turn (as many at once as are parsed at
     once): a waiting upload holds no thread of the pool every route shares (a burst of
     uploads stalled the scene list, scene loads and encoding), and after PARSE_TIMEOUT_S
-    of waiting it is 503, as the parser's own wait is."""
+    of waiting it is 503; then the parser's own wait (a render's reparse of a stored
+    upload may hold it) may add as long again. Content stored before is answered at
+    once."""
+    known = await run_in_threadpool(store.stored_upload, data, fmt)
+    if known is not None:  # stored before: no parse, so no turn to wait for
+        return known, False
     turns = request.app.state.upload_turns
     with anyio.move_on_after(settings.parse_timeout_s) as waited:
         await turns.acquire()
@@ -241,6 +246,8 @@ async def create_scene(request: Request, settings: SettingsDep, store: StoreDep,
         implied = format or RAW_CONTENT_TYPES.get(ctype)
         if ctype != "multipart/form-data" and not implied:
             raise HTTPException(415, "a raw upload needs its format: add ?format=glb|gltf|obj|ply")
+        if ctype != "multipart/form-data":  # its 413 before a 503 for the uploads in progress
+            _check_content_length(request, settings.max_upload_bytes, "upload")
         with request.app.state.pending_uploads.hold(request, settings):
             if ctype == "multipart/form-data":
                 data, fmt, display = await _read_multipart(request, settings, format, name)
