@@ -117,6 +117,12 @@ class ParseUnavailable(Exception):
     """No parse process could be started (HTTP 503; the upload may be sent again)."""
 
 
+def no_turn(concurrent: float, timeout_s: float) -> ParseUnavailable:
+    """An upload waited `timeout_s` (PARSE_TIMEOUT_S) for one of `concurrent` parse turns."""
+    return ParseUnavailable(f"{concurrent:g} upload(s) are being parsed, as many as at once; waited "
+                            f"{timeout_s:g} s (PARSE_TIMEOUT_S): try again")
+
+
 _warned: list[str] = []
 
 
@@ -228,8 +234,7 @@ class UploadParser:
 
     def __call__(self, data: bytes, fmt: str, name: str, max_triangles: int | None) -> Scene:
         if not self._slots.acquire(timeout=self.limits.timeout_s):
-            raise ParseUnavailable(f"{self.concurrent} upload(s) are being parsed, as many as at once; waited "
-                                   f"{self.limits.timeout_s:g} s (PARSE_TIMEOUT_S): try again")
+            raise no_turn(self.concurrent, self.limits.timeout_s)
         try:
             return parse_scene(data, fmt, name, max_triangles, self.limits)
         finally:

@@ -402,9 +402,17 @@ class SceneStore:
     def stored_upload(self, data: bytes, fmt: str) -> SceneMeta | None:
         """The meta of `data` as a `fmt` upload when it is stored already (readable), else
         None: `put_upload` answers it without a parse."""
+        return self._stored(upload_id(fmt.lower().lstrip("."), data))
+
+    def _stored(self, sid: str) -> SceneMeta | None:
+        """The meta of the upload `sid`, or None: not stored, or an unreadable entry
+        (logged; `put_upload` re-creates it)."""
         try:
-            return self._read_meta(upload_id(fmt.lower().lstrip("."), data))
-        except Exception:  # noqa: BLE001 - not stored, or an entry put_upload re-creates
+            return self._read_meta(sid)
+        except SceneNotFound:
+            return None
+        except Exception as exc:  # noqa: BLE001 - corrupt entry: rebuilt by put_upload
+            log.warning("scene %s: unreadable meta.json (%s); re-creating it", sid, exc)
             return None
 
     def put_upload(self, data: bytes, fmt: str, name: str | None = None) -> tuple[SceneMeta, bool]:
@@ -415,12 +423,9 @@ class SceneStore:
             raise UnsupportedFormat(
                 f"unsupported scene format {quoted(fmt)}; supported: {', '.join(loaders.SUPPORTED_FORMATS)}")
         sid = upload_id(fmt, data)
-        try:
-            return self._read_meta(sid), False
-        except SceneNotFound:
-            pass
-        except Exception as exc:  # noqa: BLE001 - corrupt entry: rebuild below
-            log.warning("scene %s: unreadable meta.json (%s); re-creating it", sid, exc)
+        known = self._stored(sid)
+        if known is not None:
+            return known, False
         display = _display_name(name, "upload")
         scene = self.parse(data, fmt, display, self.max_triangles)
         self._check_triangles(scene.n_triangles, "the uploaded scene")

@@ -21,8 +21,8 @@ from starlette.formparsers import MultiPartException, MultiPartParser
 from service.config import Settings
 from service.deps import MetricsDep, SettingsDep, StoreDep, WorkerDep, require_token, unavailable
 from service.errors import json_media_type, responses
-from service.middleware import MULTIPART_OVERHEAD
-from service.parsing import ParseUnavailable
+from service.middleware import MULTIPART_OVERHEAD, body_limit
+from service.parsing import no_turn
 from service.schemas import BuiltinSceneRequest, SceneInfo, SceneList
 from service.store import SceneMeta, SceneStore
 
@@ -140,8 +140,8 @@ async def _read_multipart(request: Request, settings: Settings, fmt: str | None,
 class PendingUploads:
     """Bytes held by the uploads in progress (``Settings.max_pending_upload_bytes``):
     each is counted from before its body is read until it is stored or refused, by its
-    Content-Length, else as the largest upload the body limit lets through. Used on the
-    event loop only."""
+    Content-Length, else as the largest upload the body limit lets through
+    (``middleware.body_limit``). Used on the event loop only."""
 
     def __init__(self) -> None:
         self.bytes = 0
@@ -156,7 +156,7 @@ class PendingUploads:
         except ValueError:  # none, or malformed (413/400 come from the body's own checks)
             size = -1
         if size < 0:
-            size = settings.max_upload_bytes + 2 * MULTIPART_OVERHEAD
+            size = body_limit(settings, request.scope)[0]
         budget = settings.max_pending_upload_bytes
         if self.count and self.bytes + size > budget:
             raise unavailable(f"{self.count} upload(s) of {self.bytes} bytes are being received or parsed; this one "
@@ -186,8 +186,7 @@ async def _put_upload(request: Request, settings: Settings, store: SceneStore, d
     with anyio.move_on_after(settings.parse_timeout_s) as waited:
         await turns.acquire()
     if waited.cancelled_caught:
-        raise ParseUnavailable(f"{turns.total_tokens:g} upload(s) are being parsed, as many as at once; waited "
-                               f"{settings.parse_timeout_s:g} s (PARSE_TIMEOUT_S): try again")
+        raise no_turn(turns.total_tokens, settings.parse_timeout_s)
     try:
         return await run_in_threadpool(store.put_upload, data, fmt, display)
     finally:
@@ -239,21 +238,22 @@ async def create_scene(request: Request, settings: SettingsDep, store: StoreDep,
             raise RequestValidationError([{**e, "loc": ("body", *e["loc"])} for e in errors]) from None
         meta, created = await run_in_threadpool(store.put_builtin, req.builtin, req.params.model_dump())
     else:
-        if ctype != "multipart/form-data" and ctype not in RAW_CONTENT_TYPES:
+        raw = ctype != "multipart/form-data"
+        if raw and ctype not in RAW_CONTENT_TYPES:
             raise HTTPException(415, f"unsupported content type {ctype[:60] or '(none)'!r}: send "
                                      "multipart/form-data with a 'file' field, a raw body with ?format=, or JSON "
                                      "{\"builtin\": ...}")
         implied = format or RAW_CONTENT_TYPES.get(ctype)
-        if ctype != "multipart/form-data" and not implied:
-            raise HTTPException(415, "a raw upload needs its format: add ?format=glb|gltf|obj|ply")
-        if ctype != "multipart/form-data":  # its 413 before a 503 for the uploads in progress
-            _check_content_length(request, settings.max_upload_bytes, "upload")
+        if raw:
+            if not implied:
+                raise HTTPException(415, "a raw upload needs its format: add ?format=glb|gltf|obj|ply")
+            _check_content_length(request, settings.max_upload_bytes, "upload")  # 413 before a 503 below
         with request.app.state.pending_uploads.hold(request, settings):
-            if ctype == "multipart/form-data":
-                data, fmt, display = await _read_multipart(request, settings, format, name)
-            else:
+            if raw:
                 data = await _read_limited(request, settings.max_upload_bytes, "upload")
                 fmt, display = _format_from(implied, None), name or "upload"
+            else:
+                data, fmt, display = await _read_multipart(request, settings, format, name)
             meta, created = await _put_upload(request, settings, store, data, fmt, display)
         metrics.upload()
     return JSONResponse(jsonable_encoder(_info(meta)), status_code=201 if created else 200,
