@@ -45,6 +45,8 @@ MAX_RECONSTRUCTION_RES = 2048
 REFLECTION_METHODS = ("none", "cluster", "raytrace", "envmap")
 #: Glossy lobe rays per reflective sample (thesis §4.6 uses 8–49).
 MAX_GLOSSY_RAYS = 64
+#: Stream message ids are below this (a JSON number a browser holds exactly).
+MAX_MESSAGE_ID = 2**53
 
 
 def _finite_vec3(name: str, v: Any, what: str = "camera") -> Any:
@@ -224,7 +226,8 @@ class StreamRequest(FrameRequest):
         "id": 1, "camera": {"eye": [0.0, 1.0, 3.5], "target": [0.0, 1.0, 0.0]}, "width": 320, "height": 240,
         "effects": {"reflections": "cluster"}}]})
 
-    id: StrictInt | None = Field(default=None, ge=0, lt=2**53, description="echoed in the answering frame's stats")
+    id: StrictInt | None = Field(default=None, ge=0, lt=MAX_MESSAGE_ID,
+                                 description="echoed in the answering frame's stats")
     format: Literal["png"] = Field(default="png", description="not used: the stream sends JPEG while the camera "
                                                              "moves and PNG once it rests")
 

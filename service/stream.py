@@ -68,7 +68,7 @@ from service.deps import Render, check_size
 from service.effects import CASTERS
 from service.frames import render
 from service.jobs import Job, SceneJob
-from service.schemas import StreamRequest
+from service.schemas import MAX_MESSAGE_ID, StreamRequest
 from service.worker import GLState
 
 
@@ -427,7 +427,7 @@ def _message_id(text: str) -> int | None:
     except (ValueError, AttributeError):
         return None
     # only an id the schema accepts is echoed (one of thousands of digits is input to excerpt, not repeat)
-    return value if isinstance(value, int) and not isinstance(value, bool) and 0 <= value < 2**53 else None
+    return value if isinstance(value, int) and not isinstance(value, bool) and 0 <= value < MAX_MESSAGE_ID else None
 
 
 #: The hello view: direction and vertical field of view (degrees), and its distance
@@ -556,6 +556,13 @@ class StreamSession:
         self.r.metrics.streamed()
 
 
+async def _refuse(ws: WebSocket, status: int, detail: str, code: int) -> None:
+    """End a stream before its hello: the error message, then the close `code` with the
+    detail as its reason."""
+    await ws.send_text(json.dumps({"type": "error", "status": status, "detail": detail, "id": None}))
+    await ws.close(code, close_reason(detail))
+
+
 async def serve_stream(ws: WebSocket, r: Render, scene_id: str, slots: StreamSlots, factory: SourceFactory) -> None:
     """Accept `ws` (the caller checked the token), enforce the stream limits, send the
     hello and run the session; the frame source is closed when the socket closes."""
@@ -563,19 +570,17 @@ async def serve_stream(ws: WebSocket, r: Render, scene_id: str, slots: StreamSlo
     await ws.accept()
     refusal = slots.acquire(client)
     if refusal is not None:
-        await ws.send_text(json.dumps({"type": "error", "status": 429, "detail": refusal, "id": None}))
-        await ws.close(CLOSE_TRY_LATER, close_reason(refusal))
+        await _refuse(ws, 429, refusal, CLOSE_TRY_LATER)
         return
     source: FrameSource | None = None
     try:
         try:
             scene = await r.scene(scene_id)
         except Exception as exc:  # noqa: BLE001 - the store's errors (unknown id, malformed file)
-            status, detail = errors.store_status(exc), errors.short(str(exc))
-            await ws.send_text(json.dumps({"type": "error", "status": status, "detail": detail, "id": None}))
+            status = errors.store_status(exc)
             # 404: final; 503 (no parse process now): try again; else the stored scene does not load
-            code = {404: CLOSE_NO_SCENE, 503: CLOSE_TRY_LATER}.get(status, CLOSE_SERVER_ERROR)
-            await ws.close(code, close_reason(detail))
+            await _refuse(ws, status, errors.short(str(exc)),
+                          {404: CLOSE_NO_SCENE, 503: CLOSE_TRY_LATER}.get(status, CLOSE_SERVER_ERROR))
             return
         await ws.send_text(json.dumps(hello(scene_id, scene.bounds, r.settings)))
         source = factory(r, scene_id)
