@@ -239,6 +239,15 @@ def _fsync_dir(path: Path) -> None:
 Parser = Callable[[bytes, str, str, "int | None"], Scene]
 
 
+def _upload_format(fmt: str | None) -> str:
+    """`fmt` as the loaders name it (lower case, no dot); UnsupportedFormat if they have none."""
+    fmt = (fmt or "").lower().lstrip(".")
+    if fmt not in loaders.SUPPORTED_FORMATS:
+        raise UnsupportedFormat(
+            f"unsupported scene format {quoted(fmt)}; supported: {', '.join(loaders.SUPPORTED_FORMATS)}")
+    return fmt
+
+
 def _parse_here(data: bytes, fmt: str, name: str, max_triangles: int | None) -> Scene:
     return loaders.load_scene_bytes(data, fmt, name=name, max_triangles=max_triangles)
 
@@ -401,8 +410,8 @@ class SceneStore:
 
     def stored_upload(self, data: bytes, fmt: str) -> SceneMeta | None:
         """The meta of `data` as a `fmt` upload when it is stored already (readable), else
-        None: `put_upload` answers it without a parse."""
-        return self._stored(upload_id(fmt.lower().lstrip("."), data))
+        None: `put_upload` answers it without a parse. Raises UnsupportedFormat."""
+        return self._stored(upload_id(_upload_format(fmt), data))
 
     def _stored(self, sid: str) -> SceneMeta | None:
         """The meta of the upload `sid`, or None: not stored, or an unreadable entry
@@ -418,10 +427,7 @@ class SceneStore:
     def put_upload(self, data: bytes, fmt: str, name: str | None = None) -> tuple[SceneMeta, bool]:
         """Parse and store an uploaded file. Returns (meta, created). Raises
         UnsupportedFormat, SceneLoadError (from the loader) or TriangleLimitExceeded."""
-        fmt = (fmt or "").lower().lstrip(".")
-        if fmt not in loaders.SUPPORTED_FORMATS:
-            raise UnsupportedFormat(
-                f"unsupported scene format {quoted(fmt)}; supported: {', '.join(loaders.SUPPORTED_FORMATS)}")
+        fmt = _upload_format(fmt)
         sid = upload_id(fmt, data)
         known = self._stored(sid)
         if known is not None:

@@ -270,6 +270,7 @@ def test_delete_then_get_is_404(client):
     ("model.stl", b"solid x\nendsolid x\n", {}, 415, "unsupported scene format 'stl'"),
     ("model", b"v 0 0 0\n", {}, 415, "cannot tell the scene format"),
     ("model.obj", b"v 0 0 0\n", {"format": "fbx"}, 415, "fbx"),
+    ("model.obj", b"v 0 0 0\n", {"format": "e$A#\u0089"}, 415, "unsupported scene format"),  # not ASCII: not a 500
 ])
 def test_bad_uploads(client, filename, content, fields, status, needle):
     r = client.post("/scenes", files={"file": (filename, content)}, data=fields)
