@@ -1,6 +1,6 @@
 """A vertex buffer, a uint32 index buffer (or none) and their vertex arrays, one
-per program (cached): the GPU side shared by scene uploads (SceneGPU),
-reconstructed meshes (MeshGPU) and quad splats (QuadSplats, no index buffer)."""
+per program (cached): the GPU side shared by scene uploads (SceneGPU) and
+reconstructed meshes (MeshGPU)."""
 
 from __future__ import annotations
 

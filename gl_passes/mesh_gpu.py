@@ -2,8 +2,8 @@
 buffer of 16-byte vertices (position xyz float32, colour RGBA8 packed in the
 fourth float's bits) and one uint32 index buffer. Occluders for shadow maps take
 either this or a SceneGPU: both draw with `draw(prog)` and bind `in_position`.
-A mesh may end in triangles that shadow maps draw as splats (quads and lone
-triangles, `gl_passes.quad_splats`): its triangles are the same either way.
+A mesh may end in triangles that shadow maps rasterise as splats (quads and
+lone triangles, `gl_passes.quad_splats`): its triangles are the same either way.
 """
 
 from __future__ import annotations
@@ -70,7 +70,7 @@ class MeshGPU(IndexedBuffers):
                      singles: int = 0) -> MeshGPU:
         """Upload (N,4) float32 vertex records (`pack_vertices`) and (M,3) vertex
         indices. The last 2·quads + singles triangles are splats, which shadow maps
-        draw as points (`gl_passes.quad_splats.split_splats`): quads, pairs in a row
+        rasterise as splats (`gl_passes.quad_splats.split_splats`): quads, pairs in a row
         that share an edge, then lone triangles."""
         gl.check_thread()
         rec = np.ascontiguousarray(records, np.float32).reshape(-1, 4)
@@ -103,7 +103,7 @@ class MeshGPU(IndexedBuffers):
 
     def draw(self, prog: moderngl.Program, instances: int = 1, quads: bool = True) -> None:
         """Draw every triangle with `prog` (which reads `in_position`); quads=False
-        leaves out the splats' triangles (drawn by `splats.draw` instead)."""
+        leaves out the splats' triangles (the shadow maps' `SplatRaster` draws `splats` instead)."""
         self.gl.check_thread()
         n = self.n_triangles if quads else self.body_triangles
         if n:

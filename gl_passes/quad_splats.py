@@ -1,24 +1,27 @@
-"""Quad splats: the triangles of a reconstruction's small pieces drawn as point
-sprites in shadow maps (thesis Alg. 5 over Alg. 4's meshes; beyond the thesis).
+"""Quad splats: the triangles of a reconstruction's small pieces rasterised by a
+compute pass in shadow maps (thesis Alg. 5 over Alg. 4's meshes; beyond the thesis).
 
 A depth-image sample that no neighbour joins (a grass blade a pixel wide, a twig
 seen across) becomes a quad of its own, two triangles sharing a diagonal, and a
 few joined samples a piece of a few quads. Drawn as triangles such a piece costs
-a vertex-bound rasteriser about as many vertices as triangles and more per
-shadow map; as splats it costs one vertex and one point per quad. The splat's
-vertex stage projects the quad's four corners into the map, sizes a point sprite
-to hold their window box, and its fragment stage keeps a texel only where its
-centre lies in either triangle, at that triangle's plane depth
-(shaders/shadow_splat.*): the same texels and depths as the triangles, up to the
-rasteriser's tie rule on edges (a texel centre on an edge two splats, or a splat
-and a triangle, share is kept by both, at the same depth).
+a software rasteriser a vertex stage, a clip test and a triangle setup per
+triangle and map, all on one thread (llvmpipe runs only the fragment stage on
+several); each texel-sized quad then covers a texel or so. A compute pass
+(`SplatRaster`, shaders/shadow_splat.comp) runs one invocation per quad and map
+on every thread: it projects the quad's four corners into the map and keeps, for
+every texel centre in either triangle, that triangle's plane depth by an atomic
+min in an integer depth image; a full-atlas pass then writes those depths into the
+depth atlas through the depth test (shadow_splat_resolve.frag). The same texels
+and depths as the triangles, up to the rasteriser's tie rule on edges and its
+sub-pixel snapping of the vertices (a texel centre on an edge two splats, or a
+splat and a triangle, share is kept by both, at the same depth).
 
 The triangles of pieces (connected through shared vertices) of at most
 SPLAT_PIECE triangles are matched in pairs that share an edge (quads); a triangle
 left over is a splat on its own (its corners a, b, c, c). Only splats at most
-SPLAT_PIXELS across in the capturing image are made, which keeps every sprite
-small in a shadow map of the same order of resolution; the shader clamps a
-sprite at the implementation's largest point. SPLAT_PIECE is the bench's choice
+SPLAT_PIXELS across in the capturing image are made, which keeps every splat a
+few texels across in a shadow map of the same order of resolution (the compute
+pass loops over the texels of its box). SPLAT_PIECE is the bench's choice
 (bench/results/soft_shadows.md, Fig. 20).
 """
 
@@ -29,8 +32,10 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from gl_passes.bindings import Units
 from gl_passes.context import GLContext
-from gl_passes.indexed import IndexedBuffers
+from gl_passes.releasable import Releasable, ReleasedOnError
+from gl_passes.shaders import compute_program, program
 
 #: Largest extent (x or y, pixels of the capturing image) of a splat.
 SPLAT_PIXELS = 4.0
@@ -38,6 +43,15 @@ SPLAT_PIXELS = 4.0
 SPLAT_PIECE = 64
 #: Bytes per splat: four vec3 corners (s0, s1, o0, o1).
 SPLAT_BYTES = 48
+#: local_size_x of shadow_splat.comp, local_size_x/y of shadow_splat_clear.comp, and
+#: the most work groups per dispatch row.
+RASTER_GROUP = 64
+CLEAR_GROUP = 16
+MAX_GROUPS = 65535
+#: The splat depth image's empty texel (above every depth's bits: 1.0 is 0x3f800000).
+EMPTY_DEPTH = "0xFFFFFFFFu"
+#: Units of the splat shaders (gl_passes.bindings).
+SPLAT_UNITS = Units(images=("splat_depth",), storage=("splats",))
 
 
 def triangle_pieces(triangles: np.ndarray) -> np.ndarray:
@@ -131,26 +145,104 @@ def split_splats(triangles: np.ndarray, pixels: np.ndarray) -> tuple[np.ndarray,
     return tri[body], tri[pairs], tri[singles]
 
 
-class QuadSplats(IndexedBuffers):
-    """Splats on the GPU: one vertex of four vec3 corners per splat (`splat_corners`),
-    no index buffer; `triangles`: how many of the mesh's triangles they stand for.
-    `draw(prog, instances)` draws them as points with the splat program
-    (shadow_splat.vert/.frag). Owns its buffer: call `release()`."""
+class QuadSplats(Releasable):
+    """Splats on the GPU: a storage buffer of four vec3 corners per splat
+    (`splat_corners`, 12 float32), read by `SplatRaster`; `triangles`: how many of
+    the mesh's triangles they stand for. Owns its buffer: call `release()`."""
 
     def __init__(self, gl: GLContext, corners: np.ndarray, triangles: int) -> None:
+        gl.check_thread()
         data = np.ascontiguousarray(corners, np.float32).reshape(-1, 12)
-        super().__init__(gl, gl.ctx.buffer(data.tobytes() or b"\0" * SPLAT_BYTES), None)
+        self.gl = gl
+        self.buffer = gl.ctx.buffer(data.tobytes() or b"\0" * SPLAT_BYTES)
         self.count, self.triangles = len(data), int(triangles)
 
-    def vertex_format(self, prog: moderngl.Program) -> tuple[str, ...]:
-        return ("3f 3f 3f 3f", "in_s0", "in_s1", "in_o0", "in_o1")
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the storage buffer."""
+        return self.buffer.size
 
-    def draw(self, prog: moderngl.Program, instances: int = 1) -> None:
-        """Draw every splat with the splat program `prog`, `instances` times."""
+    def release(self) -> None:
         self.gl.check_thread()
-        if self.count:
-            self.vao(prog).render(moderngl.POINTS, vertices=self.count, instances=instances)
+        self.buffer.release()
 
 
-__all__ = ["SPLAT_PIECE", "SPLAT_PIXELS", "QuadSplats", "quad_corners", "splat_corners", "splat_pairs", "split_splats",
-           "triangle_pieces"]
+class SplatRaster(Releasable):
+    """The compute rasteriser of quad splats into a batch of shadow maps laid out as
+    `tiles`² tiles of `res`² texels (the depth atlas of `gl_passes.shadows`): one
+    integer depth image of the atlas's size, made at the first batch with splats.
+    Per batch: `clear()`, `draw(splats, view_proj)` for each splat set, then
+    `resolve()` into the depth atlas bound for drawing. Owns the image: call
+    `release()`."""
+
+    def __init__(self, gl: GLContext, batch: int, tiles: int, res: int) -> None:
+        gl.check_thread()
+        self.gl, self.batch, self.tiles, self.res = gl, batch, tiles, res
+        defines = {"MAPS_PER_DRAW": str(batch), "EMPTY": EMPTY_DEPTH, **SPLAT_UNITS.defines()}
+        self.raster_prog = compute_program(gl, "shadow_splat.comp", defines)
+        self.clear_prog = compute_program(gl, "shadow_splat_clear.comp", defines)
+        self.resolve_prog = program(gl, "fullscreen.vert", "shadow_splat_resolve.frag", defines=defines)
+        self.image: moderngl.Texture | None = None
+        self.resolve_vao: moderngl.VertexArray | None = None
+
+    @property
+    def nbytes(self) -> int:
+        """GPU bytes of the depth image (0 before the first batch with splats)."""
+        return self.image.width * self.image.height * 4 if self.image is not None else 0
+
+    def clear(self) -> None:
+        """Empty the depth image (made now if needed) for a new batch."""
+        self.gl.check_thread()
+        if self.image is None:
+            size = self.tiles * self.res
+            with ReleasedOnError() as made:
+                self.image = made(self.gl.ctx.texture((size, size), 1, dtype="u4"))
+                self.resolve_vao = self.gl.ctx.vertex_array(self.resolve_prog, [])
+        SPLAT_UNITS.bind_image("splat_depth", self.image, read=False, write=True)
+        groups = -(-self.image.width // CLEAR_GROUP)
+        self.clear_prog.run(groups, groups)
+
+    def draw(self, splats: QuadSplats, view_proj: np.ndarray) -> None:
+        """Rasterise `splats` into maps 0..len(view_proj)−1 of the batch (tile i
+        ← map i): view_proj (n,4,4) float32 world → clip, column-major (GL layout)."""
+        self.gl.check_thread()
+        n = len(view_proj)
+        if not splats.count or not n:
+            return
+        if self.image is None or n > self.batch:
+            raise ValueError(f"{n} maps for a batch of {self.batch}, or draw() before clear()")
+        prog = self.raster_prog
+        rows = np.zeros((self.batch, 4, 4), np.float32)
+        rows[:n] = view_proj
+        prog["u_light_vp"].write(rows.tobytes())
+        groups = -(-splats.count // RASTER_GROUP)
+        gx = min(groups, MAX_GROUPS)
+        for name, value in (("u_res", self.res), ("u_tiles", self.tiles), ("u_count", splats.count),
+                            ("u_groups_x", gx)):
+            prog[name].value = value
+        SPLAT_UNITS.bind_storage("splats", splats.buffer)
+        SPLAT_UNITS.bind_image("splat_depth", self.image, read=True, write=True)
+        prog.run(gx, -(-groups // gx), n)
+
+    def resolve(self) -> None:
+        """Write the splats' depths into the depth atlas of the bound framebuffer
+        (its viewport the whole atlas) through the depth test, which the caller has on."""
+        self.gl.check_thread()
+        if self.image is None or self.resolve_vao is None:
+            return
+        self.gl.ctx.memory_barrier()
+        SPLAT_UNITS.bind_image("splat_depth", self.image, read=True, write=False)
+        self.resolve_vao.render(moderngl.TRIANGLES, vertices=3)
+
+    def release(self) -> None:
+        self.gl.check_thread()
+        if self.resolve_vao is not None:
+            self.resolve_vao.release()
+            self.resolve_vao = None
+        if self.image is not None:
+            self.image.release()
+            self.image = None
+
+
+__all__ = ["SPLAT_PIECE", "SPLAT_PIXELS", "QuadSplats", "SplatRaster", "quad_corners", "splat_corners", "splat_pairs",
+           "split_splats", "triangle_pieces"]

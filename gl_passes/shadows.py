@@ -15,8 +15,8 @@ whether s sees P:
    reconstruction is a one-sided surface whose back faces cast shadows too), and
    depth clamping (an occluder in front of a light camera's near plane, e.g. a
    reconstruction quad slightly outside `bounds`, still occludes). A mesh's
-   small pieces (`MeshGPU.splats`) are drawn as point sprites that keep their
-   triangles' texels and depths (`gl_passes.quad_splats`, shadow_splat.vert/.frag);
+   small pieces (`MeshGPU.splats`) are rasterised by a compute pass instead, with
+   their triangles' texels and depths (`gl_passes.quad_splats.SplatRaster`);
 2. `maps_per_draw` maps per draw call: one instance per map into its own tile of a
    depth atlas (clip distances keep each instance in its tile), one batch of
    maps after another;
@@ -56,6 +56,7 @@ import numpy as np
 from gl_passes.bindings import Units
 from gl_passes.context import GLContext
 from gl_passes.laps import LapClock
+from gl_passes.quad_splats import QuadSplats, SplatRaster
 from gl_passes.readback import read_buffer
 from gl_passes.releasable import Releasable, ReleasedOnError, Scratch, grown_buffer
 from gl_passes.shaders import compute_program, program
@@ -64,7 +65,6 @@ from scenes.model import AreaLight
 
 GL_CLIP_DISTANCE0 = 0x3000
 GL_DEPTH_CLAMP = 0x864F
-GL_PROGRAM_POINT_SIZE = 0x8642
 #: Clip distances written by shadow_map.vert with MAPS_PER_DRAW (the tile's four sides).
 N_CLIP_DISTANCES = 4
 #: local_size_x of shadow_lookup.comp, and the most work groups per dispatch row.
@@ -221,28 +221,32 @@ def popcount_words(bits: np.ndarray) -> np.ndarray:
     return _BYTE_BITS[b.view(np.uint8)].sum(axis=-1, dtype=np.uint16)
 
 
-def _draw(occluder: Occluder, prog: moderngl.Program, splat_prog: moderngl.Program, instances: int,
-          set_first: Callable[[int], None]) -> None:
+def _draw(occluder: Occluder, prog: moderngl.Program, instances: int, set_first: Callable[[int], None]) -> None:
     """Draw `occluder` `instances` times with `prog`, in one instanced call when its
     draw() takes `instances`, else once per instance (set_first(i) before each);
-    a SceneGPU is told to skip its material uniforms; a mesh's splats (`splats`)
-    are drawn with `splat_prog` instead of the triangles they stand for."""
+    a SceneGPU is told to skip its material uniforms; a mesh with splats
+    (`splats`) draws the triangles they do not stand for (the splats are the
+    compute pass's: `_splats`)."""
     params = inspect.signature(occluder.draw).parameters
     kw = {"materials": False} if "materials" in params else {}
-    splats = getattr(occluder, "splats", None) if "quads" in params else None
-    if splats is not None:
+    if _splats(occluder) is not None:
         kw["quads"] = False
     if "instances" in params or instances == 1:
         if instances > 1:
             kw["instances"] = instances
         set_first(0)
         occluder.draw(prog, **kw)
-        if splats is not None:
-            splats.draw(splat_prog, instances)
         return
     for i in range(instances):
         set_first(i)
         occluder.draw(prog, **kw)
+
+
+def _splats(occluder: Occluder) -> QuadSplats | None:
+    """The occluder's quad splats (a `MeshGPU` with splats whose draw() can leave
+    their triangles out), else None."""
+    splats = getattr(occluder, "splats", None)
+    return splats if splats is not None and "quads" in inspect.signature(occluder.draw).parameters else None
 
 
 class SoftShadowPass(Releasable):
@@ -265,11 +269,10 @@ class SoftShadowPass(Releasable):
                              "lower maps_per_draw or shadow_map_resolution")
         instanced = {"MAPS_PER_DRAW": str(self.batch)} if self.batch > 1 else {}
         self.map_prog = program(gl, "shadow_map.vert", "shadow_map.frag", defines=instanced)
-        self.splat_prog = program(gl, "shadow_splat.vert", "shadow_splat.frag", defines=instanced)
-        self.splat_prog["u_max_point_size"].value = float(gl.ctx.info["GL_POINT_SIZE_RANGE"][1])
         self.lookup_prog = compute_program(gl, "shadow_lookup.comp", defines={
             "MAPS_PER_DRAW": str(self.batch), "WORDS": str(settings.words), **LOOKUP_UNITS.defines()})
         self.atlas, self.fbo = self._new_atlas()
+        self.splat_raster = SplatRaster(gl, self.batch, self.tiles, res)
         self._buffers: dict[str, moderngl.Buffer] = {}
 
     # --- resources -------------------------------------------------------------------
@@ -293,8 +296,9 @@ class SoftShadowPass(Releasable):
         return buf
 
     def release(self) -> None:
-        """Free the atlas, its framebuffer and the point buffers."""
+        """Free the atlas, its framebuffer, the splat depth image and the point buffers."""
         self.gl.check_thread()
+        self.splat_raster.release()
         for buf in self._buffers.values():
             buf.release()
         self._buffers.clear()
@@ -316,20 +320,20 @@ class SoftShadowPass(Releasable):
         return n
 
     @contextmanager
-    def _map_state(self) -> Iterator[None]:
-        """Depth test, no culling, depth clamp, point sizes from the splat shader
-        and the tile clip distances while shadow maps are drawn; restored afterwards."""
+    def _map_state(self, tiles: bool = True) -> Iterator[None]:
+        """Depth test, no culling, depth clamp and (tiles, for shaders that write
+        them) the tile clip distances while shadow maps are drawn; restored afterwards."""
         ctx = self.gl.ctx
-        clips = [GL_CLIP_DISTANCE0 + i for i in range(N_CLIP_DISTANCES)] if self.batch > 1 else []
+        clips = [GL_CLIP_DISTANCE0 + i for i in range(N_CLIP_DISTANCES)] if self.batch > 1 and tiles else []
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE)
         ctx.depth_func = "<"
-        for e in [GL_DEPTH_CLAMP, GL_PROGRAM_POINT_SIZE, *clips]:
+        for e in [GL_DEPTH_CLAMP, *clips]:
             ctx.enable_direct(e)
         try:
             yield
         finally:
-            for e in [GL_DEPTH_CLAMP, GL_PROGRAM_POINT_SIZE, *clips]:
+            for e in [GL_DEPTH_CLAMP, *clips]:
                 ctx.disable_direct(e)
             ctx.disable(moderngl.DEPTH_TEST)
 
@@ -345,26 +349,30 @@ class SoftShadowPass(Releasable):
 
     def _render_maps(self, occluders: Sequence[Occluder], cams: ShadowCameras, first: int, count: int,
                      fbo: moderngl.Framebuffer) -> None:
-        """Maps first..first+count−1 into tiles 0..count−1 of `fbo`'s atlas."""
-        progs = (self.map_prog, self.splat_prog)
+        """Maps first..first+count−1 into tiles 0..count−1 of `fbo`'s atlas: the
+        occluders' triangles, then their splats (`SplatRaster`)."""
+        prog = self.map_prog
         fbo.use()
         fbo.viewport = (0, 0, *fbo.size)
         fbo.clear(depth=1.0)
-        for prog in progs:
-            prog["u_light_vp"].write(_padded(cams.view_proj, first, count, self.batch))
-            if "u_tile" in prog:
-                prog["u_tile"].write(self.tile_ndc.tobytes())
-        # programs are cached per context: another pass may have drawn another atlas size
-        self.splat_prog["u_viewport"].value = tuple(float(x) for x in fbo.size)
+        prog["u_light_vp"].write(_padded(cams.view_proj, first, count, self.batch))
+        if "u_tile" in prog:
+            prog["u_tile"].write(self.tile_ndc.tobytes())
 
         def set_first(i: int) -> None:
-            for prog in progs:
-                if "u_map0" in prog:
-                    prog["u_map0"].value = i
+            if "u_map0" in prog:
+                prog["u_map0"].value = i
 
+        splats = [sp for sp in map(_splats, occluders) if sp is not None and sp.count]
         with self._map_state():
             for occ in occluders:
-                _draw(occ, self.map_prog, self.splat_prog, count, set_first)
+                _draw(occ, prog, count, set_first)
+        if splats:
+            self.splat_raster.clear()
+            for sp in splats:
+                self.splat_raster.draw(sp, cams.view_proj[first:first + count])
+            with self._map_state(tiles=False):
+                self.splat_raster.resolve()
 
     def _lookup(self, cams: ShadowCameras, first: int, count: int, n_points: int, atlas: moderngl.Texture) -> None:
         """Set the bits of samples first..first+count−1 (in `atlas`) for every receiver point."""

@@ -1,5 +1,5 @@
-// The light cameras of a batch of shadow maps (thesis Alg. 5), shared by the
-// triangle pass (shadow_map.vert) and the quad splats (shadow_splat.vert).
+// The light cameras of a batch of shadow maps (thesis Alg. 5) as the triangle
+// pass (shadow_map.vert) reads them.
 // Without MAPS_PER_DRAW one map per draw (u_light_vp[0], the whole viewport);
 // with it, instance i (+ u_map0) renders map i of the batch into its own tile of
 // the depth atlas: clip coordinates are squeezed into the tile (u_tile: NDC

@@ -1,0 +1,67 @@
+#version 430 core
+// Quad splats of the shadow-map pass (thesis Alg. 5 over Alg. 4's small pieces;
+// gl_passes/quad_splats.py): a compute rasteriser. Invocation (splat s, map i of
+// the batch) projects the splat's quad (two triangles sharing the diagonal s0-s1,
+// the others' corners o0 and o1, world units; a lone triangle has o1 = o0) into
+// map i, and for every texel centre of map i's tile that lies in either triangle
+// keeps the nearest window depth of that triangle's plane (window depth is affine
+// in window x, y over a planar triangle, as the rasteriser interpolates it; clamped
+// to [0, 1] as depth clamping does) by an atomic min on the depth's bits, which
+// order as the depths do for depths >= 0. A splat with a corner behind a light
+// camera's eye (w <= 0) is skipped in that map (light cameras hold the scene box
+// in front of them). Work groups: x, y the splat (row-major, u_groups_x per row),
+// z the map.
+layout(local_size_x = 64) in;
+
+layout(std430, binding = UNIT_splats) readonly buffer Splats { float corners[]; };  // 12 per splat
+layout(r32ui, binding = UNIT_splat_depth) uniform coherent uimage2D u_splat_depth;  // EMPTY or depth bits
+
+uniform mat4 u_light_vp[MAPS_PER_DRAW];  // world → clip of each map of the batch
+uniform int u_res;                       // texels per map side
+uniform int u_tiles;                     // tiles per atlas row (map i: column i % u_tiles, row i / u_tiles)
+uniform uint u_count;                    // splats
+uniform uint u_groups_x;                 // work groups per row of the dispatch
+
+vec3 corner(uint s, uint k) {
+    uint b = s * 12u + k * 3u;
+    return vec3(corners[b], corners[b + 1u], corners[b + 2u]);
+}
+
+// Depth of the texel centre at offset q from s0 in the triangle s0, s0 + d, s0 + e
+// (window depths z0, z0 + dz.x, z0 + dz.y), or 2.0 outside it or when it has no area.
+float plane_depth(vec2 q, vec2 d, vec2 e, float z0, vec2 dz) {
+    float det = d.x * e.y - d.y * e.x;
+    if (abs(det) <= 1e-8) return 2.0;
+    float u = (q.x * e.y - q.y * e.x) / det;
+    float v = (d.x * q.y - d.y * q.x) / det;
+    return (u >= 0.0 && v >= 0.0 && u + v <= 1.0) ? z0 + u * dz.x + v * dz.y : 2.0;
+}
+
+void main() {
+    uint s = (gl_WorkGroupID.y * u_groups_x + gl_WorkGroupID.x) * gl_WorkGroupSize.x + gl_LocalInvocationID.x;
+    int i = int(gl_WorkGroupID.z);
+    if (s >= u_count) return;
+    vec3 w[4];
+    for (uint k = 0u; k < 4u; ++k) {
+        vec4 c = u_light_vp[i] * vec4(corner(s, k), 1.0);
+        if (c.w <= 0.0) return;
+        vec3 n = c.xyz / c.w;
+        w[k] = vec3((n.xy * 0.5 + 0.5) * float(u_res), n.z * 0.5 + 0.5);
+    }
+    vec2 lo = min(min(w[0].xy, w[1].xy), min(w[2].xy, w[3].xy));
+    vec2 hi = max(max(w[0].xy, w[1].xy), max(w[2].xy, w[3].xy));
+    // the texel centres (x + 0.5, y + 0.5) in the box, within the tile
+    ivec2 a = max(ivec2(ceil(lo - 0.5)), ivec2(0));
+    ivec2 b = min(ivec2(floor(hi - 0.5)), ivec2(u_res - 1));
+    ivec2 origin = ivec2(i % u_tiles, i / u_tiles) * u_res;
+    vec2 d = w[1].xy - w[0].xy;
+    vec2 dz = vec2(w[1].z - w[0].z, 0.0);
+    for (int y = a.y; y <= b.y; ++y) {
+        for (int x = a.x; x <= b.x; ++x) {
+            vec2 q = vec2(x, y) + 0.5 - w[0].xy;
+            float z = plane_depth(q, d, w[2].xy - w[0].xy, w[0].z, vec2(dz.x, w[2].z - w[0].z));
+            if (z > 1.5) z = plane_depth(q, d, w[3].xy - w[0].xy, w[0].z, vec2(dz.x, w[3].z - w[0].z));
+            if (z <= 1.5) imageAtomicMin(u_splat_depth, origin + ivec2(x, y), floatBitsToUint(clamp(z, 0.0, 1.0)));
+        }
+    }
+}
