@@ -178,17 +178,12 @@ class SplatRaster(Releasable):
     def __init__(self, gl: GLContext, batch: int, tiles: int, res: int) -> None:
         gl.check_thread()
         self.gl, self.batch, self.tiles, self.res = gl, batch, tiles, res
-        defines = {"MAPS_PER_DRAW": str(batch), "EMPTY": EMPTY_DEPTH, **SPLAT_UNITS.defines()}
-        self.raster_prog = compute_program(gl, "shadow_splat.comp", defines)
+        defines = {"EMPTY": EMPTY_DEPTH, **SPLAT_UNITS.defines()}
+        self.raster_prog = compute_program(gl, "shadow_splat.comp", {"MAPS_PER_DRAW": str(batch), **defines})
         self.clear_prog = compute_program(gl, "shadow_splat_clear.comp", defines)
         self.resolve_prog = program(gl, "fullscreen.vert", "shadow_splat_resolve.frag", defines=defines)
         self.image: moderngl.Texture | None = None
         self.resolve_vao: moderngl.VertexArray | None = None
-
-    @property
-    def nbytes(self) -> int:
-        """GPU bytes of the depth image (0 before the first batch with splats)."""
-        return self.image.width * self.image.height * 4 if self.image is not None else 0
 
     def clear(self) -> None:
         """Empty the depth image (made now if needed) for a new batch."""
@@ -196,11 +191,16 @@ class SplatRaster(Releasable):
         if self.image is None:
             size = self.tiles * self.res
             with ReleasedOnError() as made:
-                self.image = made(self.gl.ctx.texture((size, size), 1, dtype="u4"))
-                self.resolve_vao = self.gl.ctx.vertex_array(self.resolve_prog, [])
+                image = made(self.gl.ctx.texture((size, size), 1, dtype="u4"))
+                vao = self.gl.ctx.vertex_array(self.resolve_prog, [])
+            self.image, self.resolve_vao = image, vao
+        # image accesses of separate commands are ordered by barriers only: the last
+        # resolve's reads before the clear, the clear before the splats' atomics
+        self.gl.ctx.memory_barrier()
         SPLAT_UNITS.bind_image("splat_depth", self.image, read=False, write=True)
         groups = -(-self.image.width // CLEAR_GROUP)
         self.clear_prog.run(groups, groups)
+        self.gl.ctx.memory_barrier()
 
     def draw(self, splats: QuadSplats, view_proj: np.ndarray) -> None:
         """Rasterise `splats` into maps 0..len(view_proj)−1 of the batch (tile i

@@ -271,8 +271,8 @@ class SoftShadowPass(Releasable):
         self.map_prog = program(gl, "shadow_map.vert", "shadow_map.frag", defines=instanced)
         self.lookup_prog = compute_program(gl, "shadow_lookup.comp", defines={
             "MAPS_PER_DRAW": str(self.batch), "WORDS": str(settings.words), **LOOKUP_UNITS.defines()})
+        self.splat_raster = SplatRaster(gl, self.batch, self.tiles, res)  # its image is made at first use
         self.atlas, self.fbo = self._new_atlas()
-        self.splat_raster = SplatRaster(gl, self.batch, self.tiles, res)
         self._buffers: dict[str, moderngl.Buffer] = {}
 
     # --- resources -------------------------------------------------------------------

@@ -54,9 +54,9 @@ def frame_bytes(req: FrameRequest) -> tuple[int, str]:
             total += _reconstruction(images, ss.resolution)
             terms += f", {images} reconstructed images of {ss.resolution}²"
         if ss.method != "raytrace":
-            # the depth atlas, and for a reconstruction the splats' depth image of its size
-            atlases = 1 if ss.method == "geometry" else 2
-            total += atlases * SHADOW_MAP_RESOLUTION**2 * min(k2, SHADOW_MAPS_PER_DRAW) * 4
+            # the depth atlas and the splats' depth image of its size (the worker's pass keeps
+            # the image once a reconstruction made it, for the frames after it too)
+            total += 2 * SHADOW_MAP_RESOLUTION**2 * min(k2, SHADOW_MAPS_PER_DRAW) * 4
         return total, terms
     if fx.reflections != "none":
         return 4 * px * FRAME_BYTES_PER_PIXEL, f"{req.width}×{req.height} frame with reflections at 2×2 supersamples"

@@ -99,8 +99,9 @@ light samples per side, S the shadow-map resolution 1024):
 * soft shadows: the frame + W·H·2·(k²/8 + 8) B of visibility bits + n·r²·
   ``RECONSTRUCTION_BYTES_PER_SAMPLE`` (n = 4 images, none for ``geometry`` and ``raytrace``;
   336 B per sample: the sample and its offset image, its quad on CPU and GPU)
-  + S²·min(k², 16)·4 B of shadow-map atlas (not for ``raytrace``; twice for a
-  reconstruction: the integer depth image its small pieces' splats are rasterised into);
+  + 2·S²·min(k², 16)·4 B of shadow-map atlas and the integer depth image of the
+  same size that a reconstruction's small pieces are rasterised into (kept by the
+  worker's pass once made) (not for ``raytrace``);
 * reconstruction: n·r²·``RECONSTRUCTION_BYTES_PER_SAMPLE`` (the GLB included);
 * depth-image set: n·W·H·``SET_BYTES_PER_PIXEL`` (272 B), doubled with ``metrics``
   (the conventional images beside the set).

@@ -408,10 +408,12 @@ class SceneStore:
         if self.max_triangles is not None and n > self.max_triangles:
             raise TriangleLimitExceeded(f"{what} has {n:,} triangles, limit is {self.max_triangles:,}")
 
-    def stored_upload(self, data: bytes, fmt: str) -> SceneMeta | None:
-        """The meta of `data` as a `fmt` upload when it is stored already (readable), else
-        None: `put_upload` answers it without a parse. Raises UnsupportedFormat."""
-        return self._stored(upload_id(_upload_format(fmt), data))
+    def stored_upload(self, data: bytes, fmt: str) -> tuple[str, SceneMeta | None]:
+        """(the id of `data` as a `fmt` upload, its meta when it is stored already
+        (readable), else None): `put_upload` answers it without a parse, and given
+        the id does not hash the data again. Raises UnsupportedFormat."""
+        sid = upload_id(_upload_format(fmt), data)
+        return sid, self._stored(sid)
 
     def _stored(self, sid: str) -> SceneMeta | None:
         """The meta of the upload `sid`, or None: not stored, or an unreadable entry
@@ -424,11 +426,13 @@ class SceneStore:
             log.warning("scene %s: unreadable meta.json (%s); re-creating it", sid, exc)
             return None
 
-    def put_upload(self, data: bytes, fmt: str, name: str | None = None) -> tuple[SceneMeta, bool]:
-        """Parse and store an uploaded file. Returns (meta, created). Raises
-        UnsupportedFormat, SceneLoadError (from the loader) or TriangleLimitExceeded."""
+    def put_upload(self, data: bytes, fmt: str, name: str | None = None,
+                   sid: str | None = None) -> tuple[SceneMeta, bool]:
+        """Parse and store an uploaded file. Returns (meta, created). sid: the id
+        `stored_upload` gave for the same data and format (else it is hashed here).
+        Raises UnsupportedFormat, SceneLoadError (from the loader) or TriangleLimitExceeded."""
         fmt = _upload_format(fmt)
-        sid = upload_id(fmt, data)
+        sid = sid or upload_id(fmt, data)
         known = self._stored(sid)
         if known is not None:
             return known, False

@@ -824,6 +824,29 @@ def test_crossover_and_compact_bound_table_by_hand():
     assert "9 pieces, 25 % of their triangles in small ones" in text
 
 
+def test_fig20_crossover_against_the_faster_original_by_hand():
+    """bench.soft_shadows: Fig. 20's crossover against the original drawn as
+    triangles, and against the faster of that and its triangles through the splat
+    rasteriser at each level (the stricter one when the latter is faster)."""
+    from bench.soft_shadows import crossover, crossover_lines, original_seconds
+
+    def level(tri: float, drawn: float, as_splats: float, rec: float) -> dict:
+        kind = {"triangles": 9, "seconds_per_map": rec}
+        return {"triangles": tri, "geometry_seconds_per_map": drawn, "geometry_splats_seconds_per_map": as_splats,
+                "hybrid": kind, "compact": dict(kind)}
+
+    levels = [level(0.5e6, 1.0, 0.5, 3.0), level(1.5e6, 4.0, 5.0, 2.0)]
+    assert [original_seconds(lv, fastest=True) for lv in levels] == [0.5, 4.0]
+    assert crossover(levels, "compact") == 1.0e6  # differences −2, +2
+    # the faster original: −2.5 at 0.5 M, +2 at 1.5 M
+    assert crossover(levels, "compact", fastest=True) == pytest.approx(0.5e6 + 1e6 * 2.5 / 4.5)
+    text = "\n".join(crossover_lines(levels))
+    assert ("- Crossover, NR compact: 1,000,000 original triangles (against the original drawn the faster of its two "
+            "ways at each level: 1,055,556 original triangles).") in text
+    del levels[0]["geometry_splats_seconds_per_map"]
+    assert crossover(levels, "compact", fastest=True) == 1.0e6 and "faster" not in "\n".join(crossover_lines(levels))
+
+
 def test_pieces_by_hand(gl):
     """bench.shadow_compact.pieces: pieces joined through shared vertex indices; a
     quad is a small piece, a strip of 5 quads (10 triangles) is not."""

@@ -117,6 +117,37 @@ def test_splats_draw_the_quads_texels_and_depths(gl, per_draw, max_groups, monke
     np.testing.assert_allclose(b[ca & cb], a[ca & cb], atol=2e-5)
 
 
+def test_splat_maps_kept_or_drawn_per_batch_give_the_same_bits(gl):
+    """Nine maps in batches of 4, 4 and 1 (the last one partial): the bits of the
+    maps drawn batch by batch (`visibility`), of the maps kept and looked up
+    (`render_maps`, `lookup`), and of the same quads drawn as triangles."""
+    records, tri = scattered_quads(1500, seed=5)
+    n = 64
+    xz = np.stack(np.meshgrid(np.linspace(-2, 2, n), np.linspace(-2, 2, n)), axis=-1)
+    pts = np.concatenate([xz[..., :1], np.full((n, n, 1), -0.6), xz[..., 1:]], axis=-1).astype(np.float32)
+    nrm = np.zeros_like(pts)
+    nrm[..., 1] = 1.0
+    mask = np.ones((n, n), bool)
+    as_tris = MeshGPU.from_records(gl, records, tri)
+    as_splats = MeshGPU.from_records(gl, records, tri, quads=len(tri) // 2)
+    try:
+        with SoftShadowPass(gl, ShadowSettings(samples=3, shadow_map_resolution=128, maps_per_draw=4)) as sp:
+            drawn = sp.visibility([as_splats], BOUNDS, pts, nrm, mask, LIGHT)
+            maps = sp.render_maps([as_splats], BOUNDS, LIGHT)
+            try:
+                kept = sp.lookup(maps, pts, nrm, mask)
+            finally:
+                maps.release()
+            triangles = sp.visibility([as_tris], BOUNDS, pts, nrm, mask, LIGHT)
+    finally:
+        as_tris.release()
+        as_splats.release()
+    assert np.array_equal(drawn.bits, kept.bits)
+    shadowed = (triangles.counts < 9).sum()
+    assert shadowed > 100 and (drawn.counts < 9).sum() > 100  # the quads shadow the plane in every set of maps
+    assert (drawn.bits != triangles.bits).any(axis=-1).sum() <= 0.02 * shadowed
+
+
 def test_reconstruction_keeps_its_triangles_with_splats(gl):
     """Grass at 128² reference images: many samples are small pieces; the meshes
     with and without splats hold the same triangles, and their shadows agree."""

@@ -225,6 +225,20 @@ def test_exr_frame_has_all_channels(client, cornell_id):
 
 
 # --- uploads ----------------------------------------------------------------------------------
+def test_an_upload_is_hashed_once(client, monkeypatch):
+    """The route's stored-content lookup and the store share one hash of the body."""
+    import service.store
+
+    hashed = []
+    real = service.store.upload_id
+    monkeypatch.setattr(service.store, "upload_id", lambda fmt, data: hashed.append(len(data)) or real(fmt, data))
+    data = obj_text(3, z=0.125)  # content no other test uploads
+    for status in (201, 200):  # new, then stored before
+        hashed.clear()
+        r = client.post("/scenes", files={"file": ("hashed.obj", data, "text/plain")})
+        assert r.status_code == status and hashed == [len(data)], (r.status_code, hashed)
+
+
 def test_upload_obj_is_content_addressed(client):
     data = obj_text(1)
     expected = hashlib.sha256(b"obj\n" + data).hexdigest()

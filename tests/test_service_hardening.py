@@ -224,9 +224,10 @@ def test_memory_budget_is_configurable_and_covers_soft_shadows(tmp_path):
         assert r.status_code == 422 and "conventional images for metrics" in r.json()["detail"]
 
 
-def test_memory_budget_counts_the_splat_depth_image_of_reconstructions():
-    """A reconstruction's shadow maps hold a second atlas-sized image (the splats'
-    integer depths, gl_passes.quad_splats.SplatRaster); geometry's maps do not."""
+def test_memory_budget_counts_the_splat_depth_image_of_shadow_maps():
+    """Shadow maps hold the depth atlas and an image of its size (the reconstructions'
+    splats' integer depths, gl_passes.quad_splats.SplatRaster, which the worker's
+    pass keeps once made, also for geometry frames after it); raytrace neither."""
     from service.budget import frame_bytes
     from service.config import RECONSTRUCTION_BYTES_PER_SAMPLE, SHADOW_MAP_RESOLUTION, SHADOW_MAPS_PER_DRAW
     from service.schemas import FrameRequest
@@ -238,8 +239,8 @@ def test_memory_budget_counts_the_splat_depth_image_of_reconstructions():
     for k in (2, 16):
         atlas = SHADOW_MAP_RESOLUTION**2 * min(k * k, SHADOW_MAPS_PER_DRAW) * 4
         images = 4 * 256**2 * RECONSTRUCTION_BYTES_PER_SAMPLE
-        assert estimate("non_redundant", k) - estimate("geometry", k) == images + atlas
-        assert estimate("geometry", k) - estimate("raytrace", k) == atlas
+        assert estimate("non_redundant", k) - estimate("geometry", k) == images
+        assert estimate("geometry", k) - estimate("raytrace", k) == 2 * atlas
 
 
 # --- strict types and messages that name the real problem ------------------------------------------

@@ -14,7 +14,7 @@
 layout(local_size_x = 64) in;
 
 layout(std430, binding = UNIT_splats) readonly buffer Splats { float corners[]; };  // 12 per splat
-layout(r32ui, binding = UNIT_splat_depth) uniform coherent uimage2D u_splat_depth;  // EMPTY or depth bits
+layout(r32ui, binding = UNIT_splat_depth) uniform uimage2D u_splat_depth;  // EMPTY or depth bits
 
 uniform mat4 u_light_vp[MAPS_PER_DRAW];  // world → clip of each map of the batch
 uniform int u_res;                       // texels per map side
@@ -27,14 +27,25 @@ vec3 corner(uint s, uint k) {
     return vec3(corners[b], corners[b + 1u], corners[b + 2u]);
 }
 
-// Depth of the texel centre at offset q from s0 in the triangle s0, s0 + d, s0 + e
-// (window depths z0, z0 + dz.x, z0 + dz.y), or 2.0 outside it or when it has no area.
-float plane_depth(vec2 q, vec2 d, vec2 e, float z0, vec2 dz) {
-    float det = d.x * e.y - d.y * e.x;
-    if (abs(det) <= 1e-8) return 2.0;
-    float u = (q.x * e.y - q.y * e.x) / det;
-    float v = (d.x * q.y - d.y * q.x) / det;
-    return (u >= 0.0 && v >= 0.0 && u + v <= 1.0) ? z0 + u * dz.x + v * dz.y : 2.0;
+// A triangle s0, s0 + d, s0 + e in window coordinates: the inverse of its edge
+// matrix [d e] (zero when it has no area) and its window depths at s0, along d, along e.
+struct Edges {
+    mat2 inv;
+    vec3 z;
+    bool live;
+};
+
+Edges edges(vec2 d, vec2 e, vec3 z) {
+    mat2 m = mat2(d, e);
+    float det = determinant(m);
+    bool live = abs(det) > 1e-8;
+    return Edges(live ? inverse(m) : mat2(0.0), z, live);
+}
+
+// Depth of the texel centre at offset q from s0 in triangle t, or 2.0 outside it.
+float plane_depth(vec2 q, Edges t) {
+    vec2 w = t.inv * q;
+    return (t.live && w.x >= 0.0 && w.y >= 0.0 && w.x + w.y <= 1.0) ? t.z.x + w.x * t.z.y + w.y * t.z.z : 2.0;
 }
 
 void main() {
@@ -50,17 +61,20 @@ void main() {
     }
     vec2 lo = min(min(w[0].xy, w[1].xy), min(w[2].xy, w[3].xy));
     vec2 hi = max(max(w[0].xy, w[1].xy), max(w[2].xy, w[3].xy));
-    // the texel centres (x + 0.5, y + 0.5) in the box, within the tile
-    ivec2 a = max(ivec2(ceil(lo - 0.5)), ivec2(0));
-    ivec2 b = min(ivec2(floor(hi - 0.5)), ivec2(u_res - 1));
+    // the texel centres (x + 0.5, y + 0.5) in the box, within the tile (clamped as
+    // floats: a corner near the eye's plane lies far outside any int)
+    ivec2 a = ivec2(max(ceil(lo - 0.5), vec2(0.0)));
+    ivec2 b = ivec2(min(floor(hi - 0.5), vec2(float(u_res - 1))));
     ivec2 origin = ivec2(i % u_tiles, i / u_tiles) * u_res;
     vec2 d = w[1].xy - w[0].xy;
-    vec2 dz = vec2(w[1].z - w[0].z, 0.0);
+    Edges t0 = edges(d, w[2].xy - w[0].xy, vec3(w[0].z, w[1].z - w[0].z, w[2].z - w[0].z));
+    Edges t1 = edges(d, w[3].xy - w[0].xy, vec3(w[0].z, w[1].z - w[0].z, w[3].z - w[0].z));
+    bool lone = corner(s, 2u) == corner(s, 3u);  // a lone triangle: its second is the first again
     for (int y = a.y; y <= b.y; ++y) {
         for (int x = a.x; x <= b.x; ++x) {
             vec2 q = vec2(x, y) + 0.5 - w[0].xy;
-            float z = plane_depth(q, d, w[2].xy - w[0].xy, w[0].z, vec2(dz.x, w[2].z - w[0].z));
-            if (z > 1.5) z = plane_depth(q, d, w[3].xy - w[0].xy, w[0].z, vec2(dz.x, w[3].z - w[0].z));
+            float z = plane_depth(q, t0);
+            if (z > 1.5 && !lone) z = plane_depth(q, t1);
             if (z <= 1.5) imageAtomicMin(u_splat_depth, origin + ivec2(x, y), floatBitsToUint(clamp(z, 0.0, 1.0)));
         }
     }

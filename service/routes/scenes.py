@@ -178,8 +178,8 @@ async def _put_upload(request: Request, settings: Settings, store: SceneStore, d
     uploads stalled the scene list, scene loads and encoding), and after PARSE_TIMEOUT_S
     of waiting it is 503; then the parser's own wait (a render's reparse of a stored
     upload may hold it) may add as long again. Content stored before is answered at
-    once."""
-    known = await run_in_threadpool(store.stored_upload, data, fmt)
+    once; the data is hashed once."""
+    sid, known = await run_in_threadpool(store.stored_upload, data, fmt)
     if known is not None:  # stored before: no parse, so no turn to wait for
         return known, False
     turns = request.app.state.upload_turns
@@ -188,7 +188,7 @@ async def _put_upload(request: Request, settings: Settings, store: SceneStore, d
     if waited.cancelled_caught:
         raise no_turn(turns.total_tokens, settings.parse_timeout_s)
     try:
-        return await run_in_threadpool(store.put_upload, data, fmt, display)
+        return await run_in_threadpool(store.put_upload, data, fmt, display, sid)
     finally:
         turns.release()
 
