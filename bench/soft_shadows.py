@@ -1162,14 +1162,15 @@ def crossover_lines(levels: list[dict[str, Any]]) -> list[str]:
     fastest = all("geometry_splats_seconds_per_map" in lv for lv in levels)
     for kind in ("hybrid", "compact"):
         line = f"- Crossover, NR {kind}: {said(crossover(levels, kind))}"
+        more = []
         if fastest:
-            line += (" (against the original drawn the faster of its two ways at each level: "
-                     f"{said(crossover(levels, kind, fastest=True))})")
+            more.append("against the original drawn the faster of its two ways at each level: "
+                        f"{said(crossover(levels, kind, fastest=True))}")
         if all("triangles_seconds_per_map" in lv[kind] for lv in levels):
             only = crossover_of([(lv["triangles"], lv["geometry_seconds_per_map"],
                                   lv[kind]["triangles_seconds_per_map"]) for lv in levels])
-            line += f" (its splats drawn as triangles: {said(only)})"
-        out.append(line + ".")
+            more.append(f"its splats drawn as triangles: {said(only)}")
+        out.append(line + (f" ({'; '.join(more)})" if more else "") + ".")
     return out
 
 
