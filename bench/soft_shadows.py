@@ -547,7 +547,7 @@ def fig20_plot(levels: list[dict[str, Any]], path: Path) -> None:
     geo, = ax.plot(tri, [lv["geometry_seconds_per_map"] * 1e3 for lv in levels], "o-", label="original geometry")
     if all("geometry_splats_seconds_per_map" in lv for lv in levels):
         ax.plot(tri, [lv["geometry_splats_seconds_per_map"] * 1e3 for lv in levels], ":", color=geo.get_color(),
-                alpha=0.6, label="original, its triangles as splats")
+                alpha=0.6, label="original, its small pieces as splats")
     for kind in ("hybrid", "compact"):
         line, = ax.plot(tri, [lv[kind]["seconds_per_map"] * 1e3 for lv in levels], "s-",
                         label=f"NR {kind} reconstruction")
