@@ -11,11 +11,12 @@ import pytest
 from gl_passes.bindings import MAX_IMAGE_UNITS, Units
 from gl_passes.cluster_units import UNITS
 from gl_passes.keyframe import REUSE_UNITS
+from gl_passes.quad_splats import SPLAT_UNITS
 from gl_passes.reconstruction import _UNITS as RECONSTRUCTION_UNITS
 from gl_passes.shaders import SHADER_DIR, shader_source
 from gl_passes.shadows import LOOKUP_UNITS
 
-TABLES = (UNITS, REUSE_UNITS, RECONSTRUCTION_UNITS, LOOKUP_UNITS)
+TABLES = (UNITS, REUSE_UNITS, RECONSTRUCTION_UNITS, LOOKUP_UNITS, SPLAT_UNITS)
 _IMAGE = re.compile(r"layout\s*\([^)]*binding\s*=\s*UNIT_(\w+)[^)]*\)"  # an image declaration's unit
                     r"[^;]*\buniform\b[^;]*\b[iu]?image[0-9A-Z]\w*\s+\w+\s*;")
 
