@@ -92,7 +92,7 @@ from bench.shadow_stage import (
 from gl_passes.context import GLContext, create_gl_context
 from gl_passes.depth_images import DepthImageRenderer
 from gl_passes.mesh_gpu import MeshGPU, pack_vertices
-from gl_passes.quad_splats import SPLAT_PIECE, split_splats
+from gl_passes.quad_splats import SPLAT_PIECE, splats_last
 from gl_passes.reconstruction import (
     RECONSTRUCTIONS,
     SAMPLING_METHODS,
@@ -456,8 +456,7 @@ def fig20_level(gl: GLContext, detail: float, ref_res: int, shadow_res: int) -> 
         return {"detail": detail, "triangles": scene.n_triangles,
                 "geometry_seconds_per_map": best["geometry"] / k**2,
                 "geometry_splats_seconds_per_map": best["geometry_splats"] / k**2,
-                "geometry_splat_triangles": occluders["geometry_splats"][0].n_triangles
-                - occluders["geometry_splats"][0].body_triangles,
+                "geometry_splat_triangles": sum(m.splats.triangles for m in occluders["geometry_splats"] if m.splats),
                 "hybrid_generation_order_seconds_per_map": best["hybrid_generation_order"] / k**2, **rec,
                 "compact_bounds": bounds}
     finally:
@@ -475,9 +474,8 @@ def original_with_splats(gl: GLContext, scene: Scene, light: AreaLight, resoluti
     cam = shadow_map_camera(light, np.asarray(light.center, np.float64), scene.bounds, resolution)
     vertices = np.asarray(scene.vertices, np.float32)
     px, _ = cam.project(vertices.astype(np.float64))
-    body, quads, singles = split_splats(np.asarray(scene.faces), px)
-    tri = np.concatenate([body, quads.reshape(-1, 3), singles])
-    return MeshGPU.from_records(gl, pack_vertices(vertices), tri, quads=len(quads), singles=len(singles))
+    tri, quads, singles = splats_last(np.asarray(scene.faces), px)
+    return MeshGPU.from_records(gl, pack_vertices(vertices), tri, quads=quads, singles=singles)
 
 
 def _shadow_seconds(sp: SoftShadowPass, occluders: list, st: Stage, light: AreaLight) -> float:

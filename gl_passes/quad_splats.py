@@ -145,6 +145,15 @@ def split_splats(triangles: np.ndarray, pixels: np.ndarray) -> tuple[np.ndarray,
     return tri[body], tri[pairs], tri[singles]
 
 
+def splats_last(triangles: np.ndarray, pixels: np.ndarray) -> tuple[np.ndarray, int, int]:
+    """(triangles (M,3), quads Q, singles L): `triangles` in the order
+    `MeshGPU.from_records` reads splats from, the body (`split_splats`) first, then
+    the Q quads' triangles in pairs, then the L lone triangles. pixels: as for
+    `split_splats`."""
+    body, quads, singles = split_splats(triangles, pixels)
+    return np.concatenate([body, quads.reshape(-1, 3), singles]), len(quads), len(singles)
+
+
 class QuadSplats(Releasable):
     """Splats on the GPU: a storage buffer of four vec3 corners per splat
     (`splat_corners`, 12 float32), read by `SplatRaster`; `triangles`: how many of
@@ -171,7 +180,7 @@ class SplatRaster(Releasable):
     """The compute rasteriser of quad splats into a batch of shadow maps laid out as
     `tiles`² tiles of `res`² texels (the depth atlas of `gl_passes.shadows`): one
     integer depth image of the atlas's size, made at the first batch with splats.
-    Per batch: `clear()`, `draw(splats, view_proj)` for each splat set, then
+    Per batch: `begin(light_vp, maps)`, `draw(splats)` for each splat set, then
     `resolve()` into the depth atlas bound for drawing. Owns the image: call
     `release()`."""
 
@@ -184,10 +193,18 @@ class SplatRaster(Releasable):
         self.resolve_prog = program(gl, "fullscreen.vert", "shadow_splat_resolve.frag", defines=defines)
         self.image: moderngl.Texture | None = None
         self.resolve_vao: moderngl.VertexArray | None = None
+        self.maps = 0  # maps of the current batch (`begin`)
 
-    def clear(self) -> None:
-        """Empty the depth image (made now if needed) for a new batch."""
+    def begin(self, light_vp: bytes, maps: int) -> None:
+        """A new batch of `maps` maps: their cameras, `light_vp` the batch's
+        world → clip matrices as the uniform array holds them (`batch` column-major
+        4×4 float32, rows past `maps` unused), and the depth image emptied (made now
+        if needed)."""
         self.gl.check_thread()
+        if not 0 < maps <= self.batch:
+            raise ValueError(f"{maps} maps for a batch of {self.batch}")
+        self.maps = maps
+        self.raster_prog["u_light_vp"].write(light_vp)
         if self.image is None:
             size = self.tiles * self.res
             with ReleasedOnError() as made:
@@ -202,19 +219,14 @@ class SplatRaster(Releasable):
         self.clear_prog.run(groups, groups)
         self.gl.ctx.memory_barrier()
 
-    def draw(self, splats: QuadSplats, view_proj: np.ndarray) -> None:
-        """Rasterise `splats` into maps 0..len(view_proj)−1 of the batch (tile i
-        ← map i): view_proj (n,4,4) float32 world → clip, column-major (GL layout)."""
+    def draw(self, splats: QuadSplats) -> None:
+        """Rasterise `splats` into the batch's maps (tile i ← map i)."""
         self.gl.check_thread()
-        n = len(view_proj)
-        if not splats.count or not n:
+        if not splats.count:
             return
-        if self.image is None or n > self.batch:
-            raise ValueError(f"{n} maps for a batch of {self.batch}, or draw() before clear()")
+        if self.image is None:
+            raise ValueError("draw() before begin()")
         prog = self.raster_prog
-        rows = np.zeros((self.batch, 4, 4), np.float32)
-        rows[:n] = view_proj
-        prog["u_light_vp"].write(rows.tobytes())
         groups = -(-splats.count // RASTER_GROUP)
         gx = min(groups, MAX_GROUPS)
         for name, value in (("u_res", self.res), ("u_tiles", self.tiles), ("u_count", splats.count),
@@ -222,7 +234,7 @@ class SplatRaster(Releasable):
             prog[name].value = value
         SPLAT_UNITS.bind_storage("splats", splats.buffer)
         SPLAT_UNITS.bind_image("splat_depth", self.image, read=True, write=True)
-        prog.run(gx, -(-groups // gx), n)
+        prog.run(gx, -(-groups // gx), self.maps)
 
     def resolve(self) -> None:
         """Write the splats' depths into the depth atlas of the bound framebuffer
@@ -245,4 +257,4 @@ class SplatRaster(Releasable):
 
 
 __all__ = ["SPLAT_PIECE", "SPLAT_PIXELS", "QuadSplats", "SplatRaster", "quad_corners", "splat_corners", "splat_pairs",
-           "split_splats", "triangle_pieces"]
+           "split_splats", "splats_last", "triangle_pieces"]

@@ -80,7 +80,7 @@ from gl_passes.bindings import Units
 from gl_passes.context import GLContext
 from gl_passes.depth_images import DepthImageRenderer, prepare_cameras
 from gl_passes.mesh_gpu import VERTEX_BYTES, MeshGPU, pack_colors
-from gl_passes.quad_splats import split_splats, triangle_pieces
+from gl_passes.quad_splats import splats_last, triangle_pieces
 from gl_passes.readback import StagingBuffer, read_buffer
 from gl_passes.releasable import Releasable, ReleasedOnError, Scratch
 from gl_passes.shaders import compute_program
@@ -279,17 +279,16 @@ class Reconstructor(Releasable):
         settings.fetch_order its vertices in first-use order (`fetch_order`), else in
         their order, unused ones dropped."""
         tri = np.asarray(indices, np.uint32).reshape(-1, 3)
-        quads, singles = np.zeros((0, 2, 3), np.uint32), np.zeros((0, 3), np.uint32)
+        quads = singles = 0
         if settings.quad_splats and len(tri):
             px, _ = camera.project(np.asarray(records[:, :3], np.float64))
-            tri, quads, singles = split_splats(tri, px)
-            tri = np.concatenate([tri, quads.reshape(-1, 3), singles])
+            tri, quads, singles = splats_last(tri, px)
         if settings.fetch_order:
             records, tri = fetch_order(records, tri)
         else:
             used, tri = np.unique(tri, return_inverse=True)
             records = records[used]
-        return MeshGPU.from_records(self.gl, records, tri.reshape(-1, 3), quads=len(quads), singles=len(singles))
+        return MeshGPU.from_records(self.gl, records, tri.reshape(-1, 3), quads=quads, singles=singles)
 
     @staticmethod
     def _bind_outputs(vbo: moderngl.Buffer, ibo: moderngl.Buffer, counters: moderngl.Buffer) -> None:

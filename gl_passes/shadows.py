@@ -221,15 +221,16 @@ def popcount_words(bits: np.ndarray) -> np.ndarray:
     return _BYTE_BITS[b.view(np.uint8)].sum(axis=-1, dtype=np.uint16)
 
 
-def _draw(occluder: Occluder, prog: moderngl.Program, instances: int, set_first: Callable[[int], None]) -> None:
+def _draw(occluder: Occluder, prog: moderngl.Program, instances: int, set_first: Callable[[int], None],
+          splats_apart: bool) -> None:
     """Draw `occluder` `instances` times with `prog`, in one instanced call when its
     draw() takes `instances`, else once per instance (set_first(i) before each);
-    a SceneGPU is told to skip its material uniforms; a mesh with splats
-    (`splats`) draws the triangles they do not stand for (the splats are the
+    a SceneGPU is told to skip its material uniforms; splats_apart: a mesh with
+    splats draws only the triangles they do not stand for (the splats are the
     compute pass's: `_splats`)."""
     params = inspect.signature(occluder.draw).parameters
     kw = {"materials": False} if "materials" in params else {}
-    if _splats(occluder) is not None:
+    if splats_apart:
         kw["quads"] = False
     if "instances" in params or instances == 1:
         if instances > 1:
@@ -355,7 +356,8 @@ class SoftShadowPass(Releasable):
         fbo.use()
         fbo.viewport = (0, 0, *fbo.size)
         fbo.clear(depth=1.0)
-        prog["u_light_vp"].write(_padded(cams.view_proj, first, count, self.batch))
+        light_vp = _padded(cams.view_proj, first, count, self.batch)
+        prog["u_light_vp"].write(light_vp)
         if "u_tile" in prog:
             prog["u_tile"].write(self.tile_ndc.tobytes())
 
@@ -363,14 +365,15 @@ class SoftShadowPass(Releasable):
             if "u_map0" in prog:
                 prog["u_map0"].value = i
 
-        splats = [sp for sp in map(_splats, occluders) if sp is not None and sp.count]
+        held = [_splats(occ) for occ in occluders]
         with self._map_state():
-            for occ in occluders:
-                _draw(occ, prog, count, set_first)
+            for occ, sp in zip(occluders, held, strict=True):
+                _draw(occ, prog, count, set_first, sp is not None)
+        splats = [sp for sp in held if sp is not None and sp.count]
         if splats:
-            self.splat_raster.clear()
+            self.splat_raster.begin(light_vp, count)
             for sp in splats:
-                self.splat_raster.draw(sp, cams.view_proj[first:first + count])
+                self.splat_raster.draw(sp)
             with self._map_state(tiles=False):
                 self.splat_raster.resolve()
 

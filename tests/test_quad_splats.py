@@ -22,7 +22,15 @@ import pytest
 
 from gl_passes import quad_splats
 from gl_passes.mesh_gpu import MeshGPU, pack_vertices
-from gl_passes.quad_splats import SPLAT_PIECE, SPLAT_PIXELS, quad_corners, splat_corners, splat_pairs, split_splats
+from gl_passes.quad_splats import (
+    SPLAT_PIECE,
+    SPLAT_PIXELS,
+    quad_corners,
+    splat_corners,
+    splat_pairs,
+    splats_last,
+    split_splats,
+)
 from gl_passes.reconstruction import ReconstructionSettings, mesh_arrays, reconstruct_set, render_set
 from gl_passes.shadows import ShadowSettings, SoftShadowPass
 from gl_passes.upload import SceneGPU
@@ -67,6 +75,9 @@ def test_split_splats_keeps_large_pieces_as_triangles():
     body, quads, singles = split_splats(tri, px)
     assert quads.tolist() == [[[0, 1, 2], [2, 1, 3]]] and singles.tolist() == [[11, 12, 13]]
     assert body.tolist() == [[4, 5, 6], [6, 5, 7], [8, 9, 10]]
+    ordered, n_quads, n_singles = splats_last(tri, px)  # as MeshGPU.from_records reads them: body, quads, lone
+    assert (n_quads, n_singles) == (1, 1)
+    assert ordered.tolist() == [[4, 5, 6], [6, 5, 7], [8, 9, 10], [0, 1, 2], [2, 1, 3], [11, 12, 13]]
 
 
 def scattered_quads(n: int = 600, seed: int = 3) -> tuple[np.ndarray, np.ndarray]:

@@ -69,7 +69,7 @@ void main() {
     vec2 d = w[1].xy - w[0].xy;
     Edges t0 = edges(d, w[2].xy - w[0].xy, vec3(w[0].z, w[1].z - w[0].z, w[2].z - w[0].z));
     Edges t1 = edges(d, w[3].xy - w[0].xy, vec3(w[0].z, w[1].z - w[0].z, w[3].z - w[0].z));
-    bool lone = corner(s, 2u) == corner(s, 3u);  // a lone triangle: its second is the first again
+    bool lone = w[2] == w[3];  // a lone triangle (o1 = o0): its second is the first again
     for (int y = a.y; y <= b.y; ++y) {
         for (int x = a.x; x <= b.x; ++x) {
             vec2 q = vec2(x, y) + 0.5 - w[0].xy;
