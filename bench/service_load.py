@@ -63,10 +63,16 @@ FRAME_DISTANCE, STREAM_DISTANCE = 1.1, 0.45
 
 
 # --- the server ------------------------------------------------------------------------------
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+def free_ports(n: int) -> list[int]:
+    """n distinct free loopback ports: their sockets are held open until all n are
+    picked (one at a time, a port closed before the next pick can be handed out again,
+    and two servers then share one port: the second fails to start while the first
+    answers for both)."""
+    with contextlib.ExitStack() as stack:
+        socks = [stack.enter_context(socket.socket()) for _ in range(n)]
+        for s in socks:
+            s.bind(("127.0.0.1", 0))
+        return [s.getsockname()[1] for s in socks]
 
 
 @contextlib.contextmanager
@@ -76,8 +82,7 @@ def servers(configs: Sequence[tuple[int, str]], data_dir: Path, log: Path) -> It
     once every one answers /readyz. Stopped (SIGTERM) on exit."""
     procs: dict[tuple[int, str], tuple[subprocess.Popen, str]] = {}
     try:
-        for workers, mode in configs:
-            port = free_port()
+        for (workers, mode), port in zip(configs, free_ports(len(configs)), strict=True):
             environ = {**os.environ, "DEPTHVIEW_WORKERS": str(workers), "DEPTHVIEW_DATA_DIR": str(data_dir),
                        "DEPTHVIEW_STREAM_REFLECTION_MODE": mode}
             with open(log, "ab") as out:
