@@ -10,8 +10,11 @@ several); each texel-sized quad then covers a texel or so. A compute pass
 (`SplatRaster`, shaders/shadow_splat.comp) runs one invocation per quad and map
 on every thread: it projects the quad's four corners into the map and keeps, for
 every texel centre in either triangle, that triangle's plane depth by an atomic
-min in an integer depth image; a full-atlas pass then writes those depths into the
-depth atlas through the depth test (shadow_splat_resolve.frag). The same texels
+min in an integer depth image; a pass over the tile rows of the batch then writes
+those depths into the depth atlas through the depth test, emptying the image as
+it reads it (shadow_splat_resolve.frag). That pass is a fixed cost per batch: a
+batch with few splats for its texels draws their triangles instead
+(`ShadowSettings.splat_raster_min`, `SplatRaster.pays`). The same texels
 and depths as the triangles, up to the rasteriser's tie rule on edges and its
 sub-pixel snapping of the vertices (a texel centre on an edge two splats, or a
 splat and a triangle, share is kept by both, at the same depth).
@@ -181,7 +184,8 @@ class SplatRaster(Releasable):
     `tiles`² tiles of `res`² texels (the depth atlas of `gl_passes.shadows`): one
     integer depth image of the atlas's size, made at the first batch with splats.
     Per batch: `begin(light_vp, maps)`, `draw(splats)` for each splat set, then
-    `resolve()` into the depth atlas bound for drawing. Owns the image: call
+    `resolve(fbo)` into the depth atlas bound for drawing. Its fixed cost per batch,
+    the resolve's pass over the batch's tile rows, is what `pays` weighs. Owns the image: call
     `release()`."""
 
     def __init__(self, gl: GLContext, batch: int, tiles: int, res: int) -> None:
@@ -194,12 +198,14 @@ class SplatRaster(Releasable):
         self.image: moderngl.Texture | None = None
         self.resolve_vao: moderngl.VertexArray | None = None
         self.maps = 0  # maps of the current batch (`begin`)
+        self._dirty = False  # splats drawn and not resolved
 
     def begin(self, light_vp: bytes, maps: int) -> None:
         """A new batch of `maps` maps: their cameras, `light_vp` the batch's
         world → clip matrices as the uniform array holds them (`batch` column-major
-        4×4 float32, rows past `maps` unused), and the depth image emptied (made now
-        if needed)."""
+        4×4 float32, rows past `maps` unused). The depth image is empty between
+        batches (emptied when made, and by `resolve` as it reads it); it is emptied
+        here only after a batch that drew splats but was not resolved."""
         self.gl.check_thread()
         if not 0 < maps <= self.batch:
             raise ValueError(f"{maps} maps for a batch of {self.batch}")
@@ -211,13 +217,26 @@ class SplatRaster(Releasable):
                 image = made(self.gl.ctx.texture((size, size), 1, dtype="u4"))
                 vao = self.gl.ctx.vertex_array(self.resolve_prog, [])
             self.image, self.resolve_vao = image, vao
+            self._dirty = True
         # image accesses of separate commands are ordered by barriers only: the last
-        # resolve's reads before the clear, the clear before the splats' atomics
+        # resolve's reads and resets, or the clear, before the splats' atomics
         self.gl.ctx.memory_barrier()
-        SPLAT_UNITS.bind_image("splat_depth", self.image, read=False, write=True)
-        groups = -(-self.image.width // CLEAR_GROUP)
-        self.clear_prog.run(groups, groups)
-        self.gl.ctx.memory_barrier()
+        if self._dirty:
+            SPLAT_UNITS.bind_image("splat_depth", self.image, read=False, write=True)
+            groups = -(-self.image.width // CLEAR_GROUP)
+            self.clear_prog.run(groups, groups)
+            self.gl.ctx.memory_barrier()
+            self._dirty = False
+
+    def rows(self, maps: int) -> int:
+        """Tile rows that `maps` maps of a batch fill (tile i: row i // tiles)."""
+        return -(-maps // self.tiles)
+
+    def pays(self, splats: int, maps: int, density: float) -> bool:
+        """Whether a batch of `maps` maps rasterises `splats` splats by this pass at
+        `density` (`ShadowSettings.splat_raster_min`): splats × maps at least
+        `density` per texel of the tile rows that `resolve` passes over."""
+        return splats > 0 and splats * maps >= density * self.rows(maps) * self.tiles * self.res**2
 
     def draw(self, splats: QuadSplats) -> None:
         """Rasterise `splats` into the batch's maps (tile i ← map i)."""
@@ -234,17 +253,25 @@ class SplatRaster(Releasable):
             prog[name].value = value
         SPLAT_UNITS.bind_storage("splats", splats.buffer)
         SPLAT_UNITS.bind_image("splat_depth", self.image, read=True, write=True)
+        self._dirty = True
         prog.run(gx, -(-groups // gx), self.maps)
 
-    def resolve(self) -> None:
-        """Write the splats' depths into the depth atlas of the bound framebuffer
-        (its viewport the whole atlas) through the depth test, which the caller has on."""
+    def resolve(self, fbo: moderngl.Framebuffer) -> None:
+        """Write the splats' depths into `fbo`'s depth atlas through the depth test,
+        which the caller has on, over the tile rows of the batch's maps, emptying
+        the depth image's texels as they are read."""
         self.gl.check_thread()
         if self.image is None or self.resolve_vao is None:
             return
         self.gl.ctx.memory_barrier()
-        SPLAT_UNITS.bind_image("splat_depth", self.image, read=True, write=False)
-        self.resolve_vao.render(moderngl.TRIANGLES, vertices=3)
+        SPLAT_UNITS.bind_image("splat_depth", self.image, read=True, write=True)
+        viewport = fbo.viewport
+        fbo.viewport = (0, 0, self.image.width, self.rows(self.maps) * self.res)
+        try:
+            self.resolve_vao.render(moderngl.TRIANGLES, vertices=3)
+        finally:
+            fbo.viewport = viewport
+        self._dirty = False
 
     def release(self) -> None:
         self.gl.check_thread()

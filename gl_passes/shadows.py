@@ -16,7 +16,8 @@ whether s sees P:
    depth clamping (an occluder in front of a light camera's near plane, e.g. a
    reconstruction quad slightly outside `bounds`, still occludes). A mesh's
    small pieces (`MeshGPU.splats`) are rasterised by a compute pass instead, with
-   their triangles' texels and depths (`gl_passes.quad_splats.SplatRaster`);
+   their triangles' texels and depths (`gl_passes.quad_splats.SplatRaster`), in
+   batches with enough of them to pay for its fixed cost (`splat_raster_min`);
 2. `maps_per_draw` maps per draw call: one instance per map into its own tile of a
    depth atlas (clip distances keep each instance in its tile), one batch of
    maps after another;
@@ -72,6 +73,10 @@ LOOKUP_GROUP = 64
 MAX_GROUPS_X = 65535
 #: Units of shadow_lookup.comp (compiled in as `UNIT_<name>` #defines; gl_passes.bindings).
 LOOKUP_UNITS = Units(storage=("points", "normals", "bits"), textures=("depth",))
+#: Default `ShadowSettings.splat_raster_min`, splats × maps per resolved texel: between
+#: the densities where the service's reconstructions draw faster as triangles and
+#: where as splats (bench.splat_raster).
+SPLAT_RASTER_MIN = 0.05
 STEPS = ("upload", "shadow_maps", "lookup", "readback")  # ShadowResult.timings_ms
 
 
@@ -86,7 +91,13 @@ class ShadowSettings:
     depth_slope: more tolerance per unit tan t (t: the angle between the receiver's
     normal and the direction to the light sample), in texels.
     maps_per_draw: shadow maps rendered per draw call (instanced into a square
-    atlas of ceil(√maps_per_draw)² tiles); 1 = one draw per map."""
+    atlas of ceil(√maps_per_draw)² tiles); 1 = one draw per map.
+    splat_raster_min: a batch's splats (`MeshGPU.splats`) go through the compute
+    rasteriser when splats × maps are at least this many per texel of the atlas's
+    tile rows the batch fills (`SplatRaster.pays`), else they are drawn as the
+    triangles they stand for: below it the rasteriser's fixed pass over those
+    texels costs more than it saves (0 = always; the default: bench.splat_raster,
+    measured on llvmpipe)."""
 
     samples: int = 16
     shadow_map_resolution: int = 1024
@@ -94,12 +105,15 @@ class ShadowSettings:
     depth_bias: float = 1.0
     depth_slope: float = 0.5
     maps_per_draw: int = 16
+    splat_raster_min: float = SPLAT_RASTER_MIN
 
     def __post_init__(self) -> None:
         if self.samples < 1 or self.shadow_map_resolution < 1 or self.maps_per_draw < 1:
             raise ValueError("samples, shadow_map_resolution and maps_per_draw must be ≥ 1")
         if not all(np.isfinite(x) for x in (self.normal_offset, self.depth_bias, self.depth_slope)):
             raise ValueError("normal_offset, depth_bias and depth_slope must be finite")
+        if not self.splat_raster_min >= 0:
+            raise ValueError("splat_raster_min must be ≥ 0")
 
     @property
     def n_samples(self) -> int:
@@ -351,7 +365,7 @@ class SoftShadowPass(Releasable):
     def _render_maps(self, occluders: Sequence[Occluder], cams: ShadowCameras, first: int, count: int,
                      fbo: moderngl.Framebuffer) -> None:
         """Maps first..first+count−1 into tiles 0..count−1 of `fbo`'s atlas: the
-        occluders' triangles, then their splats (`SplatRaster`)."""
+        occluders' triangles, then their splats (`SplatRaster`, where it pays)."""
         prog = self.map_prog
         fbo.use()
         fbo.viewport = (0, 0, *fbo.size)
@@ -366,6 +380,9 @@ class SoftShadowPass(Releasable):
                 prog["u_map0"].value = i
 
         held = [_splats(occ) for occ in occluders]
+        total = sum(sp.count for sp in held if sp is not None)
+        if not self.splat_raster.pays(total, count, self.settings.splat_raster_min):
+            held = [None] * len(held)  # too few: drawn as their triangles
         with self._map_state():
             for occ, sp in zip(occluders, held, strict=True):
                 _draw(occ, prog, count, set_first, sp is not None)
@@ -375,7 +392,7 @@ class SoftShadowPass(Releasable):
             for sp in splats:
                 self.splat_raster.draw(sp)
             with self._map_state(tiles=False):
-                self.splat_raster.resolve()
+                self.splat_raster.resolve(fbo)
 
     def _lookup(self, cams: ShadowCameras, first: int, count: int, n_points: int, atlas: moderngl.Texture) -> None:
         """Set the bits of samples first..first+count−1 (in `atlas`) for every receiver point."""

@@ -865,3 +865,22 @@ def test_pieces_by_hand(gl):
     finally:
         for m in meshes:
             m.release()
+
+
+def test_splat_raster_break_even_and_default_by_hand():
+    """bench.splat_raster: the sweep's crossing is linear between neighbours (gains
+    −20 ms at 10,000 splats and +30 ms at 20,000 cross at 14,000), none where the
+    gain never changes sign; the default is said to separate the sets' densities
+    only when it lies above every triangles-faster one and at or below every
+    splats-faster one."""
+    from bench.splat_raster import SPLAT_RASTER_MIN, _choice, break_even
+
+    def row(n: int, splats_ms: float, triangles_ms: float) -> dict:
+        return {"splats": n, "seconds": {"splats": splats_ms / 1e3, "triangles": triangles_ms / 1e3}}
+
+    assert break_even([row(5_000, 200, 150), row(10_000, 220, 200), row(20_000, 240, 270)]) == pytest.approx(14_000)
+    assert break_even([row(5_000, 200, 150), row(10_000, 220, 200)]) is None
+    below, above = SPLAT_RASTER_MIN / 2, SPLAT_RASTER_MIN * 2
+    assert _choice([0.02], {"triangles": [below], "splats": [above]}).endswith("each set is drawn the faster way.")
+    assert _choice([0.02], {"triangles": [above], "splats": [above]}).endswith("does not separate them.")
+    assert _choice([], {"triangles": [], "splats": [below]}).endswith("does not separate them.")

@@ -115,7 +115,7 @@ def test_splats_draw_the_quads_texels_and_depths(gl, per_draw, max_groups, monke
     tri = np.concatenate([tri[:2 * quads], tri[2 * quads::2]])
     as_tris = MeshGPU.from_records(gl, records, tri)
     as_splats = MeshGPU.from_records(gl, records, tri, quads=quads, singles=len(tri) - 2 * quads)
-    settings = ShadowSettings(samples=4, shadow_map_resolution=128, maps_per_draw=per_draw)
+    settings = ShadowSettings(samples=4, shadow_map_resolution=128, maps_per_draw=per_draw, splat_raster_min=0)
     try:
         assert as_splats.splats.count == 600 and as_splats.body_triangles == 0
         a, b = atlas_depth(gl, [as_tris], settings), atlas_depth(gl, [as_splats], settings)
@@ -142,7 +142,8 @@ def test_splat_maps_kept_or_drawn_per_batch_give_the_same_bits(gl):
     as_tris = MeshGPU.from_records(gl, records, tri)
     as_splats = MeshGPU.from_records(gl, records, tri, quads=len(tri) // 2)
     try:
-        with SoftShadowPass(gl, ShadowSettings(samples=3, shadow_map_resolution=128, maps_per_draw=4)) as sp:
+        with SoftShadowPass(gl, ShadowSettings(samples=3, shadow_map_resolution=128, maps_per_draw=4,
+                                                splat_raster_min=0)) as sp:
             drawn = sp.visibility([as_splats], BOUNDS, pts, nrm, mask, LIGHT)
             maps = sp.render_maps([as_splats], BOUNDS, LIGHT)
             try:
@@ -189,7 +190,7 @@ def test_splat_meshes_free_their_gl_objects():
     class State:
         def __init__(self, gl) -> None:
             self.gl = gl
-            self.sp = SoftShadowPass(gl, ShadowSettings(samples=2, shadow_map_resolution=32))
+            self.sp = SoftShadowPass(gl, ShadowSettings(samples=2, shadow_map_resolution=32, splat_raster_min=0))
             self.frame(0)
 
         def frame(self, _: int) -> None:
@@ -201,3 +202,60 @@ def test_splat_meshes_free_their_gl_objects():
 
     before, after = gl_object_growth(State, State.frame, 200)
     assert after <= before, (before, after)
+
+
+def test_too_few_splats_per_texel_are_drawn_as_triangles(gl):
+    """`ShadowSettings.splat_raster_min`: 600 splats in a batch of 16 maps of 128²
+    (4 tile rows of 4 × 128² texels) are 600·16 / 262,144 = 0.0366 splats per
+    resolved texel; at a higher minimum the batch draws their triangles (the same
+    atlas, bit for bit, and no splat image is made), at that minimum the splats."""
+    records, tri = scattered_quads()
+    as_tris = MeshGPU.from_records(gl, records, tri)
+    as_splats = MeshGPU.from_records(gl, records, tri, quads=len(tri) // 2)
+    density = 600 * 16 / (4 * 4 * 128**2)
+    try:
+        atlas = {}
+        for name, mesh, minimum in (("triangles", as_tris, 0.0), ("above", as_splats, density * 1.001),
+                                    ("at", as_splats, density)):
+            s = ShadowSettings(samples=4, shadow_map_resolution=128, splat_raster_min=minimum)
+            with SoftShadowPass(gl, s) as sp:
+                assert name == "triangles" or sp.splat_raster.pays(600, 16, minimum) == (name == "at"), name
+                sp.visibility([mesh], BOUNDS, np.zeros((1, 1, 3), np.float32),
+                              np.array([[[0.0, 1.0, 0.0]]], np.float32), np.ones((1, 1), bool), LIGHT)
+                assert (sp.splat_raster.image is not None) == (name == "at"), name
+                atlas[name] = np.frombuffer(sp.atlas.read(), np.float32).copy()
+    finally:
+        as_tris.release()
+        as_splats.release()
+    assert np.array_equal(atlas["above"], atlas["triangles"])
+    covered = atlas["triangles"] < 1.0
+    assert covered.sum() > 1000 and ((atlas["at"] < 1.0) != covered).sum() <= 0.01 * covered.sum()
+    with pytest.raises(ValueError, match="splat_raster_min"):
+        ShadowSettings(splat_raster_min=-1.0)
+
+
+def test_splats_of_an_unresolved_batch_do_not_reach_the_next(gl):
+    """The splat depth image is emptied by the resolve that reads it; a batch whose
+    splats were drawn but never resolved (an error between) is emptied by the next
+    batch's begin, so its depths never reach another batch's maps."""
+    records, tri = scattered_quads()
+    mesh = MeshGPU.from_records(gl, records, tri, quads=len(tri) // 2)
+    try:
+        with SoftShadowPass(gl, ShadowSettings(samples=4, shadow_map_resolution=128, splat_raster_min=0)) as sp:
+            maps = sp.render_maps([mesh], BOUNDS, LIGHT)  # draws, resolves: the image is made and empty again
+            maps.release()
+            raster, light_vp = sp.splat_raster, np.eye(4, dtype=np.float32).tobytes() * 16
+            raster.begin(light_vp, 16)
+            raster.draw(mesh.splats)  # ... and no resolve
+            for drawn in (False, True):
+                raster.begin(light_vp, 16)
+                if drawn:
+                    raster.draw(mesh.splats)
+                sp.fbo.use()
+                sp.fbo.clear(depth=1.0)
+                with sp._map_state(tiles=False):
+                    raster.resolve(sp.fbo)
+                depth = np.frombuffer(sp.atlas.read(), np.float32)
+                assert (depth < 1.0).any() == drawn, drawn
+    finally:
+        mesh.release()
