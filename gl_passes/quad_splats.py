@@ -182,7 +182,7 @@ class QuadSplats(Releasable):
 class SplatRaster(Releasable):
     """The compute rasteriser of quad splats into a batch of shadow maps laid out as
     `tiles`² tiles of `res`² texels (the depth atlas of `gl_passes.shadows`): one
-    integer depth image of the atlas's size, made at the first batch with splats.
+    integer depth image of the atlas's size, made at the first batch it draws splats in.
     Per batch: `begin(light_vp, maps)`, `draw(splats)` for each splat set, then
     `resolve(fbo)` into the depth atlas bound for drawing. Its fixed cost per batch,
     the resolve's pass over the batch's tile rows, is what `pays` weighs. Owns the image: call
@@ -265,6 +265,7 @@ class SplatRaster(Releasable):
             return
         self.gl.ctx.memory_barrier()
         SPLAT_UNITS.bind_image("splat_depth", self.image, read=True, write=True)
+        fbo.use()
         viewport = fbo.viewport
         fbo.viewport = (0, 0, self.image.width, self.rows(self.maps) * self.res)
         try:

@@ -97,7 +97,7 @@ class ShadowSettings:
     tile rows the batch fills (`SplatRaster.pays`), else they are drawn as the
     triangles they stand for: below it the rasteriser's fixed pass over those
     texels costs more than it saves (0 = always; the default: bench.splat_raster,
-    measured on llvmpipe)."""
+    measured on llvmpipe; a GPU's break-even is its own)."""
 
     samples: int = 16
     shadow_map_resolution: int = 1024

@@ -207,7 +207,7 @@ class SoftShadowJob(SceneJob):
                 return out
 
         images = (req.reconstruction, req.resolution, req.sides) if req.method != "geometry" else ()
-        what = ("shadow maps", req.method, *images, req.samples, req.light)
+        what = ("shadow maps", req.method, *images, req.light, shadows.settings)
         with state.kept(self.scene_key, what, maps, shadows.maps_nbytes) as kept:
             if not made:
                 clock.lap("shadow_maps")

@@ -867,20 +867,43 @@ def test_pieces_by_hand(gl):
             m.release()
 
 
-def test_splat_raster_break_even_and_default_by_hand():
-    """bench.splat_raster: the sweep's crossing is linear between neighbours (gains
-    −20 ms at 10,000 splats and +30 ms at 20,000 cross at 14,000), none where the
-    gain never changes sign; the default is said to separate the sets' densities
-    only when it lies above every triangles-faster one and at or below every
-    splats-faster one."""
-    from bench.splat_raster import SPLAT_RASTER_MIN, _choice, break_even
+def test_splat_raster_crossings_and_default_by_hand():
+    """bench.splat_raster: a sweep's crossings are linear between neighbours (gains
+    −20 ms at 10,000 splats and +30 ms at 20,000 cross at 14,000; back to −10 ms at
+    30,000 crosses again at 27,500), none where the gain never changes sign; a set is
+    faster one way only below (1 − NOISE) of the other's time; the default is said
+    to separate the sets only when it lies above every triangles-faster density and
+    at or below every splats-faster one."""
+    from bench.splat_raster import NOISE, SPLAT_RASTER_MIN, _choice, crossings, faster_way
 
     def row(n: int, splats_ms: float, triangles_ms: float) -> dict:
         return {"splats": n, "seconds": {"splats": splats_ms / 1e3, "triangles": triangles_ms / 1e3}}
 
-    assert break_even([row(5_000, 200, 150), row(10_000, 220, 200), row(20_000, 240, 270)]) == pytest.approx(14_000)
-    assert break_even([row(5_000, 200, 150), row(10_000, 220, 200)]) is None
+    rows = [row(5_000, 200, 150), row(10_000, 220, 200), row(20_000, 240, 270), row(30_000, 280, 270)]
+    assert crossings(rows) == pytest.approx([14_000, 27_500])
+    assert crossings(rows[:2]) == []
+    assert faster_way({"splats": 0.94, "triangles": 1.0}) == "splats" and NOISE == 0.05
+    assert faster_way({"splats": 0.96, "triangles": 1.0}) == "tie"
+    assert faster_way({"splats": 1.0, "triangles": 0.94}) == "triangles"
     below, above = SPLAT_RASTER_MIN / 2, SPLAT_RASTER_MIN * 2
-    assert _choice([0.02], {"triangles": [below], "splats": [above]}).endswith("each set is drawn the faster way.")
-    assert _choice([0.02], {"triangles": [above], "splats": [above]}).endswith("does not separate them.")
-    assert _choice([], {"triangles": [], "splats": [below]}).endswith("does not separate them.")
+    said = _choice([0.02], {"triangles": [below], "splats": [above], "tie": [below]})
+    assert said.endswith("drawn that way.") and f"between {below:.3f} and {above:.3f} (" in said
+    assert _choice([0.02], {"triangles": [above], "splats": [above], "tie": []}).endswith("does not separate them.")
+    assert _choice([], {"triangles": [], "splats": [below], "tie": []}).endswith("does not separate them.")
+
+
+def test_soft_shadow_parts_name_how_their_splats_were_drawn():
+    """bench.soft_shadows' stale-run check: a part saved before the splat rule
+    (no splat_raster_min), with another rule, with the compute rasteriser's
+    predecessors or without splats is told apart from one timed as now."""
+    from bench.soft_shadows import SPLAT_RASTER, _splat_raster_key
+    from gl_passes.shadows import SPLAT_RASTER_MIN
+
+    def key(**args: object) -> str:
+        return _splat_raster_key({"args": {"quad_splats": True, **args}})
+
+    assert key(splat_raster="compute", splat_raster_min=SPLAT_RASTER_MIN) == SPLAT_RASTER
+    assert key(splat_raster="compute") == "compute in every batch"
+    assert key(splat_raster="compute", splat_raster_min=0.5) == "compute from 0.5 splats per texel"
+    assert key() == "point sprites"
+    assert _splat_raster_key({"args": {"quad_splats": False}}) == "triangles"

@@ -228,6 +228,12 @@ def test_too_few_splats_per_texel_are_drawn_as_triangles(gl):
         as_tris.release()
         as_splats.release()
     assert np.array_equal(atlas["above"], atlas["triangles"])
+    # a partial batch pays for the tile rows it fills: 5 maps of a 4 × 4 atlas fill 2 rows (8 tiles)
+    with SoftShadowPass(gl, ShadowSettings(samples=4, shadow_map_resolution=128)) as sp:
+        assert sp.splat_raster.rows(5) == 2 and sp.splat_raster.rows(16) == 4
+        # splats × 5 ≥ 0.625 × 8 × 128²  ⇔  splats ≥ 128²
+        assert sp.splat_raster.pays(128**2, 5, 0.625) and not sp.splat_raster.pays(128**2 - 1, 5, 0.625)
+        assert not sp.splat_raster.pays(0, 16, 0.0)
     covered = atlas["triangles"] < 1.0
     assert covered.sum() > 1000 and ((atlas["at"] < 1.0) != covered).sum() <= 0.01 * covered.sum()
     with pytest.raises(ValueError, match="splat_raster_min"):
@@ -245,6 +251,8 @@ def test_splats_of_an_unresolved_batch_do_not_reach_the_next(gl):
             maps = sp.render_maps([mesh], BOUNDS, LIGHT)  # draws, resolves: the image is made and empty again
             maps.release()
             raster, light_vp = sp.splat_raster, np.eye(4, dtype=np.float32).tobytes() * 16
+            gl.ctx.memory_barrier()
+            assert (np.frombuffer(raster.image.read(), np.uint32) == 0xFFFFFFFF).all()  # emptied by the resolve
             raster.begin(light_vp, 16)
             raster.draw(mesh.splats)  # ... and no resolve
             for drawn in (False, True):
@@ -255,6 +263,7 @@ def test_splats_of_an_unresolved_batch_do_not_reach_the_next(gl):
                 sp.fbo.clear(depth=1.0)
                 with sp._map_state(tiles=False):
                     raster.resolve(sp.fbo)
+                assert sp.fbo.viewport == (0, 0, *sp.fbo.size)  # the resolve's tile rows, then restored
                 depth = np.frombuffer(sp.atlas.read(), np.float32)
                 assert (depth < 1.0).any() == drawn, drawn
     finally:
