@@ -153,19 +153,22 @@ def time_once(fn: Callable[[], Any], sync: Callable[[], Any] | None = None) -> f
 
 
 def time_side_by_side(fns: Mapping[str, Callable[[], Any]], repeat: int = 10, warmup: int = 2,
-                      sync: Callable[[], Any] | None = None) -> dict[str, Timing]:
+                      sync: Callable[[], Any] | None = None, rotate: bool = False) -> dict[str, Timing]:
     """Time several functions in one run, interleaved round by round (so load
     changes on a shared machine hit all of them alike): `warmup` untimed rounds,
-    then `repeat` timed rounds. Returns name → Timing (use the median)."""
+    then `repeat` timed rounds; rotate: the order turns by one each timed round (no
+    function always runs after the same other). Returns name → Timing (use the median)."""
     for _ in range(warmup):
         for fn in fns.values():
             fn()
     if sync:
         sync()
     out = {name: Timing([]) for name in fns}
-    for _ in range(repeat):
-        for name, fn in fns.items():
-            out[name].samples_ms.append(time_once(fn, sync))
+    names = list(fns)
+    for rnd in range(repeat):
+        turn = rnd % len(names) if rotate and names else 0
+        for name in names[turn:] + names[:turn]:
+            out[name].samples_ms.append(time_once(fns[name], sync))
     return out
 
 

@@ -24,13 +24,12 @@ pays above some splats × maps per resolved texel: `ShadowSettings.splat_raster_
 from __future__ import annotations
 
 import argparse
-import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from bench.common import md_table, measure_with_gl, progress, report_head, write_json, write_text
+from bench.common import md_table, measure_with_gl, progress, report_head, time_side_by_side, write_json, write_text
 from gl_passes.mesh_gpu import MeshGPU, pack_vertices
 from gl_passes.reconstruction import ReconstructionSettings, reconstruct_set, render_set
 from gl_passes.shadows import SPLAT_RASTER_MIN, ShadowSettings, SoftShadowPass
@@ -87,20 +86,13 @@ def timed_maps(gl: Any, meshes: list[MeshGPU], scene: Any, k: int, repeat: int, 
     light = default_area_light(scene.bounds, scene.sun_direction)
     passes = {w: SoftShadowPass(gl, ShadowSettings(samples=k, shadow_map_resolution=MAP_RES,
                                                    splat_raster_min=WAYS[w])) for w in ways}
-    best = dict.fromkeys(ways, float("inf"))
     try:
-        for rnd in range(repeat + 1):
-            for w in ways[rnd % len(ways):] + ways[:rnd % len(ways)]:
-                gl.ctx.finish()
-                t0 = time.perf_counter()
-                passes[w].render_maps(meshes, scene.bounds, light).release()
-                gl.ctx.finish()
-                if rnd:
-                    best[w] = min(best[w], time.perf_counter() - t0)
+        fns = {w: (lambda sp=sp: sp.render_maps(meshes, scene.bounds, light).release()) for w, sp in passes.items()}
+        times = time_side_by_side(fns, repeat=repeat, warmup=1, sync=gl.ctx.finish, rotate=True)
     finally:
         for sp in passes.values():
             sp.release()
-    return best
+    return {w: t.min_ms / 1e3 for w, t in times.items()}
 
 
 def sweep(gl: Any, res: int, sides: str, counts: tuple[int, ...], repeat: int, show: bool

@@ -907,3 +907,18 @@ def test_soft_shadow_parts_name_how_their_splats_were_drawn():
     assert key(splat_raster="compute", splat_raster_min=0.5) == "compute from 0.5 splats per texel"
     assert key() == "point sprites"
     assert _splat_raster_key({"args": {"quad_splats": False}}) == "triangles"
+
+
+def test_time_side_by_side_turns_the_order_each_round():
+    """bench.common.time_side_by_side: warm-up rounds in the given order, then with
+    rotate=True timed round r starts at function r mod n; without, always the given order."""
+    from bench.common import time_side_by_side
+
+    calls: list[str] = []
+    fns = {name: (lambda name=name: calls.append(name)) for name in "abc"}
+    times = time_side_by_side(fns, repeat=4, warmup=1, rotate=True)
+    assert "".join(calls) == "abc" + "abc" + "bca" + "cab" + "abc"
+    assert all(len(t.samples_ms) == 4 for t in times.values())
+    calls.clear()
+    time_side_by_side(fns, repeat=2, warmup=0)
+    assert "".join(calls) == "abcabc"
