@@ -10,8 +10,9 @@
 * Hybrid reconstruction (Alg. 4): every sample of I becomes two triangles over
   its pixel. Corner c comes from H where H's sample at c lies on the sample's
   surface (same triangle id, or within `plane_tolerance` pixel footprints of the
-  sample's tangent plane and — the depth gate — within the corner clamp's depth
-  of the sample), as a vertex shared by every sample taking it (indexed mesh: a
+  sample's tangent plane and — the depth gate — its depth within 2 ·
+  `max_corner_extent` footprints per half pixel between them of the sample's:
+  same_surface in reconstruct_common.glsl), as a vertex shared by every sample taking it (indexed mesh: a
   continuous surface gives a watertight mesh); otherwise it is the intersection
   of c's camera ray with the sample's tangent plane, with its depth clamped to ±
   `max_corner_extent` pixel footprints of the sample's (grazing planes; Alg. 4
@@ -114,7 +115,8 @@ class ReconstructionSettings:
     tangent plane is on its surface. max_corner_extent: grazing clamp of a
     tangent-plane corner's depth, in pixel footprints (see the module docstring).
     depth_gate: a neighbour of another triangle is on the surface only within
-    max_corner_extent footprints of the sample's depth as well. join_corners:
+    2 · max_corner_extent footprints per half pixel of separation of the sample's
+    depth as well (reconstruct_common.glsl, same_surface). join_corners:
     same-surface neighbours share their tangent-plane corners. evidence: corners
     are pulled in where an earlier image of the set saw past them, judged with
     evidence_tolerance of that image's pixel footprints (see the module docstring).
@@ -126,8 +128,9 @@ class ReconstructionSettings:
     faster). quad_splats: the triangles of the mesh's small pieces (at most
     `quad_splats.SPLAT_PIECE` triangles, each splat at most `SPLAT_PIXELS` across)
     are put last and drawn as splats in shadow maps (`gl_passes.quad_splats`: the
-    same texels and depths, one vertex and one point per quad or lone triangle;
-    the mesh, its export and its triangle count are the same). evidence_pull: the
+    same texels and depths, one compute invocation per quad or lone triangle and
+    map, where `ShadowSettings.splat_raster_min` says it pays; the mesh, its export
+    and its triangle count are the same). evidence_pull: the
     share of the evidence rule's move a corner makes (1: to the expected edge, 0:
     none; a diagnostic, the gap tables). offset_quads:
     a diagnostic (tried, not kept; the soft-shadow report's gap tables): > 0, an H

@@ -78,6 +78,8 @@ LOOKUP_UNITS = Units(storage=("points", "normals", "bits"), textures=("depth",))
 #: where as splats (bench.splat_raster).
 SPLAT_RASTER_MIN = 0.05
 STEPS = ("upload", "shadow_maps", "lookup", "readback")  # ShadowResult.timings_ms
+#: Most light samples per side: ShadowResult.counts (0..k²) is uint16.
+MAX_SAMPLES = 255
 
 
 @dataclass(frozen=True)
@@ -91,7 +93,7 @@ class ShadowSettings:
     depth_slope: more tolerance per unit tan t (t: the angle between the receiver's
     normal and the direction to the light sample), in texels.
     maps_per_draw: shadow maps rendered per draw call (instanced into a square
-    atlas of ceil(√maps_per_draw)² tiles); 1 = one draw per map.
+    atlas of ceil(√min(maps_per_draw, k²))² tiles); 1 = one draw per map.
     splat_raster_min: a batch's splats (`MeshGPU.splats`) go through the compute
     rasteriser when splats × maps are at least this many per texel of the atlas's
     tile rows the batch fills (`SplatRaster.pays`), else they are drawn as the
@@ -110,6 +112,8 @@ class ShadowSettings:
     def __post_init__(self) -> None:
         if self.samples < 1 or self.shadow_map_resolution < 1 or self.maps_per_draw < 1:
             raise ValueError("samples, shadow_map_resolution and maps_per_draw must be ≥ 1")
+        if self.samples > MAX_SAMPLES:
+            raise ValueError(f"samples must be ≤ {MAX_SAMPLES}: a pixel's count of visible samples is 16-bit")
         if not all(np.isfinite(x) for x in (self.normal_offset, self.depth_bias, self.depth_slope)):
             raise ValueError("normal_offset, depth_bias and depth_slope must be finite")
         if not self.splat_raster_min >= 0:
@@ -336,8 +340,9 @@ class SoftShadowPass(Releasable):
 
     @contextmanager
     def _map_state(self, tiles: bool = True) -> Iterator[None]:
-        """Depth test, no culling, depth clamp and (tiles, for shaders that write
-        them) the tile clip distances while shadow maps are drawn; restored afterwards."""
+        """Depth test ("<"), no culling, depth clamp and (tiles, for shaders that write
+        them) the tile clip distances while shadow maps are drawn; afterwards the depth
+        test, depth clamp and clip distances are off (as every pass leaves them)."""
         ctx = self.gl.ctx
         clips = [GL_CLIP_DISTANCE0 + i for i in range(N_CLIP_DISTANCES)] if self.batch > 1 and tiles else []
         ctx.enable(moderngl.DEPTH_TEST)
@@ -467,7 +472,11 @@ class SoftShadowPass(Releasable):
                 atlas, fbo = self._new_atlas()
                 maps.atlases.append(atlas)
                 with Scratch() as temp:
-                    self._render_maps(occluders, cams, first, count, temp(fbo))
+                    temp(fbo)
+                    try:
+                        self._render_maps(occluders, cams, first, count, fbo)
+                    finally:
+                        self.fbo.use()  # not the framebuffer released here: moderngl would bind it again
             return maps
 
     def lookup(self, maps: ShadowMaps, points: np.ndarray, normals: np.ndarray, mask: np.ndarray) -> ShadowResult:

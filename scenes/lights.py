@@ -39,12 +39,17 @@ def default_area_light(bounds: tuple[np.ndarray, np.ndarray], sun: tuple[float, 
 MIN_LIGHT_SINE = 1e-6
 
 
-def _unit_cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """u/|u| × v/|v|, with each edge first scaled by its largest component, so that
-    no length under- or overflows (edges of 1e-170 or 1e300 world units)."""
+def _unit(x: np.ndarray) -> np.ndarray:
+    """x/|x|, with x first scaled by its largest component, so that its length does not
+    under- or overflow (edges of 1e-170 or 1e300 world units)."""
     with np.errstate(invalid="ignore", divide="ignore"):
-        a, b = (x / np.abs(x).max() for x in (np.asarray(u, np.float64), np.asarray(v, np.float64)))
-        return np.cross(a / np.linalg.norm(a), b / np.linalg.norm(b))
+        a = np.asarray(x, np.float64) / np.abs(x).max()
+        return a / np.linalg.norm(a)
+
+
+def _unit_cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """u/|u| × v/|v| (`_unit`)."""
+    return np.cross(_unit(u), _unit(v))
 
 
 def light_sine(u: Sequence[float], v: Sequence[float]) -> float:
@@ -61,6 +66,29 @@ def light_normal(light: AreaLight) -> np.ndarray:
         raise ValueError("light u and v must be non-zero and not parallel")
     n = _unit_cross(np.asarray(light.u), np.asarray(light.v))
     return n / np.linalg.norm(n)
+
+
+#: Farthest a light's centre may lie from the scene box's centre, and longest either of
+#: its edges may be, in box diagonals, for the shadow maps and depth images of Alg. 5
+#: (`light_reach_problem`): they render in float32, and their error against the Embree
+#: truth grows with the distance, until (within 10⁶ diagonals) the shadows are gone:
+#: bench/results/shadow_light_reach.md.
+MAX_LIGHT_REACH = 1000.0
+
+
+def light_reach_problem(light: AreaLight, bounds: tuple[np.ndarray, np.ndarray]) -> str | None:
+    """Why `light` is too far from or too large for the box `bounds` for its shadow maps
+    and depth images (more than MAX_LIGHT_REACH box diagonals), or None."""
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
+    diag = float(np.linalg.norm(hi - lo)) or 1.0
+    far = float(np.linalg.norm(np.asarray(light.center, np.float64) - (lo + hi) / 2)) / diag
+    edge = max(float(np.linalg.norm(np.asarray(e, np.float64))) for e in (light.u, light.v)) / diag
+    if not far <= MAX_LIGHT_REACH:
+        return (f"the light's centre lies {far:.3g} scene diagonals from the scene's centre "
+                f"(at most {MAX_LIGHT_REACH:g})")
+    if not edge <= MAX_LIGHT_REACH:
+        return f"a light edge is {edge:.3g} scene diagonals long (at most {MAX_LIGHT_REACH:g})"
+    return None
 
 
 def light_diagonal(light: AreaLight) -> float:
@@ -81,10 +109,14 @@ def light_camera(light: AreaLight, eye: np.ndarray, bounds: tuple[np.ndarray, np
     to the box. aim = "light": looking along the light's −normal (the shadow maps);
     "scene": looking at the box centre (the reference images from the light's
     corners / centre, `reference_cameras`). Either way the light's v edge is the
-    image's up, and the box must lie in front of the light's plane (ValueError)."""
+    image's up; the box must lie in front of the light's plane, the light within
+    MAX_LIGHT_REACH of it (ValueError)."""
     if aim not in AIMS:
         raise ValueError(f"aim must be one of {AIMS}, got {aim!r}")
     lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
+    problem = light_reach_problem(light, (lo, hi))
+    if problem is not None:
+        raise ValueError(problem)
     e = np.asarray(eye, dtype=np.float64)
     d = box_corners((lo, hi)) - e
     fwd = -light_normal(light)
@@ -96,8 +128,9 @@ def light_camera(light: AreaLight, eye: np.ndarray, bounds: tuple[np.ndarray, np
         centre = centre / np.linalg.norm(centre)
         if np.all(d @ centre > 0):  # else (a light grazing the box) the box is not in front of that axis
             fwd = centre
+            up = _unit(up)
             up = up - fwd * (up @ fwd)  # v made orthogonal to the view axis (it is for "light")
-    up = up / np.linalg.norm(up)
+    up = _unit(up)
     right = np.cross(fwd, up)
     z = d @ fwd
     t = max(float(np.max(np.abs(d @ right) / z)), float(np.max(np.abs(d @ up) / z))) * margin

@@ -9,7 +9,6 @@ caller checks the size limits and the memory budget first.
 
 from __future__ import annotations
 
-import functools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -18,7 +17,7 @@ import numpy as np
 from fastapi import HTTPException
 
 from scenes.camera import Camera
-from scenes.lights import reference_cameras, shadow_map_camera
+from scenes.lights import light_reach_problem
 from scenes.model import AreaLight, Scene
 from service.deps import Render
 from service.effects import encode_reflections
@@ -27,6 +26,7 @@ from service.schemas import FrameRequest
 from service.soft_shadows import (
     SoftShadowRequest,
     encode_shadowed,
+    light_problem_message,
     resolve_light,
     shade,
 )
@@ -72,31 +72,12 @@ async def _soft_shadows(r: Render, scene_id: str, scene: Scene, camera: Camera, 
     light = resolve_light(scene, None if spec.light is None else
                           AreaLight(spec.light.center, spec.light.u, spec.light.v))
     ss = SoftShadowRequest(light, spec.samples, spec.method, spec.reconstruction, spec.resolution, spec.sides)
-    if spec.method != "raytrace":  # shadow maps and depth images: the light sees the whole scene box (422)
-        lo, hi = (tuple(float(x) for x in b) for b in scene.bounds)
-        key = tuple(tuple(float(x) for x in getattr(light, f)) for f in ("center", "u", "v"))
-        problem = await r.cpu(_shadow_light_problem, key, spec.samples, lo, hi)
+    if spec.method != "raytrace":  # the rest of the light's check runs in the job (`shadow_light_problem`)
+        problem = light_reach_problem(light, scene.bounds)
         if problem is not None:
-            raise HTTPException(422, f"soft_shadows light: {problem}; its shadow maps and depth images need the "
-                                     "scene in front of it, within a pinhole's view (method raytrace does not)")
+            raise HTTPException(422, light_problem_message(problem))
     gbuf, counts, steps, hits = await r.job(SoftShadowJob(scene_id, scene, camera, ss, req.cull_back_faces), label)
     t0 = time.perf_counter()
     color = await r.cpu(shade, scene, gbuf, counts, ss)
     return Rendered(color, lambda fmt: encode_shadowed(color, gbuf, counts, fmt),
                     {**steps, "shade": (time.perf_counter() - t0) * 1e3}, hits)
-
-
-@functools.lru_cache(maxsize=256)
-def _shadow_light_problem(light: tuple, samples: int, lo: tuple, hi: tuple) -> str | None:
-    """Why the light (centre, u, v) cannot be rendered by shadow maps and depth images
-    of the box (lo, hi) with samples² light samples, or None (cached: a stream or a
-    series of frames asks the same again; up to 1024 cameras to build)."""
-    area = AreaLight(*light)
-    bounds = (np.asarray(lo), np.asarray(hi))
-    try:
-        reference_cameras(area, bounds, "conventional", 16)
-        for sample in area.samples(samples):
-            shadow_map_camera(area, sample, bounds, 16)
-    except ValueError as exc:
-        return str(exc)
-    return None

@@ -50,7 +50,13 @@ from scenes.lights import PEEL_LAYERS, reference_cameras
 from scenes.model import Scene
 from service.depth_sets import SetPlan, embree_set, needs_gl, set_metrics
 from service.effects import raytrace_cached
-from service.soft_shadows import MeshArrays, SoftShadowRequest, raytrace_counts
+from service.soft_shadows import (
+    MeshArrays,
+    SoftShadowRequest,
+    light_problem_message,
+    raytrace_counts,
+    shadow_light_problem,
+)
 from service.worker import GLState
 
 T = TypeVar("T")
@@ -167,7 +173,9 @@ class SoftShadowJob(SceneJob):
     on the light and the occluders only: where all k² of them fit the worker's
     `reconstruction_cache_bytes` they are kept (`GLState.kept`) and the next frame
     under the same light only looks them up; otherwise they are drawn batch by batch
-    (`SoftShadowPass.visibility`), over a reconstruction kept where it fits."""
+    (`SoftShadowPass.visibility`), over a reconstruction kept where it fits. A light
+    the shadow maps cannot render (`shadow_light_problem`) is a ValueError (422)
+    before the G-buffer."""
 
     scene_key: str
     scene: Scene | None
@@ -181,6 +189,9 @@ class SoftShadowJob(SceneJob):
         earlier frame: a cache hit) and lookup; occluders_maps_lookup where the maps are
         drawn batch by batch."""
         scene, req = self.load(state), self.req
+        problem = None if req.method == "raytrace" else shadow_light_problem(req.light, req.samples, scene.bounds)
+        if problem is not None:
+            raise ValueError(light_problem_message(problem))  # 422
         clock = LapClock(state.gl.ctx)
         gpu = state.scene_gpu(self.scene_key, scene)
         gbuf = state.gbuffer.render(gpu, self.camera, cull_back_faces=self.cull_back_faces)

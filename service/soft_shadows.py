@@ -12,13 +12,14 @@ The settings are the benchmark's (`bench/soft_shadows.py`):
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from reference.shadows import light_visibility, visible_counts
-from scenes.lights import default_area_light
+from scenes.lights import default_area_light, reference_cameras, shadow_map_camera
 from scenes.model import AreaLight, Scene
 from scenes.shading import area_light_shade
 from service import image_io
@@ -44,6 +45,34 @@ class SoftShadowRequest:
 def resolve_light(scene: Scene, light: AreaLight | None) -> AreaLight:
     """The request's light, or the default one sized to the scene (diagonal = scene diagonal)."""
     return light if light is not None else default_area_light(scene.bounds, scene.sun_direction)
+
+
+def light_problem_message(problem: str) -> str:
+    """The 422 detail for a soft-shadow light the shadow-map methods cannot render."""
+    return (f"soft_shadows light: {problem}; its shadow maps and depth images need the scene in front of it, "
+            "within a pinhole's view and MAX_LIGHT_REACH scene diagonals (method raytrace does not)")
+
+
+def shadow_light_problem(light: AreaLight, samples: int, bounds: tuple[np.ndarray, np.ndarray]) -> str | None:
+    """Why `light` cannot be rendered by shadow maps (samples² of them) and depth images
+    of the box `bounds` (`scenes.lights.light_camera`'s ValueError), or None. Up to 1024
+    cameras to build: `SoftShadowJob` asks it on the worker, before the G-buffer; cached
+    per light, as a stream or a series of frames asks the same again."""
+    key = tuple(tuple(float(x) for x in getattr(light, f)) for f in ("center", "u", "v"))
+    return _light_problem(key, samples, *(tuple(float(x) for x in b) for b in bounds))
+
+
+@functools.lru_cache(maxsize=256)
+def _light_problem(light: tuple, samples: int, lo: tuple, hi: tuple) -> str | None:
+    area = AreaLight(*light)
+    box = (np.asarray(lo), np.asarray(hi))
+    try:
+        reference_cameras(area, box, "conventional", 16)
+        for sample in area.samples(samples):
+            shadow_map_camera(area, sample, box, 16)
+    except ValueError as exc:
+        return str(exc)
+    return None
 
 
 def raytrace_counts(scene_key: str, scene: Scene, gbuf: Any, req: SoftShadowRequest) -> np.ndarray:

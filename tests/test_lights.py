@@ -9,10 +9,12 @@ import pytest
 
 from scenes.lights import (
     AXIS_FOV_MAX,
+    MAX_LIGHT_REACH,
     SHADOW_MAP_FOV_MAX,
     default_area_light,
     light_camera,
     light_normal,
+    light_reach_problem,
     reference_cameras,
     shadow_map_camera,
 )
@@ -104,3 +106,35 @@ def test_shadow_maps_look_along_the_axis_unless_that_is_too_wide():
     with pytest.raises(ValueError, match=rf"sees the scene box across 1\d\d\.\d° \(a shadow map covers at most "
                                          rf"{SHADOW_MAP_FOV_MAX:g}°\)"):
         shadow_map_camera(grazing, grazing.samples(2)[0], BOUNDS, 64)
+
+
+def test_a_light_beyond_the_reach_of_float32_maps_is_refused():
+    """BOUNDS' diagonal is √8.25 (2 × 0.5 × 2): a light whose centre lies more than
+    MAX_LIGHT_REACH × √8.25 from the box centre, or with an edge longer than that, is
+    refused by every light camera, naming the distance in scene diagonals."""
+    centre = (LO + HI) / 2
+    reach = MAX_LIGHT_REACH * np.sqrt(8.25)
+    inside = AreaLight(tuple(centre + [0.0, reach * 0.999, 0.0]), (0.0, 0.0, 1.0), (1.0, 0.0, 0.0))
+    beyond = AreaLight(tuple(centre + [0.0, reach * 1.001, 0.0]), (0.0, 0.0, 1.0), (1.0, 0.0, 0.0))
+    wide = AreaLight((0.0, 3.0, 0.0), (0.0, 0.0, reach * 1.001), (1.0, 0.0, 0.0))
+    assert light_reach_problem(inside, BOUNDS) is None
+    assert light_reach_problem(beyond, BOUNDS) == (
+        f"the light's centre lies {MAX_LIGHT_REACH * 1.001:.3g} scene diagonals from the scene's centre "
+        f"(at most {MAX_LIGHT_REACH:g})")
+    assert light_reach_problem(wide, BOUNDS) == (
+        f"a light edge is {MAX_LIGHT_REACH * 1.001:.3g} scene diagonals long (at most {MAX_LIGHT_REACH:g})")
+    assert shadow_map_camera(inside, inside.samples(2)[0], BOUNDS, 64).fov > 0
+    for light in (beyond, wide):
+        with pytest.raises(ValueError, match="scene diagonals"):
+            shadow_map_camera(light, light.samples(2)[0], BOUNDS, 64)
+        with pytest.raises(ValueError, match="scene diagonals"):
+            reference_cameras(light, BOUNDS, "conventional", 64)
+
+
+@pytest.mark.parametrize("aim", ["scene", "light"])
+def test_a_tiny_light_has_finite_cameras(aim):
+    """Edges of 1e-200 (their squared lengths underflow to 0): the light's v edge still
+    gives the cameras' up (it used to be NaN)."""
+    tiny = AreaLight((0.2, 3.0, 0.1), (0.0, 0.0, 1e-200), (1e-200, 0.0, 0.0))  # u × v = +Y: emits −Y
+    cam = light_camera(tiny, np.asarray(tiny.center), BOUNDS, 64, aim=aim)
+    assert np.isfinite(cam.basis()).all() and np.allclose(cam.basis()[1] @ [1.0, 0.0, 0.0], 1.0, atol=0.2)

@@ -16,7 +16,7 @@ from gl_passes.quad_splats import SplatRaster
 from gl_passes.shadows import ShadowSettings
 from scenes.builtin import make_builtin
 from scenes.camera import look_at_scene
-from scenes.lights import default_area_light, reference_cameras
+from scenes.lights import MAX_LIGHT_REACH, default_area_light, reference_cameras
 from service import image_io, jobs
 from service.image_check import Comparison, assert_images_close, compare_images
 from tests.helpers import frame_camera, service_client
@@ -292,6 +292,10 @@ def test_soft_shadow_frames_name_their_steps_and_the_maps_cache(client):
     ({"bias": 3}, "bias"),
     ({"sides": "back"}, "sides"),
     ({"sides": True}, "sides"),
+    ({"resolution": 15}, "resolution"),
+    ({"resolution": 2049}, "resolution"),
+    ({"light": {"center": [0, 2e6, 0], "u": [1, 0, 0], "v": [0, 0, -1]}}, "scene diagonals"),  # city: 1282 across
+    ({"light": {"center": [0, 2e3, 0], "u": [2e6, 0, 0], "v": [0, 0, -1]}}, "scene diagonals"),
 ])
 def test_bad_soft_shadow_requests_are_422(client, spec, needle):
     c, sid = client
@@ -329,6 +333,43 @@ def test_a_light_grazing_the_scene_box_is_for_raytrace_only(client):
     r = shadow_frame(c, sid, light=light, method="geometry")
     assert r.status_code == 422 and "sees the scene box across" in r.text and "method raytrace does not" in r.text
     assert visible(shadow_frame(c, sid, light=light, method="raytrace")).shape == (RES, RES)
+
+
+def sun_light(distance: float, size: float) -> dict:
+    """The city's default light moved to `distance` scene diagonals, its diagonal `size` of the scene's."""
+    scene = make_builtin(SCENE)
+    light = default_area_light(scene.bounds, scene.sun_direction, size=size, distance=distance)
+    return {f: [float(x) for x in getattr(light, f)] for f in ("center", "u", "v")}
+
+
+def test_a_light_far_away_renders_up_to_the_reach_of_the_maps(client):
+    """Shadow maps and depth images render in float32: a light 0.9 MAX_LIGHT_REACH
+    scene diagonals from the city (its shadows nearly hard) still agrees with the
+    Embree truth within GEOMETRY_BOUNDS; past the reach (where they break:
+    bench/results/shadow_light_reach.md) it is 422 naming the distance and raytrace,
+    which renders it."""
+    c, sid = client
+    near = sun_light(0.9 * MAX_LIGHT_REACH, 0.5)
+    geo, scene = close_frame(c, sid, method="geometry", light=near)
+    exact, _ = close_frame(c, sid, method="raytrace", light=near)
+    assert (exact[scene] == 0).mean() > 0.1 and (exact[scene] == SAMPLES).mean() > 0.1
+    assert_counts_close("far_light_geometry_vs_raytrace", geo, exact, scene, **GEOMETRY_BOUNDS)
+    assert_fully_lit_fails(exact, scene, **GEOMETRY_BOUNDS)
+    far = sun_light(1.1 * MAX_LIGHT_REACH, 0.5)
+    for method in ("geometry", "non_redundant"):
+        r = shadow_frame(c, sid, view=close_camera(), light=far, method=method)
+        assert r.status_code == 422 and "scene diagonals" in r.text and "method raytrace does not" in r.text, r.text
+    assert visible(shadow_frame(c, sid, view=close_camera(), light=far, method="raytrace")).shape == (RES, RES)
+
+
+def test_a_tiny_light_casts_hard_shadows(client):
+    """Edges of 1e-200 (squared, they underflow): every light sample is the same point,
+    so each pixel sees all 16 or none, by shadow maps as by Embree."""
+    c, sid = client
+    light = sun_light(1.5, 1e-200)
+    for method in ("geometry", "raytrace"):
+        counts, scene = close_frame(c, sid, method=method, light=light)
+        assert set(np.unique(counts[scene])) == {0, SAMPLES}, method
 
 
 def test_soft_shadows_and_reflections_together_are_422(client):
@@ -418,6 +459,13 @@ def test_a_reconstruction_that_sees_nothing_is_an_empty_glb(client):
     ({"method": "visibility"}, 422, "method"),
     ({"sides": "none"}, 422, "sides"),
     ({"light": {"center": [0, 5, 0], "u": [1, 0, 0], "v": [0, 0, 1]}}, 422, "in front of the light"),
+    ({"light": {"center": [0, 2e6, 0], "u": [1, 0, 0], "v": [0, 0, -1]}}, 422, "scene diagonals"),
+    ({"cameras": []}, 422, "cameras"),
+    ({"cameras": [{"eye": [3, 3, 3], "target": [0, 0, 0]}] * 17}, 422, "cameras"),
+    ({"method": "peeling", "layers": 0}, 422, "layers"),
+    ({"method": "peeling", "layers": 17}, 422, "layers"),
+    ({"resolution": 15}, 422, "resolution"),
+    ({"resolution": 2049}, 422, "resolution"),
 ])
 def test_bad_reconstruction_requests(client, body, status, needle):
     c, sid = client

@@ -25,7 +25,7 @@ import pytest
 
 from bench.shadow_bias import GRAZING_DEGREES, grazing_lit, grazing_wrong
 from gl_passes.mesh_gpu import MeshGPU
-from gl_passes.shadows import ShadowSettings, SoftShadowPass, popcount_words, shadow_cameras
+from gl_passes.shadows import MAX_SAMPLES, ShadowSettings, SoftShadowPass, popcount_words, shadow_cameras
 from gl_passes.upload import SceneGPU
 from reference.raycast import RayCaster
 from reference.shadows import box_visibility, light_visibility, shadow_errors
@@ -195,6 +195,24 @@ def test_kept_maps_give_the_bits_of_visibility(gl, box_setup, gbuffer_pass):
             sp.lookup(maps, buf.position, buf.normal, buf.tri_id > 0)
 
 
+def test_render_maps_leaves_no_released_framebuffer_bound(gl, box_setup):
+    """render_maps draws each batch into a framebuffer it then releases: moderngl must
+    not be left binding it, or the next pass's clear() before its use() rebinds a
+    deleted framebuffer (GL_INVALID_OPERATION)."""
+    scene, sg, _ = box_setup
+    with SoftShadowPass(gl, ShadowSettings(samples=2, shadow_map_resolution=32)) as sp:
+        sp.render_maps([sg], scene.bounds, LIGHT).release()
+        assert gl.ctx.error == "GL_NO_ERROR"
+        target = gl.ctx.depth_texture((8, 8))
+        fbo = gl.ctx.framebuffer(depth_attachment=target)
+        try:
+            fbo.clear(depth=1.0)
+            assert gl.ctx.error == "GL_NO_ERROR"
+        finally:
+            fbo.release()
+            target.release()
+
+
 @pytest.mark.parametrize("degrees", GRAZING_DEGREES)
 def test_grazing_plane_has_no_acne(gl, degrees):
     """A plane tilted about a diagonal of the maps (the worst case for texel
@@ -260,3 +278,10 @@ def test_no_gl_object_growth():
 
     before, after = gl_object_growth(State, lambda s, i: s.frame(i + 1), 5)
     assert before > 0 and after == before
+
+
+def test_settings_refuse_more_samples_than_a_count_holds():
+    """Counts are uint16: 255² = 65,025 visible samples fit, 256² = 65,536 do not."""
+    assert ShadowSettings(samples=MAX_SAMPLES).n_samples == 65_025
+    with pytest.raises(ValueError, match="16-bit"):
+        ShadowSettings(samples=MAX_SAMPLES + 1)

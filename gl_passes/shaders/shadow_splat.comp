@@ -63,8 +63,8 @@ void main() {
     vec2 hi = max(max(w[0].xy, w[1].xy), max(w[2].xy, w[3].xy));
     // the texel centres (x + 0.5, y + 0.5) in the box, within the tile (clamped as
     // floats: a corner near the eye's plane lies far outside any int)
-    ivec2 a = ivec2(max(ceil(lo - 0.5), vec2(0.0)));
-    ivec2 b = ivec2(min(floor(hi - 0.5), vec2(float(u_res - 1))));
+    ivec2 a = ivec2(clamp(ceil(lo - 0.5), vec2(0.0), vec2(float(u_res))));
+    ivec2 b = ivec2(clamp(floor(hi - 0.5), vec2(-1.0), vec2(float(u_res - 1))));
     ivec2 origin = ivec2(i % u_tiles, i / u_tiles) * u_res;
     vec2 d = w[1].xy - w[0].xy;
     Edges t0 = edges(d, w[2].xy - w[0].xy, vec3(w[0].z, w[1].z - w[0].z, w[2].z - w[0].z));
