@@ -917,7 +917,8 @@ def _offset_quads_sentence(gap: dict[str, Any], scenes: list[str]) -> str:
     return (" Quads of their own for the offset-image samples no pixel centre takes (gap table, half size "
             + " / ".join(f"{h:g}" for h in GAP_OFFSET_QUADS) + " px) move " + "; ".join(
                 f"{s}'s NR {cells(s, 'non_redundant')} and conventional {cells(s, 'conventional')}" for s in scenes)
-            + ": small quads help both a little, large ones add too dark; not kept.")
+            + ": small quads lower both sets' visibility error a little (not their intensity error), large ones "
+            "add too dark; not kept.")
 
 
 def reading(data: dict[str, dict[str, Any]]) -> list[str]:
@@ -1019,7 +1020,7 @@ def reading(data: dict[str, dict[str, Any]]) -> list[str]:
                                 f"{cv_st[s]['too_bright_mean']:.3f}" for s in lost)
                     + "). Footprint redundancy (whole pixel, diagnostic table) closes those holes (too bright "
                     + ", ".join(f"{s} → {wide[s]['too_bright_mean']:.3f}" for s in lost)
-                    + ") but its straddling pixels' whole-pixel quads add as much too dark (intensity · "
+                    + ") but its straddling pixels' whole-pixel quads add more too dark than that (intensity · "
                     "visibility " + ", ".join(f"{s} {_iv(nr_st[s])} → {_iv(wide[s])}, conventional "
                                               f"{_iv(cv_st[s])}" for s in lost)
                     + "): NR and conventional images trade one error for the other; not kept."

@@ -37,7 +37,7 @@ import numpy as np
 from gl_passes.bindings import Units
 from gl_passes.context import GLContext
 from gl_passes.readback import read_texture
-from gl_passes.releasable import Releasable
+from gl_passes.releasable import Releasable, release_framebuffer
 from gl_passes.shaders import program
 from gl_passes.uniforms import set_camera, set_uniform
 from gl_passes.upload import SceneGPU
@@ -99,7 +99,7 @@ class _SizeTargets:
 
     def release(self) -> None:
         for depth, tri, fbo in self.slots:
-            fbo.release()
+            release_framebuffer(fbo)
             depth.release()
             tri.release()
         self.slots.clear()

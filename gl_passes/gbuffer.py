@@ -13,7 +13,7 @@ import numpy as np
 
 from gl_passes.context import GLContext
 from gl_passes.readback import read_texture
-from gl_passes.releasable import Releasable
+from gl_passes.releasable import Releasable, release_framebuffer
 from gl_passes.shaders import program
 from gl_passes.uniforms import set_camera
 from gl_passes.upload import SceneGPU
@@ -41,7 +41,7 @@ class RenderTarget:
         self.fbo = ctx.framebuffer([self.textures[n] for n, _, _ in _ATTACHMENTS], self.depth)
 
     def release(self) -> None:
-        self.fbo.release()
+        release_framebuffer(self.fbo)
         self.depth.release()
         for t in self.textures.values():
             t.release()

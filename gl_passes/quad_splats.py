@@ -24,8 +24,9 @@ SPLAT_PIECE triangles are matched in pairs that share an edge (quads); a triangl
 left over is a splat on its own (its corners a, b, c, c). Only splats at most
 SPLAT_PIXELS across in the capturing image are made, which keeps every splat a
 few texels across in a shadow map of the same order of resolution (the compute
-pass loops over the texels of its box). SPLAT_PIECE is the bench's choice
-(bench/results/soft_shadows.md, Fig. 20).
+pass loops over the texels of its box). SPLAT_PIECE is set by hand, not swept: the
+reconstructions' lone samples and small clusters fall below it, their large
+continuous patches far above (Fig. 20 reports the share of triangles drawn as splats).
 """
 
 from __future__ import annotations

@@ -61,8 +61,9 @@
 Meshes are `MeshGPU`s (positions in world units, linear vertex colours
 quantised to RGBA8), triangles counter-clockwise as seen from the capturing
 camera, vertices in first-use order (`fetch_order`: the compute passes append
-in whatever order their invocations run, which a vertex-bound rasteriser pays
-for). `export_glb` writes one node per source image.
+in whatever order their invocations run; its effect on a vertex-bound
+rasteriser's shadow maps is measured in Fig. 20). `export_glb` writes one node
+per source image.
 """
 
 from __future__ import annotations
@@ -124,8 +125,8 @@ class ReconstructionSettings:
     across it and footprints at the median depth along it (`image_space`).
     compact_measure: "image" (that) or "world" (a diagnostic, the measure before:
     world units, compact_error footprints at the median depth in every direction).
-    fetch_order: vertices in first-use order (`fetch_order`; the same mesh, drawn
-    faster). quad_splats: the triangles of the mesh's small pieces (at most
+    fetch_order: vertices in first-use order (`fetch_order`; the same mesh; its
+    speed: Fig. 20). quad_splats: the triangles of the mesh's small pieces (at most
     `quad_splats.SPLAT_PIECE` triangles, each splat at most `SPLAT_PIXELS` across)
     are put last and drawn as splats in shadow maps (`gl_passes.quad_splats`: the
     same texels and depths, one compute invocation per quad or lone triangle and
@@ -430,7 +431,7 @@ def fetch_order(records: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, n
     vertex-fetch optimisation): (N',4) records and the remapped indices, flat.
     The compute passes append vertices and triangles in whatever order their
     invocations run, and llvmpipe shades an indexed draw's vertices in batches of
-    nearby indices (bench/results/soft_shadows.md, Fig. 20)."""
+    nearby indices (the effect on shadow maps: bench/results/soft_shadows.md, Fig. 20)."""
     idx = np.array(indices, np.uint32).ravel()  # a copy: remapped in place
     src = np.ascontiguousarray(records, np.float32)
     out = np.empty_like(src)

@@ -27,7 +27,7 @@ from gl_passes.best_match import set_kf_uniforms
 from gl_passes.context import GLContext
 from gl_passes.keyframe import REUSE_UNITS, KeyframeTextures
 from gl_passes.readback import read_texture
-from gl_passes.releasable import Releasable
+from gl_passes.releasable import Releasable, release_gl
 from gl_passes.shaders import program
 from gl_passes.uniforms import set_uniform
 
@@ -151,7 +151,7 @@ class ReflectionOffsetPass(Releasable):
     def _free(self) -> None:
         for obj in (self._fbo, self._depth, self.inter):
             if obj is not None:
-                obj.release()
+                release_gl(obj)
         self._fbo = self._depth = self.inter = None
         self.size = None
 

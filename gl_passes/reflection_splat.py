@@ -29,7 +29,7 @@ from gl_passes.best_match import set_kf_uniforms
 from gl_passes.context import GLContext
 from gl_passes.keyframe import REUSE_UNITS, KeyframeTextures
 from gl_passes.reflection_offset import POINT_BIAS, UNCOVERED
-from gl_passes.releasable import Releasable
+from gl_passes.releasable import Releasable, release_gl
 from gl_passes.shaders import compute_program
 from gl_passes.uniforms import set_uniform
 
@@ -122,7 +122,7 @@ class ReflectionSplatPass(Releasable):
     def _free(self) -> None:
         for obj in (self._fbo, self.grid, self.zbuf, self.inter):
             if obj is not None:
-                obj.release()
+                release_gl(obj)
         self._fbo = self.grid = self.zbuf = self.inter = None
         self.size = None
 

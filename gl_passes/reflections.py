@@ -121,7 +121,7 @@ from gl_passes.gbuffer import GBufferPass
 from gl_passes.laps import LapClock
 from gl_passes.lod import lod_faces
 from gl_passes.readback import read_planes, read_texture
-from gl_passes.releasable import Releasable, grown_buffer
+from gl_passes.releasable import Releasable, grown_buffer, release_framebuffer
 from gl_passes.shaders import compute_program, program
 from gl_passes.uniforms import set_uniform
 from gl_passes.upload import SceneGPU
@@ -345,10 +345,10 @@ class ClusterReflections(Releasable):
 
     def _release_atlas(self) -> None:
         for fbo, depth in self._atlas:
-            fbo.release()
+            release_framebuffer(fbo)
             depth.release()
         if self._atlas:
-            self._pack_fbo.release()
+            release_framebuffer(self._pack_fbo)
             for tex in (self._pack, self._colour_pack, *self._owns):
                 tex.release()
         self._atlas, self._owns = [], []

@@ -38,6 +38,30 @@ class Releasable:
         self.release()
 
 
+def release_framebuffer(fbo: moderngl.Framebuffer) -> None:
+    """Release `fbo`, binding the default framebuffer first where `fbo` is moderngl's
+    current one: moderngl binds its current framebuffer again after it makes a
+    framebuffer or clears or reads another, and binding a deleted one is
+    GL_INVALID_OPERATION."""
+    ctx = fbo.ctx
+    if ctx.fbo is fbo:
+        if not isinstance(ctx.extra, dict):
+            ctx.extra = {}
+        default = ctx.extra.get("default_framebuffer")
+        if default is None:
+            default = ctx.extra["default_framebuffer"] = ctx.detect_framebuffer(0)
+        default.use()
+    fbo.release()
+
+
+def release_gl(obj: _HasRelease) -> None:
+    """obj.release(); a framebuffer through `release_framebuffer`."""
+    if isinstance(obj, moderngl.Framebuffer):
+        release_framebuffer(obj)
+    else:
+        obj.release()
+
+
 class Scratch:
     """The GL objects one step makes for itself: `with Scratch() as temp: tex =
     temp(ctx.texture(...))` releases everything passed to `temp` (last first) when
@@ -58,7 +82,7 @@ class Scratch:
 
     def _release_all(self) -> None:
         while self.objects:
-            self.objects.pop().release()
+            release_gl(self.objects.pop())
 
 
 class ReleasedOnError(Scratch):

@@ -59,7 +59,7 @@ from gl_passes.context import GLContext
 from gl_passes.laps import LapClock
 from gl_passes.quad_splats import QuadSplats, SplatRaster
 from gl_passes.readback import read_buffer
-from gl_passes.releasable import Releasable, ReleasedOnError, Scratch, grown_buffer
+from gl_passes.releasable import Releasable, ReleasedOnError, Scratch, grown_buffer, release_framebuffer
 from gl_passes.shaders import compute_program, program
 from scenes.lights import shadow_map_camera
 from scenes.model import AreaLight
@@ -321,7 +321,7 @@ class SoftShadowPass(Releasable):
         for buf in self._buffers.values():
             buf.release()
         self._buffers.clear()
-        self.fbo.release()
+        release_framebuffer(self.fbo)
         self.atlas.release()
 
 
@@ -472,11 +472,7 @@ class SoftShadowPass(Releasable):
                 atlas, fbo = self._new_atlas()
                 maps.atlases.append(atlas)
                 with Scratch() as temp:
-                    temp(fbo)
-                    try:
-                        self._render_maps(occluders, cams, first, count, fbo)
-                    finally:
-                        self.fbo.use()  # not the framebuffer released here: moderngl would bind it again
+                    self._render_maps(occluders, cams, first, count, temp(fbo))
             return maps
 
     def lookup(self, maps: ShadowMaps, points: np.ndarray, normals: np.ndarray, mask: np.ndarray) -> ShadowResult:

@@ -18,6 +18,16 @@ def gl():
     ctx.release()
 
 
+@pytest.fixture(autouse=True)
+def _no_gl_error(request):
+    """A test that uses the session's context leaves no GL error behind (glGetError
+    holds the first until read, so it names the test that caused it)."""
+    yield
+    if "gl" in request.fixturenames:
+        error = request.getfixturevalue("gl").ctx.error
+        assert error == "GL_NO_ERROR", f"{request.node.nodeid} left {error} on the session's GL context"
+
+
 @pytest.fixture(scope="session")
 def gbuffer_pass(gl):
     from gl_passes.gbuffer import GBufferPass

@@ -195,12 +195,14 @@ def test_kept_maps_give_the_bits_of_visibility(gl, box_setup, gbuffer_pass):
             sp.lookup(maps, buf.position, buf.normal, buf.tri_id > 0)
 
 
-def test_render_maps_leaves_no_released_framebuffer_bound(gl, box_setup):
-    """render_maps draws each batch into a framebuffer it then releases: moderngl must
-    not be left binding it, or the next pass's clear() before its use() rebinds a
-    deleted framebuffer (GL_INVALID_OPERATION)."""
-    scene, sg, _ = box_setup
-    with SoftShadowPass(gl, ShadowSettings(samples=2, shadow_map_resolution=32)) as sp:
+def test_released_framebuffers_are_not_bound_again(gl, box_setup):
+    """render_maps draws each batch into a framebuffer it then releases, and a pass
+    released after visibility() releases the framebuffer it drew into: moderngl must
+    not be left binding either, or it binds the deleted one again when it next makes
+    a framebuffer or clears one (GL_INVALID_OPERATION; gl_passes.releasable)."""
+    scene, sg, buf = box_setup
+    settings = ShadowSettings(samples=2, shadow_map_resolution=32)
+    with SoftShadowPass(gl, settings) as sp:
         sp.render_maps([sg], scene.bounds, LIGHT).release()
         assert gl.ctx.error == "GL_NO_ERROR"
         target = gl.ctx.depth_texture((8, 8))
@@ -211,6 +213,9 @@ def test_render_maps_leaves_no_released_framebuffer_bound(gl, box_setup):
         finally:
             fbo.release()
             target.release()
+    run(gl, [sg], scene, buf, settings)  # its pass released with its framebuffer bound
+    with SoftShadowPass(gl, settings):
+        assert gl.ctx.error == "GL_NO_ERROR"
 
 
 @pytest.mark.parametrize("degrees", GRAZING_DEGREES)
