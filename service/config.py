@@ -98,7 +98,7 @@ light samples per side, S the shadow-map resolution 1024):
   with reflections ×4 (2×2 supersampling; glossy lobes are traced in fixed-size chunks);
 * soft shadows: the frame + W·H·2·(k²/8 + 8) B of visibility bits + n·r²·
   ``RECONSTRUCTION_BYTES_PER_SAMPLE`` (n = 4 images, none for ``geometry`` and ``raytrace``;
-  336 B per sample: the sample and its offset image, its quad on CPU and GPU)
+  368 B per sample: the sample and its offset image, its quad on CPU and GPU)
   + 2·S²·min(k², 16)·4 B of shadow-map atlas and the integer depth image of the
   same size that a reconstruction's small pieces are rasterised into (kept by the
   worker's pass once made) (not for ``raytrace``);
@@ -151,7 +151,7 @@ FRAME_BYTES_PER_PIXEL = 400
 SET_BYTES_PER_PIXEL = 272
 #: Bytes per reference-image sample of a reconstruction: the sample and its offset
 #: image, its quad (vertices, colours, indices) on the CPU and the GPU, the readback.
-RECONSTRUCTION_BYTES_PER_SAMPLE = 336
+RECONSTRUCTION_BYTES_PER_SAMPLE = 368
 #: Side of each soft-shadow map (gl_passes.shadows.ShadowSettings) and the most maps
 #: rendered at once into one atlas (maps_per_draw), float32 depth.
 SHADOW_MAP_RESOLUTION = 1024

@@ -217,7 +217,7 @@ def test_memory_budget_is_configurable_and_covers_soft_shadows(tmp_path):
         r = c.post(f"/scenes/{CORNELL}/frames", json=frame_body(width=256, height=256))  # 10 MiB
         assert r.status_code == 422 and "over the memory budget of 8.0 MiB" in r.json()["detail"]
         assert c.post(f"/scenes/{CORNELL}/frames", json=frame_body()).status_code == 200
-        shadows = {"soft_shadows": {"samples": 2, "resolution": 256}}  # 4 × 256² × 336 B = 84 MiB
+        shadows = {"soft_shadows": {"samples": 2, "resolution": 256}}  # 4 × 256² × 368 B = 92 MiB
         r = c.post(f"/scenes/{CORNELL}/frames", json=frame_body(width=8, height=8, effects=shadows))
         assert r.status_code == 422 and "4 reconstructed images of 256²" in r.json()["detail"]
         r = c.post(f"/scenes/{CORNELL}/depth-images", json={"width": 128, "height": 128, "metrics": True})
