@@ -12,8 +12,11 @@
   surface (same triangle id, or within `plane_tolerance` pixel footprints of the
   sample's tangent plane and — the depth gate — its depth within 2 ·
   `max_corner_extent` footprints per half pixel between them of the sample's:
-  same_surface in reconstruct_common.glsl), as a vertex shared by every sample taking it (indexed mesh: a
-  continuous surface gives a watertight mesh); otherwise it is the intersection
+  same_surface in reconstruct_common.glsl), as a vertex shared by every sample
+  taking it (indexed mesh: a continuous surface gives a watertight mesh, but where
+  it turns steeper than the gate allows, as a sphere near its outline, a corner
+  splits into two vertices on one camera ray; tests/test_reconstruction.py);
+  otherwise it is the intersection
   of c's camera ray with the sample's tangent plane, with its depth clamped to ±
   `max_corner_extent` pixel footprints of the sample's (grazing planes; Alg. 4
   states no clamp). The clamp defaults to 2 footprints: a corner stays on the

@@ -157,7 +157,8 @@ def test_splat_maps_kept_or_drawn_per_batch_give_the_same_bits(gl):
     assert np.array_equal(drawn.bits, kept.bits)
     shadowed = (triangles.counts < 9).sum()
     assert shadowed > 100 and (drawn.counts < 9).sum() > 100  # the quads shadow the plane in every set of maps
-    assert (drawn.bits != triangles.bits).any(axis=-1).sum() <= 0.02 * shadowed
+    # measured 6 of 780 (0.8 %): points whose texel the rasteriser's sub-pixel snapping decides (see above)
+    assert (drawn.bits != triangles.bits).any(axis=-1).sum() <= 0.012 * shadowed
 
 
 def test_reconstruction_keeps_its_triangles_with_splats(gl):

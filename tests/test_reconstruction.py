@@ -119,32 +119,63 @@ def test_hybrid_plane_is_watertight_and_covers_the_samples(gl):
     pix = quad_pixels(pos, tri, FRONT)
     assert len(np.unique(pix, axis=0)) == len(pix)  # one quad per pixel, no overlap
     assert img.mask[pix[:, 1], pix[:, 0]].all()
+    px = FRONT.project(pos.astype(np.float64))[0]
+    assert np.abs(px - np.rint(px)).max() < 1e-3  # every corner on a pixel corner: each quad spans its pixel
+    a, b, c = (px[tri[:, k]] for k in range(3))
+    u, v = b - a, c - a
+    area = 0.5 * np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]).sum()
+    assert area == pytest.approx(img.n_samples, abs=1e-2)  # square pixels, covered once
 
 
-def test_hybrid_sphere_is_watertight_inside_its_rim(gl):
+def test_hybrid_sphere_is_watertight_but_where_the_depth_gate_splits_its_rim(gl):
+    """Alg. 4's shared H corners: without the depth gate (a rule beyond Alg. 4) the
+    sphere's mesh is watertight, its once-used edges exactly the outline of the
+    sampled pixels, one quad on each. With it (the default) a neighbour of another
+    triangle joins a corner only within 2 · max_corner_extent footprints per half pixel
+    of the sample's depth, so where the sphere turns grazing some corners split into
+    two vertices on one camera ray (measured: 56 corners, at most 2.42 footprints
+    apart), all on the rim (pixels within one pixel of an unsampled one); every
+    other edge is shared by exactly two triangles."""
     sphere = make_object("sphere", uv_sphere((0, 0, 0), 1.2, 32, 64), Material((0.8, 0.2, 0.2)))
-    ss, [(pos, tri)] = reconstruct(gl, Scene([sphere]), [FRONT.with_size(64, 64)])
+    cam = FRONT.with_size(64, 64)
+    ss, [(pos, tri)] = reconstruct(gl, Scene([sphere]), [cam], settings=replace(HYBRID, depth_gate=False))
+    img = ss.images[0]
+    counts = edge_counts(tri)
+    assert len(tri) == 2 * img.n_samples and max(counts.values()) == 2
+    assert sum(1 for c in counts.values() if c == 1) == perimeter(img.mask)
+    pix = quad_pixels(pos, tri, cam)
+    assert len(np.unique(pix, axis=0)) == len(pix) == img.n_samples and img.mask[pix[:, 1], pix[:, 0]].all()
+
+    ss, [(pos, tri)] = reconstruct(gl, Scene([sphere]), [cam])
     img = ss.images[0]
     assert len(tri) == 2 * img.n_samples
     counts = edge_counts(tri)
     assert max(counts.values()) == 2
-    # Once-used edges may only lie on the rim: pixels within one pixel of an unsampled one.
     pad = np.pad(img.mask, 1)
     rim = np.zeros_like(img.mask)
     for dy in (-1, 0, 1):
         for dx in (-1, 0, 1):
             rim |= ~pad[1 + dy:1 + dy + 64, 1 + dx:1 + dx + 64]
-    once = np.array([e for e, c in counts.items() if c == 1])
-    mid = FRONT.with_size(64, 64).project(pos[once].mean(axis=1).astype(np.float64))[0]
-    near = np.floor(mid).astype(int).clip(0, 63)
-    assert rim[near[:, 1], near[:, 0]].all()
     assert (~rim & img.mask).sum() > 1000  # a real interior
+    once = np.array([e for e, c in counts.items() if c == 1])
+    near = np.floor(cam.project(pos[once].mean(axis=1).astype(np.float64))[0]).astype(int).clip(0, 63)
+    assert rim[near[:, 1], near[:, 0]].all()
+    # the split corners: two vertices at one pixel corner (one camera ray), apart in depth
+    px, z = cam.project(pos.astype(np.float64))
+    used = np.unique(tri)
+    at, corner, n_at = np.unique(np.round(px[used], 3), axis=0, return_inverse=True, return_counts=True)
+    corner = corner.ravel()
+    assert n_at.max() <= 2 and (n_at == 2).sum() <= 64
+    for c in np.flatnonzero(n_at == 2):
+        depths = z[used[corner == c]]
+        assert np.ptp(depths) <= 3 * cam.pixel_footprint * depths.mean()  # footprints (measured ≤ 2.42)
+        x, y = np.rint(at[c]).astype(int)
+        assert np.pad(rim, 1, constant_values=True)[y:y + 2, x:x + 2].any()  # a corner of a rim pixel
     # Every vertex is close to the sphere (corners off the rim are H's samples on it).
-    r = np.linalg.norm(pos[np.unique(tri)], axis=1)
-    pix = quad_pixels(pos, tri, FRONT.with_size(64, 64))
+    pix = quad_pixels(pos, tri, cam)
     interior_vertices = np.unique(tri[np.repeat(~rim[pix[:, 1], pix[:, 0]], 2)])
     np.testing.assert_allclose(np.linalg.norm(pos[interior_vertices], axis=1), 1.2, atol=5e-3)
-    assert r.max() < 1.4
+    assert np.linalg.norm(pos[used], axis=1).max() < 1.4
 
 
 def test_isolated_sample_gives_exactly_one_quad(gl):
@@ -154,8 +185,10 @@ def test_isolated_sample_gives_exactly_one_quad(gl):
     assert ss.images[0].n_samples == 1 and ss.offsets[0].n_samples == 0
     assert len(tri) == 2 and len(np.unique(tri)) == 4
     assert quad_pixels(pos, tri, FRONT).tolist() == [[10, 12]]
-    np.testing.assert_allclose(FRONT.project(pos.astype(np.float64))[1], 4.0 * FRONT.basis()[2] @ [0, 0, -1],
-                               rtol=1e-5)
+    px, depth = FRONT.project(pos.astype(np.float64))
+    np.testing.assert_allclose(np.sort(px[:, 0]), [10, 10, 11, 11], atol=1e-3)  # the whole pixel
+    np.testing.assert_allclose(np.sort(px[:, 1]), [12, 12, 13, 13], atol=1e-3)
+    np.testing.assert_allclose(depth, 4.0 * FRONT.basis()[2] @ [0, 0, -1], rtol=1e-5)
     grid = ReconstructionSettings(kind="grid")
     _, [(_, gtri)] = reconstruct(gl, Scene([patch]), [FRONT], settings=grid)
     assert len(gtri) == 0  # the grid baseline drops it
@@ -200,6 +233,17 @@ def test_fig17_corner_cases(gl):
     assert shared((20, 20)) == 0 and len(np.unique(quads[(20, 20)])) == 4  # S_5
     # 8 L pixels' shared lattice corners (16 − 2 outside) + 1 private + 4 isolated.
     assert len(np.unique(tri)) == 14 + 1 + 4
+    # Where the corners are: the L's on the lattice corners 2..5 at its depth, (4, 3)'s private
+    # one at (5, 3) on its tangent plane (the L's plane), the isolated quad spanning pixel (20, 20).
+    px, depth = FRONT.project(pos.astype(np.float64))
+    assert np.abs(px - np.rint(px)).max() < 1e-3
+    at = {tuple(np.rint(p).astype(int)): d for p, d in zip(px, depth, strict=True)}
+    l_corners = {(x, y) for x in range(2, 6) for y in range(2, 6)} - {(5, 2)}
+    assert set(at) == l_corners | {(x, y) for x in (20, 21) for y in (20, 21)}
+    for (x, _), d in at.items():
+        assert d == pytest.approx((3.0 if x >= 20 else 4.0) * FRONT.basis()[2] @ [0, 0, -1], rel=1e-5)
+    private = [i for i in np.unique(quads[(4, 3)]) if refs[i] == sum(int(i in t) for t in quads[(4, 3)])]
+    assert [tuple(np.rint(px[i]).astype(int)) for i in private] == [(5, 3)]
 
 
 def grazing_sliver(depth: float = 4.0, turn_deg: float = 85.0) -> tuple[SceneObject, float, float]:
@@ -347,17 +391,24 @@ def test_offset_evidence_pulls_a_corner_its_own_offset_ray_saw_past(gl):
 
 # --- NR: no surface covered twice -------------------------------------------------------
 
-def overdraw(meshes: list[tuple[np.ndarray, np.ndarray]], view: Camera) -> float:
-    """Fraction of `view`'s rays hitting reconstruction surface whose nearest hit
-    is matched (within 1e-3 relative depth) by a second mesh: surface covered twice."""
+def ray_hits(meshes: list[tuple[np.ndarray, np.ndarray]], view: Camera) -> np.ndarray:
+    """(meshes, pixels) distance along each of `view`'s pixel rays to each mesh's
+    front faces (inf: a miss; an empty mesh misses every ray)."""
     d = view.pixel_directions().reshape(-1, 3)
     ts = []
     for pos, tri in meshes:
         if len(tri) == 0:
+            ts.append(np.full(len(d), np.inf))
             continue
         obj = SceneObject("m", pos.astype(np.float64), tri.astype(np.int64), material=Material((1, 1, 1)))
         ts.append(RayCaster(Scene([obj])).cast_from(view.eye, d).t)  # front faces only
-    t = np.stack(ts)
+    return np.stack(ts)
+
+
+def overdraw(meshes: list[tuple[np.ndarray, np.ndarray]], view: Camera) -> float:
+    """Fraction of `view`'s rays hitting reconstruction surface whose nearest hit
+    is matched (within 1e-3 relative depth) by a second mesh: surface covered twice."""
+    t = ray_hits(meshes, view)
     near = t.min(axis=0)
     hit = np.isfinite(near)
     t, near = t[:, hit], near[hit]
@@ -374,7 +425,14 @@ def test_nr_reconstruction_does_not_cover_a_surface_twice(gl):
     nr_twice, conv_twice = overdraw(nr, mid), overdraw(conv, mid)
     print(f"overdraw: NR {nr_twice:.4f}, conventional {conv_twice:.4f}")
     assert conv_twice > 0.3  # both conventional images hold A's and D's fronts
-    assert nr_twice < 0.03  # only texel-granularity fringes (Alg. 3) overlap
+    assert nr_twice < 0.012  # only texel-granularity fringes (Alg. 3) overlap (measured 0.0089)
+    # ...and NR drops no surface for it: both its images add some, and the middle view sees
+    # the conventional set's surface through NR's but for fringes (measured 0.0001 of its rays)
+    assert all(len(tri) > 0 for _, tri in nr)
+    nr_hit, conv_hit = (np.isfinite(ray_hits(m, mid)).any(axis=0) for m in (nr, conv))
+    assert conv_hit.mean() > 0.3 and (conv_hit & ~nr_hit).mean() < 0.001
+    alone = np.isfinite(ray_hits(nr[:1], mid)[0])
+    assert (conv_hit & ~alone).mean() > 0.01  # the second NR image holds surface the first lacks
 
 
 # --- baselines, compact, export, leaks ----------------------------------------------
@@ -414,7 +472,11 @@ def test_compact_keeps_the_surface_within_its_bound(gl):
     cos = np.abs(d[both] @ cam.basis()[2])
     depth = th[both] * cos
     err = np.abs(tc[both] - th[both]) * cos
-    assert np.quantile(err / (e * f * depth**2 / median), 0.99) <= 3  # distance along a ray ≥ the normal one
+    ratio = err / (e * f * depth**2 / median)  # along a ray: ≥ the normal distance the bound is on
+    print(f"compact error / bound along the rays: q90 {np.quantile(ratio, 0.9):.2f}, "
+          f"q99 {np.quantile(ratio, 0.99):.2f}, max {ratio.max():.2f}")
+    # measured q90 1.02 (at grazing angles a ray's distance exceeds the normal one), q99 1.95, max 4.25
+    assert np.quantile(ratio, 0.9) <= 1.2 and np.quantile(ratio, 0.99) <= 2.5 and ratio.max() <= 6
     # ...and its outline moves less than a pixel across the image: a pixel centre covered by one
     # mesh and not the other lies next to (8-neighbourhood) a change of the hybrid's coverage.
     hc, cc = (np.isfinite(t).reshape(cam.height, cam.width) for t in (th, tc))
@@ -539,13 +601,18 @@ def test_glb_has_one_node_per_image_with_vertex_colours(gl):
     meshes = reconstruct_set(gl, ss, HYBRID)
     try:
         glb = export_glb(meshes)
-        n_tri = [m.n_triangles for m in meshes]
+        arrays = [mesh_arrays(m) for m in meshes]
     finally:
         for m in meshes:
             m.release()
-    loaded = trimesh.load(io.BytesIO(glb), file_type="glb")
+    loaded = trimesh.load(io.BytesIO(glb), file_type="glb", process=False)
     assert sorted(loaded.graph.nodes_geometry) == ["image_0", "image_1"]
-    assert sorted(len(g.faces) for g in loaded.geometry.values()) == sorted(n_tri)
+    for k, (pos, tri) in enumerate(arrays):  # each node holds its image's mesh, triangle for triangle
+        transform, name = loaded.graph[f"image_{k}"]
+        g = loaded.geometry[name]
+        assert len(tri) > 0 and np.allclose(transform, np.eye(4))
+        np.testing.assert_array_equal(triangle_rows(np.asarray(g.vertices, np.float32), g.faces),
+                                      triangle_rows(pos, tri))
     # COLOR_0 beside the sample material (trimesh keeps it as a vertex attribute then)
     colors = np.concatenate([g.visual.vertex_attributes["color"] for g in loaded.geometry.values()])
     assert colors[:, :3].max() > 100  # real shading colours, not the default grey/white

@@ -134,7 +134,7 @@ def test_a_light_far_larger_than_the_scene_matches_embree(gl, box_setup):
     truth = light_visibility(RayCaster(scene), buf.position, buf.normal, mask, huge, SMALL.samples)
     err = shadow_errors(r.bits, truth, mask)
     assert 0 < (popcount_words(truth)[mask] < SMALL.samples ** 2).mean() < 1  # some shadow, some light
-    assert err.visibility_mean <= 0.05, err
+    assert err.visibility_mean <= 0.015, err  # measured 0.0089 (a fully lit result: 0.64)
 
 
 class _DrawOnly:
