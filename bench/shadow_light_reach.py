@@ -127,7 +127,7 @@ def report(data: dict[str, Any]) -> str:
         f"k = {a['samples']} ({a['samples'] ** 2} light samples), shadow maps {a['res']}².",
         "Error: mean |visible samples of the geometry shadow maps − Embree's exact count| over the scene's pixels.",
         f"Rules: AXIS_FOV_MAX {data['axis_fov_max']:g}°, SHADOW_MAP_FOV_MAX {data['shadow_map_fov_max']:g}° "
-        f"(`scenes.lights.shadow_map_camera`), MAX_LIGHT_REACH {data.get('max_light_reach', 'none')} scene "
+        f"(`scenes.lights.shadow_map_camera`), MAX_LIGHT_REACH {data['max_light_reach']:g} scene "
         "diagonals (`scenes.lights.light_reach_problem`)."], data["seconds"], data["machine"])
     size = md_table(["light edge (m)", "along the axis: widest map", "error", "default rule: widest map", "error"],
                     [[f"{r['size_m']:g}", f"{r['axis']['widest_fov']:.1f}°", f"{r['axis']['error']:.3f}",
@@ -135,13 +135,12 @@ def report(data: dict[str, Any]) -> str:
     height = md_table(["height above the cube (cm)", "widest map", "error", "the service"],
                       [[f"{100 * r['height_m']:g}", f"{r['widest_fov']:.2f}°", f"{r['error']:.3f}",
                         "422 (refused)" if r["refused"] else "renders"] for r in rows["height"]])
-    far = rows.get("distance", [])
-    names = list(dict.fromkeys(r.get("scene", "cube_on_slab") for r in far))
+    far = {(r["scene"], r["diagonals"]): r for r in rows["distance"]}
+    names = list(dict.fromkeys(name for name, _ in far))
     distance = md_table(["distance (scene diagonals)", *(f"error, {n}" for n in names), "the service"],
-                        [[f"{d:g}", *(f"{r['error']:.3f}" for n in names for r in far
-                                      if r.get("scene", "cube_on_slab") == n and r["diagonals"] == d),
-                          "422 (refused)" if d > data.get("max_light_reach", float("inf")) else "renders"]
-                         for d in dict.fromkeys(r["diagonals"] for r in far)])
+                        [[f"{d:g}", *(f"{far[n, d]['error']:.3f}" for n in names),
+                          "422 (refused)" if far[names[0], d]["refused"] else "renders"]
+                         for d in dict.fromkeys(d for _, d in far)])
     return "\n".join([*head, "## A light 4 m above the cube, edge growing", "",
                       "Maps along the light's axis need nearly 180° from the far samples; looking at the box "
                       "instead keeps them narrow.", "", size, "",

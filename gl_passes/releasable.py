@@ -43,14 +43,8 @@ def release_framebuffer(fbo: moderngl.Framebuffer) -> None:
     current one: moderngl binds its current framebuffer again after it makes a
     framebuffer or clears or reads another, and binding a deleted one is
     GL_INVALID_OPERATION."""
-    ctx = fbo.ctx
-    if ctx.fbo is fbo:
-        if not isinstance(ctx.extra, dict):
-            ctx.extra = {}
-        default = ctx.extra.get("default_framebuffer")
-        if default is None:
-            default = ctx.extra["default_framebuffer"] = ctx.detect_framebuffer(0)
-        default.use()
+    if fbo.ctx.fbo is fbo:
+        fbo.ctx.detect_framebuffer(0).use()
     fbo.release()
 
 

@@ -166,11 +166,12 @@ def test_hybrid_sphere_is_watertight_but_where_the_depth_gate_splits_its_rim(gl)
     at, corner, n_at = np.unique(np.round(px[used], 3), axis=0, return_inverse=True, return_counts=True)
     corner = corner.ravel()
     assert n_at.max() <= 2 and (n_at == 2).sum() <= 64
+    rim_around = np.pad(rim, 1, constant_values=True)  # pixel corner (x, y) touches rows y..y+1, columns x..x+1
     for c in np.flatnonzero(n_at == 2):
         depths = z[used[corner == c]]
         assert np.ptp(depths) <= 3 * cam.pixel_footprint * depths.mean()  # footprints (measured ≤ 2.42)
         x, y = np.rint(at[c]).astype(int)
-        assert np.pad(rim, 1, constant_values=True)[y:y + 2, x:x + 2].any()  # a corner of a rim pixel
+        assert rim_around[y:y + 2, x:x + 2].any()  # a corner of a rim pixel
     # Every vertex is close to the sphere (corners off the rim are H's samples on it).
     pix = quad_pixels(pos, tri, cam)
     interior_vertices = np.unique(tri[np.repeat(~rim[pix[:, 1], pix[:, 0]], 2)])
