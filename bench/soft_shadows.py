@@ -215,7 +215,8 @@ GAP_SETTING_SWEEPS: tuple[tuple[str, tuple[float, ...]], ...] = (
 #: The reconstruction's rules beyond Alg. 4, added one at a time (gap part; the last is the default).
 RECONSTRUCTION_STEPS: tuple[tuple[str, dict[str, bool]], ...] = (
     ("Alg. 4 as printed", {"depth_gate": False, "join_corners": False, "evidence": False}),
-    ("+ depth gate", {"join_corners": False, "evidence": False}),
+    ("+ depth gate", {"smooth_surfaces": False, "join_corners": False, "evidence": False}),
+    ("+ smooth surfaces", {"join_corners": False, "evidence": False}),
     ("+ joined corners", {"evidence": False}),
     ("+ evidence (default)", {}),
 )
@@ -670,7 +671,10 @@ def gap_report(gap: dict[str, Any]) -> list[str]:
               "`gl_passes.reconstruction`: the **depth gate** (a neighbour of another triangle counts as the "
               "sample's surface only within the corner clamp's depth as well: near a grazing tangent plane every "
               "point along a corner ray is near the plane, so Alg. 4's plane test alone took far surfaces as "
-              "corners, fins along the view ray), **joined corners** (same-surface neighbours share their "
+              "corners, fins along the view ray), **smooth surfaces** (the gate does not apply where both lie on "
+              "one smooth surface, normals within 18° and each in the other's tangent plane: a curved surface "
+              "turning grazing, a sphere near its outline, whose true depth runs past the clamp; with the gate "
+              "alone its corners split there), **joined corners** (same-surface neighbours share their "
               "tangent-plane corners: a blade or twig narrower than a pixel becomes one connected strip instead "
               "of a row of separate quads) and **evidence** (a later image's tangent-plane corner is pulled "
               "toward its samples where an earlier image of the set saw past it, to the expected edge between "
@@ -975,10 +979,11 @@ def reading(data: dict[str, dict[str, Any]]) -> list[str]:
                    "samples where the earlier images' pixel centres missed a surface (Alg. 3), so the union of "
                    "four independently rounded outlines is wider than the surface (for n images the outline "
                    "moves out by E[max of n uniform roundings] − ½ px: ⅙ px for two, 0.3 px for four), most of "
-                   "all on grass, whose blades are about a pixel wide. Three rules beyond Alg. 4 "
+                   "all on grass, whose blades are about a pixel wide. Rules beyond Alg. 4 "
                    "(`gl_passes.reconstruction`, gap table \"one at a time\") take it back: too-dark light "
-                   f"samples per pixel of NR (k = {k}), as printed → + depth gate → + joined corners → "
-                   f"+ evidence: {walk('non_redundant', 'too_dark_mean')}; too bright: "
+                   f"samples per pixel of NR (k = {k}), "
+                   + " → ".join(n.removesuffix(" (default)") for n in names) + ": "
+                   f"{walk('non_redundant', 'too_dark_mean')}; too bright: "
                    f"{walk('non_redundant', 'too_bright_mean')}. Mean visibility error of NR from Alg. 4 as "
                    "printed to the default: " + ", ".join(f"{s} {nr0[s]:.2f} → {nr1[s]:.2f} (peeling "
                                                            f"{pl1[s]:.2f})" for s in steps) + ".")

@@ -11,11 +11,10 @@
   its pixel. Corner c comes from H where H's sample at c lies on the sample's
   surface (same triangle id, or within `plane_tolerance` pixel footprints of the
   sample's tangent plane and — the depth gate — its depth within 2 ·
-  `max_corner_extent` footprints per half pixel between them of the sample's:
-  same_surface in reconstruct_common.glsl), as a vertex shared by every sample
-  taking it (indexed mesh: a continuous surface gives a watertight mesh, but where
-  it turns steeper than the gate allows, as a sphere near its outline, a corner
-  splits into two vertices on one camera ray; tests/test_reconstruction.py);
+  `max_corner_extent` footprints per half pixel between them of the sample's,
+  unless both lie on one smooth surface: same_surface in reconstruct_common.glsl),
+  as a vertex shared by every sample taking it (indexed mesh: a continuous surface
+  gives a watertight mesh, a sphere included; tests/test_reconstruction.py);
   otherwise it is the intersection
   of c's camera ray with the sample's tangent plane, with its depth clamped to ±
   `max_corner_extent` pixel footprints of the sample's (grazing planes; Alg. 4
@@ -28,7 +27,13 @@
   along the view ray, which light samples away from the capturing eye see
   broadside (bench/results/soft_shadows.md, "Reference cameras and the corner
   clamp"); the depth gate keeps H from bringing the same fin back: near a grazing
-  tangent plane every point along the corner ray is near the plane. Every corner
+  tangent plane every point along the corner ray is near the plane. A smooth
+  surface passes the gate (`smooth_surfaces`): where the neighbour's normal is
+  within 18° of the sample's (cosine 0.95) and each lies within `plane_tolerance`
+  footprints of the other's tangent plane, as on a sphere turning grazing near its
+  outline, whose true depth runs past the clamp (with the gate alone such a corner
+  splits into two vertices on one camera ray: the mesh is not watertight there);
+  the far surface behind a grazing sample faces another way. Every corner
   lies on its pixel corner's camera ray, so each quad covers exactly its pixel as
   seen from I's camera.
   Beyond Alg. 4 (each a `ReconstructionSettings` flag, on by default; their
@@ -120,7 +125,10 @@ class ReconstructionSettings:
     tangent-plane corner's depth, in pixel footprints (see the module docstring).
     depth_gate: a neighbour of another triangle is on the surface only within
     2 · max_corner_extent footprints per half pixel of separation of the sample's
-    depth as well (reconstruct_common.glsl, same_surface). join_corners:
+    depth as well (reconstruct_common.glsl, same_surface). smooth_surfaces: ...
+    unless both lie on one smooth surface (normals within 18°, each within
+    plane_tolerance of the other's tangent plane; see the module docstring).
+    join_corners:
     same-surface neighbours share their tangent-plane corners. evidence: corners
     are pulled in where an earlier image of the set saw past them, judged with
     evidence_tolerance of that image's pixel footprints (see the module docstring).
@@ -151,6 +159,7 @@ class ReconstructionSettings:
     plane_tolerance: float = 1.0
     max_corner_extent: float = 2.0
     depth_gate: bool = True
+    smooth_surfaces: bool = True
     join_corners: bool = True
     evidence: bool = True
     evidence_tolerance: float = 2.0
@@ -246,6 +255,7 @@ class Reconstructor(Releasable):
         set_uniform(prog, "u_plane_tol", float(settings.plane_tolerance))
         set_uniform(prog, "u_max_extent", float(settings.max_corner_extent))
         set_uniform(prog, "u_depth_gate", bool(settings.depth_gate))
+        set_uniform(prog, "u_smooth", bool(settings.smooth_surfaces))
         set_uniform(prog, "u_join", bool(settings.join_corners))
         set_uniform(prog, "u_offset_quads", float(settings.offset_quads))
         set_uniform(prog, "u_offset_evidence", float(settings.offset_evidence))

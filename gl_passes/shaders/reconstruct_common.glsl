@@ -15,8 +15,10 @@ uniform vec3 u_forward;        // unit view direction
 uniform float u_plane_tol;     // same-surface tolerance, in pixel footprints at the sample
 uniform float u_max_extent;    // depth clamp of tangent-plane corners, in pixel footprints
 uniform bool u_depth_gate;     // other triangles: within u_max_extent footprints of depth too
+uniform bool u_smooth;         // ... unless both lie on one smooth surface (SMOOTH_COS)
 
 const float CORNER_REACH = 0.70710678;  // pixels from a pixel centre to its corners
+const float SMOOTH_COS = 0.95;          // normals within 18° of each other: one smooth surface
 const ivec2 CORNER[4] = ivec2[4](ivec2(0, 0), ivec2(1, 0), ivec2(1, 1), ivec2(0, 1));
 
 struct Vertex { vec3 position; uint rgba; };
@@ -41,12 +43,23 @@ float footprint(vec3 p) {
 // differs from s's by at most what the tangent-plane corners' clamp allows over
 // that distance (u_max_extent footprints per half pixel): near a grazing plane
 // every point along the ray is near the plane, and this keeps a far surface out.
+// The gate does not apply (u_smooth) where s and q lie on one smooth surface: their
+// normals within SMOOTH_COS, and each within u_plane_tol footprints of the other's
+// tangent plane (a curved surface turning grazing, a sphere near its outline, whose
+// true depth runs past the clamp; a far surface behind a grazing sample faces
+// another way).
 bool same_surface(Sample s, Sample q, float reach) {
     if (!q.valid) return false;
     if (q.tri == s.tri) return true;
     float fp = footprint(s.position);
-    if (u_depth_gate && abs(dot(q.position - s.position, u_forward)) > 2.0 * reach * u_max_extent * fp) return false;
-    return abs(dot(s.normal, q.position - s.position)) <= u_plane_tol * fp;
+    vec3 d = q.position - s.position;
+    bool in_plane = abs(dot(s.normal, d)) <= u_plane_tol * fp;
+    if (u_depth_gate && abs(dot(d, u_forward)) > 2.0 * reach * u_max_extent * fp) {
+        bool smooth_ = u_smooth && in_plane && dot(s.normal, q.normal) >= SMOOTH_COS
+            && abs(dot(q.normal, d)) <= u_plane_tol * footprint(q.position);
+        if (!smooth_) return false;
+    }
+    return in_plane;
 }
 
 void emit_vertex(uint index, vec3 position, uint rgba) {
