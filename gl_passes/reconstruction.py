@@ -33,7 +33,9 @@
   footprints of the other's tangent plane, as on a sphere turning grazing near its
   outline, whose true depth runs past the clamp (with the gate alone such a corner
   splits into two vertices on one camera ray: the mesh is not watertight there);
-  the far surface behind a grazing sample faces another way. Every corner
+  the far surface behind a grazing sample faces another way. A surface in the
+  sample's plane but apart from it passes too, as it passes Alg. 4's plane test
+  without the gate (the gap tables measure the rule's effect). Every corner
   lies on its pixel corner's camera ray, so each quad covers exactly its pixel as
   seen from I's camera.
   Beyond Alg. 4 (each a `ReconstructionSettings` flag, on by default; their

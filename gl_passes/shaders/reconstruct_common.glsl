@@ -47,7 +47,7 @@ float footprint(vec3 p) {
 // normals within SMOOTH_COS, and each within u_plane_tol footprints of the other's
 // tangent plane (a curved surface turning grazing, a sphere near its outline, whose
 // true depth runs past the clamp; a far surface behind a grazing sample faces
-// another way).
+// another way, and one in s's plane but apart from it passes, as without the gate).
 bool same_surface(Sample s, Sample q, float reach) {
     if (!q.valid) return false;
     if (q.tri == s.tri) return true;
