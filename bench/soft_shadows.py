@@ -573,6 +573,12 @@ def _vis(run: dict[str, Any], method: str, kind: str = "hybrid", truth: str = "v
     return e["intensity_mean"], e["visibility_mean"]
 
 
+def fig20_before_smooth_surfaces(f20: dict[str, Any]) -> bool:
+    """Whether a saved Fig. 20 run predates `ReconstructionSettings.smooth_surfaces`
+    (its arguments do not record it; `_save`), which the report then says."""
+    return "smooth_surfaces" not in f20["args"]
+
+
 def criteria(data: dict[str, dict[str, Any]]) -> list[str]:
     """The issue's done-when criteria, evaluated on the measured JSON (Table 8 and Fig. 20)."""
     t8, f20 = data["table8"], data["fig20"].get("grass")
@@ -615,7 +621,7 @@ def criteria(data: dict[str, dict[str, Any]]) -> list[str]:
             cell = "—" if c is None else f"{c:,.0f} triangles"
             if both:
                 cell += f"; {'—' if fast is None else f'{fast:,.0f}'} against the faster original"
-            if "smooth_surfaces" not in f20["args"]:
+            if fig20_before_smooth_surfaces(f20):
                 cell += " (measured before the smooth-surface rule: Fig. 20)"
             below = fast is not None and fast < 1e6
             rows.append([f"Fig. 20 crossover, NR {kind}", cell, "below 1 M" if below else "not below 1 M"])
@@ -1439,7 +1445,7 @@ def write_report(data: dict[str, dict[str, Any]], info: dict[str, Any] | None) -
                   f"in turn; NR reconstructions of 4 images at {f20['args']['ref_res']}²"
                   + ("; the compact one also at the other bounds of the compact bound section, timed in the same "
                      "rounds" if "compact_bounds" in lv[0] else "") + ".", ""]
-        if "smooth_surfaces" not in f20["args"]:
+        if fig20_before_smooth_surfaces(f20):
             lines += ["These levels were measured before the smooth-surface rule "
                       "(`ReconstructionSettings.smooth_surfaces`), which the other parts of this report use: the "
                       "hybrid meshes have as many triangles with it (two per sample), the compact ones slightly "

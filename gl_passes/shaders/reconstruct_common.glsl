@@ -53,13 +53,10 @@ bool same_surface(Sample s, Sample q, float reach) {
     if (q.tri == s.tri) return true;
     float fp = footprint(s.position);
     vec3 d = q.position - s.position;
-    bool in_plane = abs(dot(s.normal, d)) <= u_plane_tol * fp;
-    if (u_depth_gate && abs(dot(d, u_forward)) > 2.0 * reach * u_max_extent * fp) {
-        bool smooth_ = u_smooth && in_plane && dot(s.normal, q.normal) >= SMOOTH_COS
-            && abs(dot(q.normal, d)) <= u_plane_tol * footprint(q.position);
-        if (!smooth_) return false;
-    }
-    return in_plane;
+    if (abs(dot(s.normal, d)) > u_plane_tol * fp) return false;
+    if (!u_depth_gate || abs(dot(d, u_forward)) <= 2.0 * reach * u_max_extent * fp) return true;
+    return u_smooth && dot(s.normal, q.normal) >= SMOOTH_COS
+        && abs(dot(q.normal, d)) <= u_plane_tol * footprint(q.position);
 }
 
 void emit_vertex(uint index, vec3 position, uint rgba) {
